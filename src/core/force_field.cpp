@@ -1,0 +1,89 @@
+#include "core/force_field.h"
+
+#include <cmath>
+#include <sstream>
+
+#include "core/error.h"
+
+namespace cellforce {
+namespace {
+
+const PairOverride* find_override(const ForceField& ff, std::size_t a, std::size_t b) {
+  for (const auto& o : ff.overrides)
+    if ((o.a == a && o.b == b) || (o.a == b && o.b == a)) return &o;
+  return nullptr;
+}
+
+void check_lj_value(double v, const std::string& what) {
+  if (!std::isfinite(v) || v < 0.0) {
+    std::ostringstream s;
+    s << what << " is " << v << "; it must be finite and >= 0";
+    throw Error(s.str());
+  }
+}
+
+}  // namespace
+
+double ForceField::pair_sigma(std::size_t a, std::size_t b) const {
+  if (const auto* o = find_override(*this, a, b)) return o->sigma;
+  const double sa = types[a].sigma, sb = types[b].sigma;
+  return mixing == Mixing::kLorentzBerthelot ? 0.5 * (sa + sb) : std::sqrt(sa * sb);
+}
+
+double ForceField::pair_epsilon(std::size_t a, std::size_t b) const {
+  if (const auto* o = find_override(*this, a, b)) return o->epsilon;
+  return std::sqrt(types[a].epsilon * types[b].epsilon);
+}
+
+void ForceField::validate() const {
+  if (!std::isfinite(cutoff) || cutoff <= 0.0) {
+    std::ostringstream s;
+    s << "cutoff is " << cutoff << "; it must be finite and > 0";
+    throw Error(s.str());
+  }
+  if (types.empty()) throw Error("the force field has no particle types");
+  for (const auto& t : types) {
+    check_lj_value(t.sigma, "sigma of type '" + t.name + "'");
+    check_lj_value(t.epsilon, "epsilon of type '" + t.name + "'");
+  }
+  for (const auto& o : overrides) {
+    if (o.a >= types.size() || o.b >= types.size()) {
+      std::ostringstream s;
+      s << "pair override (" << o.a << ", " << o.b << ") names a type index beyond the "
+        << types.size() << " types";
+      throw Error(s.str());
+    }
+    const std::string pair = "pair '" + types[o.a].name + "'-'" + types[o.b].name + "'";
+    check_lj_value(o.sigma, "sigma of " + pair);
+    check_lj_value(o.epsilon, "epsilon of " + pair);
+  }
+}
+
+template <class Real>
+std::vector<LJParams<Real>> make_pair_table(const ForceField& ff) {
+  const std::size_t nt = ff.num_types();
+  std::vector<LJParams<Real>> table(nt * nt);
+  for (std::size_t a = 0; a < nt; ++a)
+    for (std::size_t b = 0; b < nt; ++b)
+      table[a * nt + b] =
+          make_lj_params<Real>(ff.pair_sigma(a, b), ff.pair_epsilon(a, b), ff.cutoff, ff.mode);
+  return table;
+}
+
+template std::vector<LJParams<float>> make_pair_table<float>(const ForceField&);
+template std::vector<LJParams<double>> make_pair_table<double>(const ForceField&);
+
+const char* to_string(CutoffMode mode) {
+  switch (mode) {
+    case CutoffMode::kTruncate: return "truncate";
+    case CutoffMode::kShift: return "shift";
+    case CutoffMode::kForceShift: return "force-shift";
+  }
+  return "?";
+}
+
+const char* to_string(Mixing mixing) {
+  return mixing == Mixing::kLorentzBerthelot ? "lorentz-berthelot" : "geometric";
+}
+
+}  // namespace cellforce

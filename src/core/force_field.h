@@ -1,0 +1,52 @@
+// Lennard-Jones parameters of a scene: particle types, mixing rule, explicit pair values, cutoff
+// and cutoff mode, and the per-pair table that the pair evaluator reads.
+#pragma once
+
+#include <cstddef>
+#include <string>
+#include <vector>
+
+#include "core/lj.h"
+
+namespace cellforce {
+
+enum class Mixing : uint8_t {
+  kLorentzBerthelot,  // sigma_ij = (sigma_i + sigma_j) / 2, eps_ij = sqrt(eps_i eps_j)
+  kGeometric,         // sigma_ij = sqrt(sigma_i sigma_j),   eps_ij = sqrt(eps_i eps_j)
+};
+
+struct ParticleType {
+  std::string name;
+  double sigma = 1.0;    // length units
+  double epsilon = 1.0;  // energy units
+};
+
+// An explicit pair value that replaces the mixing rule (e.g. Kob-Andersen's A-B pair).
+struct PairOverride {
+  std::size_t a = 0, b = 0;  // type indices
+  double sigma = 1.0;
+  double epsilon = 1.0;
+};
+
+struct ForceField {
+  double cutoff = 2.5;
+  CutoffMode mode = CutoffMode::kTruncate;
+  Mixing mixing = Mixing::kLorentzBerthelot;
+  std::vector<ParticleType> types = {ParticleType{"A", 1.0, 1.0}};
+  std::vector<PairOverride> overrides;
+
+  std::size_t num_types() const { return types.size(); }
+  double pair_sigma(std::size_t a, std::size_t b) const;
+  double pair_epsilon(std::size_t a, std::size_t b) const;
+  // Throws cellforce::Error naming the offending parameter (cutoff, type name, override).
+  void validate() const;
+};
+
+// num_types x num_types table, row-major, symmetric.
+template <class Real>
+std::vector<LJParams<Real>> make_pair_table(const ForceField& ff);
+
+const char* to_string(CutoffMode mode);
+const char* to_string(Mixing mixing);
+
+}  // namespace cellforce

@@ -1,0 +1,146 @@
+// Grid planning: picks cell counts that satisfy the conditions of spatial-subdivision.md, and
+// refuses grids that do not.
+#include "core/grid.h"
+
+#include <algorithm>
+#include <bit>
+#include <limits>
+#include <sstream>
+
+#include "core/error.h"
+
+namespace cellforce {
+namespace {
+
+constexpr const char* kAxisName[kMaxDim] = {"x", "y", "z"};
+
+// Lower corner and extent of the particles along an open axis.
+void bounding_interval(const double* positions, std::size_t n, int dim, int a, double& lo,
+                       double& extent) {
+  double mn = std::numeric_limits<double>::infinity();
+  double mx = -mn;
+  for (std::size_t i = 0; i < n; ++i) {
+    mn = std::min(mn, positions[i * dim + a]);
+    mx = std::max(mx, positions[i * dim + a]);
+  }
+  if (n == 0) mn = mx = 0.0;
+  lo = mn;
+  extent = mx - mn;
+}
+
+// Fills the derived fields (inverse edges, half-width in cell units, cell count, key width).
+void finish(Grid& g) {
+  uint64_t cells = 1;
+  for (int a = 0; a < kMaxDim; ++a) {
+    g.inv_cell[a] = 1.0 / g.cell[a];
+    g.half_width_cells[a] = a < g.dim ? g.half_width * g.inv_cell[a] : 0.0;
+    cells *= g.n[a];
+  }
+  if (cells > kMaxCells) throw Error("grid of " + std::to_string(cells) + " cells exceeds the limit");
+  g.num_cells = uint32_t(cells);
+  // Valid keys are < 2 * num_cells; an invalid entry masked to key_bits is 2^key_bits - 1, which
+  // must stay above every valid key so that invalid entries sort last.
+  g.key_bits = int(std::bit_width(uint64_t(2) * cells));
+}
+
+void set_axis_geometry(Grid& g, const Box& box, int a, uint32_t n, double lo, double extent,
+                       double min_edge) {
+  g.n[a] = n;
+  if (box.periodic[a]) {
+    g.origin[a] = 0.0;
+    g.cell[a] = box.length[a] / n;
+    g.length[a] = box.length[a];
+    g.inv_length[a] = 1.0 / box.length[a];
+  } else {
+    g.origin[a] = lo;
+    g.cell[a] = std::max(extent / n, min_edge);
+    g.length[a] = 0.0;
+    g.inv_length[a] = 0.0;
+  }
+}
+
+}  // namespace
+
+double min_cell_edge(CellRule rule, double cutoff, double half_width) {
+  return rule == CellRule::kTight ? cutoff + half_width : 3.0 * half_width;
+}
+
+Grid plan_grid(const Box& box, double cutoff, const double* positions, std::size_t n_particles,
+               const GridOptions& options) {
+  Grid g;
+  g.dim = box.dim;
+  g.half_width = options.half_width_factor * cutoff;
+  const double min_edge = std::max(min_cell_edge(options.rule, cutoff, g.half_width),
+                                   2.0 * g.half_width);
+  double lo[kMaxDim] = {0, 0, 0}, extent[kMaxDim] = {0, 0, 0};
+  uint32_t n[kMaxDim] = {1, 1, 1};
+  for (int a = 0; a < box.dim; ++a) {
+    if (box.periodic[a]) {
+      extent[a] = box.length[a];
+      double count = std::floor(box.length[a] / min_edge);
+      count = std::min(count, double(kMaxCells));
+      uint64_t m = count < 1 ? 1 : uint64_t(count);
+      while (m > 1 && box.length[a] / double(m) < min_edge) --m;  // rounding at the boundary
+      if (m % 2 == 1) m = m - 1;  // the parity pattern must tile the box
+      n[a] = uint32_t(std::max<uint64_t>(m, 1));
+    } else {
+      bounding_interval(positions, n_particles, box.dim, a, lo[a], extent[a]);
+      const double count = std::min(std::floor(extent[a] / min_edge), double(kMaxCells));
+      n[a] = uint32_t(std::max(count, 1.0));
+    }
+  }
+  // Coarsen the axis with the most cells until the grid fits the key (a dilute scene in a huge
+  // open box); a larger cell keeps every condition.
+  auto total = [&] { return uint64_t(n[0]) * n[1] * n[2]; };
+  while (total() > kMaxCells) {
+    int a = int(std::max_element(n, n + box.dim) - n);
+    uint32_t m = n[a] / 2;
+    if (box.periodic[a] && m > 1 && m % 2 == 1) --m;
+    n[a] = std::max<uint32_t>(m, 1);
+  }
+  for (int a = 0; a < box.dim; ++a) set_axis_geometry(g, box, a, n[a], lo[a], extent[a], min_edge);
+  finish(g);
+  return g;
+}
+
+Grid make_grid_unchecked(const Box& box, const uint32_t cells[kMaxDim], double half_width,
+                         const double* positions, std::size_t n_particles) {
+  Grid g;
+  g.dim = box.dim;
+  g.half_width = half_width;
+  for (int a = 0; a < box.dim; ++a) {
+    double lo = 0, extent = 0;
+    if (!box.periodic[a]) bounding_interval(positions, n_particles, box.dim, a, lo, extent);
+    set_axis_geometry(g, box, a, std::max<uint32_t>(cells[a], 1), lo, extent, 0.0);
+    if (!box.periodic[a] && g.cell[a] <= 0) g.cell[a] = 1.0;  // all particles at one coordinate
+  }
+  finish(g);
+  return g;
+}
+
+void check_grid(const Grid& g, const Box& box, double cutoff, CellRule rule) {
+  auto fail = [&](int a, const std::string& what) {
+    std::ostringstream s;
+    s << "grid violates " << what << " on axis " << kAxisName[a] << " (box edge " << box.length[a]
+      << ", cutoff " << cutoff << ", cells " << g.n[a] << ", cell edge " << g.cell[a]
+      << ", half-width " << g.half_width << ")";
+    throw Error(s.str());
+  };
+  const double kCoverage = cutoff * 0.70710678118654752440;
+  if (g.half_width < kCoverage)
+    fail(0, "coverage (half-width h must be >= rc/sqrt(2))");
+  for (int a = 0; a < g.dim; ++a) {
+    if (box.periodic[a] && 2.0 * cutoff > box.length[a])
+      fail(a, "minimum image (cutoff must be <= half the periodic box edge)");
+    if (box.periodic[a] && g.n[a] > 1 && g.n[a] % 2 == 1)
+      fail(a, "the parity tiling (cell count on a periodic axis must be even or 1)");
+    if (g.n[a] == 1) continue;
+    if (2.0 * g.half_width > g.cell[a])
+      fail(a, "at most two cells per axis (2h must be <= cell edge)");
+    if (g.cell[a] < min_cell_edge(rule, cutoff, g.half_width))
+      fail(a, rule == CellRule::kTight ? "the control-bit rule (cell edge must be >= rc + h)"
+                                       : "the chapter's rule (cell edge must be >= 3h)");
+  }
+}
+
+}  // namespace cellforce

@@ -1,0 +1,177 @@
+// The uniform grid of GPU Gems 3 ch. 32 (section 32.1.2), restated for a cutoff search: geometry,
+// cell coordinates and IDs, cell types (parity per axis) and the control bits of section 32.1.3.
+// The conditions that make the search exact are in ../shared/design/spatial-subdivision.md;
+// plan_grid() chooses a grid that meets them and check_grid() refuses one that does not.
+#pragma once
+
+#include <cmath>
+#include <cstddef>
+#include <cstdint>
+
+#include "core/box.h"
+#include "core/hd.h"
+
+namespace cellforce {
+
+inline constexpr uint32_t kInvalidCell = 0xffffffffu;  // unused P-cell entry, as in the chapter
+inline constexpr int kMaxCellTypes = 1 << kMaxDim;
+
+// Largest grid plan_grid() builds. Cells are never allocated (the structure is sorted entries),
+// but the sort key is (cell ID << 1 | phantom) and must fit 31 bits.
+inline constexpr uint64_t kMaxCells = uint64_t(1) << 30;
+
+// The rule that bounds the cell edge from below (condition 3 of the design note).
+enum class CellRule : uint8_t {
+  kTight,    // c >= rc + h (about 1.707 rc): exact, proven by the tests
+  kChapter,  // c >= 1.5 * 2h (about 2.12 rc): the chapter's own, more conservative bound
+};
+
+struct GridOptions {
+  CellRule rule = CellRule::kTight;
+  // h / rc. Coverage needs h >= rc / sqrt(2); the default adds 1e-6 relative so that rounding in
+  // the binning of a particle cannot drop a pair at distance just under rc (the narrow phase's
+  // strict r < rc test decides what interacts, so a wider box only adds candidates).
+  double half_width_factor = 0.70710678118654752440 * (1.0 + 1e-6);
+};
+
+// Plain data, passed by value to kernels. Axes a >= dim have n[a] == 1.
+struct Grid {
+  int dim = 3;
+  uint32_t n[kMaxDim] = {1, 1, 1};          // cells per axis
+  double origin[kMaxDim] = {0, 0, 0};       // lower corner: 0 on periodic axes, bbox min on open
+  double cell[kMaxDim] = {1, 1, 1};         // edge c_a
+  double inv_cell[kMaxDim] = {1, 1, 1};
+  double length[kMaxDim] = {0, 0, 0};       // box edge on periodic axes, 0 on open axes
+  double inv_length[kMaxDim] = {0, 0, 0};   // 1/L on periodic axes, 0 on open axes
+  double half_width = 0;                    // h, half-width of each particle's box
+  double half_width_cells[kMaxDim] = {0, 0, 0};  // h / c_a
+  uint32_t num_cells = 1;
+  int key_bits = 1;  // bits of the sort key (cell ID << 1 | phantom); invalid entries sort last
+
+  int num_types() const { return 1 << dim; }
+  // An axis with one cell that wraps: pairs inside a cell may need the minimum image there.
+  CF_HD bool wraps_inside_cell(int a) const { return inv_length[a] != 0.0 && n[a] == 1; }
+  bool any_wrap_inside_cell() const {
+    for (int a = 0; a < dim; ++a)
+      if (wraps_inside_cell(a)) return true;
+    return false;
+  }
+};
+
+// ---- control bits: home type in bits 0..2, mask of touched types in bits 3..10 ----------------
+using Control = uint16_t;
+CF_HD Control make_control(unsigned home_type, unsigned type_mask) {
+  return Control(home_type | (type_mask << 3));
+}
+CF_HD unsigned home_type(Control c) { return c & 7u; }
+CF_HD unsigned type_mask(Control c) { return c >> 3; }
+
+// The chapter's rule (condition 3): in a cell of type T, skip the pair when one particle's home
+// type T' is < T and T' is among the types both particles touch. The pair is then evaluated in
+// the cell of type T' that is one particle's home cell, or it is out of range.
+CF_HD bool skip_pair(unsigned cell_type, Control a, Control b) {
+  const unsigned common = type_mask(a) & type_mask(b);
+  const unsigned ta = home_type(a), tb = home_type(b);
+  return (ta < cell_type && ((common >> ta) & 1u)) || (tb < cell_type && ((common >> tb) & 1u));
+}
+
+// ---- cell coordinates, IDs and types ------------------------------------------------------------
+CF_HD uint32_t cell_id(const Grid& g, const int k[kMaxDim]) {
+  return uint32_t(k[0]) + g.n[0] * (uint32_t(k[1]) + g.n[1] * uint32_t(k[2]));
+}
+CF_HD void cell_coords(const Grid& g, uint32_t id, int k[kMaxDim]) {
+  k[0] = int(id % g.n[0]);
+  id /= g.n[0];
+  k[1] = int(id % g.n[1]);
+  k[2] = int(id / g.n[1]);
+}
+CF_HD unsigned cell_type(const int k[kMaxDim]) {
+  return unsigned(k[0] & 1) | unsigned(k[1] & 1) << 1 | unsigned(k[2] & 1) << 2;
+}
+CF_HD unsigned cell_type_of_id(const Grid& g, uint32_t id) {
+  int k[kMaxDim];
+  cell_coords(g, id, k);
+  return cell_type(k);
+}
+CF_HD double cell_center(const Grid& g, int a, int k) { return g.origin[a] + (k + 0.5) * g.cell[a]; }
+
+// Position of x relative to a point of a cell along axis a, as the image nearest to that point on
+// a periodic axis. Forming r_ij from these keeps the digits a far-from-origin coordinate loses.
+CF_HD double relative_coordinate(const Grid& g, int a, double x, double point) {
+  return minimum_image(x - point, g.length[a], g.inv_length[a]);
+}
+
+// Bins one particle. x is its position (any image on periodic axes). Writes the H cell ID to
+// ids[0] and, for t = 1 .. 2^d - 1, the P cell reached by stepping along the axes whose bit is set
+// in t, or kInvalidCell where the box does not reach that far. Returns the control bits.
+CF_HD Control bin_particle(const Grid& g, const double x[kMaxDim], uint32_t ids[kMaxCellTypes]) {
+  int k[kMaxDim] = {0, 0, 0};
+  int step[kMaxDim] = {0, 0, 0};  // -1 or +1: the neighbour the box reaches along the axis
+  for (int a = 0; a < g.dim; ++a) {
+    const double xa = g.inv_length[a] != 0.0 ? wrap_coordinate(x[a], g.length[a], g.inv_length[a])
+                                             : x[a];
+    const double u = (xa - g.origin[a]) * g.inv_cell[a];
+    const int n = int(g.n[a]);
+    int ka = int(std::floor(u));
+    ka = ka < 0 ? 0 : (ka >= n ? n - 1 : ka);  // a coordinate may round onto the far face
+    const double f = u - ka;                    // position inside the cell, in cell units
+    const double hc = g.half_width_cells[a];
+    int s = 0;
+    if (n > 1) {
+      if (f <= hc) s = -1;
+      else if (1.0 - f <= hc) s = +1;
+      const bool periodic = g.inv_length[a] != 0.0;
+      if (!periodic && (ka + s < 0 || ka + s >= n)) s = 0;  // nothing beyond an open face
+    }
+    k[a] = ka;
+    step[a] = s;
+  }
+  const unsigned home = cell_type(k);
+  unsigned mask = 1u << home;
+  ids[0] = cell_id(g, k);
+  const int slots = 1 << g.dim;
+  for (int t = 1; t < slots; ++t) {
+    int kt[kMaxDim] = {k[0], k[1], k[2]};
+    bool valid = true;
+    for (int a = 0; a < g.dim; ++a) {
+      if (!((t >> a) & 1)) continue;
+      if (step[a] == 0) {
+        valid = false;
+        break;
+      }
+      const int n = int(g.n[a]);
+      kt[a] = (k[a] + step[a] + n) % n;
+    }
+    if (valid) {
+      ids[t] = cell_id(g, kt);
+      mask |= 1u << cell_type(kt);
+    } else {
+      ids[t] = kInvalidCell;
+    }
+  }
+  return make_control(home, mask);
+}
+
+// ---- planning (host) ----------------------------------------------------------------------------
+
+// Chooses the grid for a box, cutoff and (for open axes) the particles' bounding box:
+// h = half_width_factor * rc; on a periodic axis the largest even n with L/n >= the rule's minimum
+// cell (one cell if even two do not fit); on an open axis cells of at least that edge over the
+// particles' extent. The grid is coarsened if it would exceed kMaxCells. positions: n_particles x
+// box.dim, row-major, user order; only read on open axes.
+Grid plan_grid(const Box& box, double cutoff, const double* positions, std::size_t n_particles,
+               const GridOptions& options = {});
+
+// Builds a grid with the given cells per axis and half-width, without checking any condition:
+// for tests that show what breaks when a condition does not hold.
+Grid make_grid_unchecked(const Box& box, const uint32_t cells[kMaxDim], double half_width,
+                         const double* positions, std::size_t n_particles);
+
+// Throws cellforce::Error naming the violated condition (and axis, box, cutoff) when the grid
+// does not satisfy the design note's conditions for this cutoff and rule.
+void check_grid(const Grid& grid, const Box& box, double cutoff, CellRule rule = CellRule::kTight);
+
+// Smallest cell edge the rule allows for half-width h and cutoff rc.
+double min_cell_edge(CellRule rule, double cutoff, double half_width);
+
+}  // namespace cellforce

@@ -1,0 +1,75 @@
+// The Lennard-Jones pair evaluator: the one place where the LJ maths and its cutoff contract live.
+// Loops that apply it (CPU traversal, CUDA kernels, brute force) know nothing about LJ.
+//
+// Cutoff contract: a pair interacts only when r^2 < rc^2 (strict, as OpenMM); a pair at exactly
+// r = rc contributes nothing. With F(r) = -dU/dr and U(r) = 4 eps [(sigma/r)^12 - (sigma/r)^6]:
+//   truncate:    U_c(r) = U(r)                              F_c(r) = F(r)
+//   shift:       U_c(r) = U(r) - U(rc)                      F_c(r) = F(r)
+//   force shift: U_c(r) = U(r) - U(rc) + (r - rc) F(rc)     F_c(r) = F(r) - F(rc)
+// so that shift makes U continuous at rc and force shift makes both U and F continuous there.
+#pragma once
+
+#include <cmath>
+#include <cstdint>
+
+#include "core/hd.h"
+
+namespace cellforce {
+
+enum class CutoffMode : uint8_t { kTruncate, kShift, kForceShift };
+
+// Per type pair: c12 = 4 eps sigma^12, c6 = 4 eps sigma^6, and the constants that the cutoff mode
+// needs (zero where it needs none).
+template <class Real>
+struct LJParams {
+  Real c12 = 0;
+  Real c6 = 0;
+  Real u_rc = 0;  // U(rc), subtracted by shift and force shift
+  Real f_rc = 0;  // F(rc), subtracted by force shift
+  Real rc = 0;    // the cutoff, used by force shift's energy
+};
+
+// Builds the parameters of one pair in double and rounds them once to Real.
+template <class Real>
+LJParams<Real> make_lj_params(double sigma, double epsilon, double cutoff, CutoffMode mode) {
+  const double s6 = std::pow(sigma, 6.0);
+  const double c12 = 4.0 * epsilon * s6 * s6;
+  const double c6 = 4.0 * epsilon * s6;
+  const double ir6 = 1.0 / std::pow(cutoff, 6.0);
+  const double u_rc = (c12 * ir6 - c6) * ir6;
+  const double f_rc = (12.0 * c12 * ir6 - 6.0 * c6) * ir6 / cutoff;
+  LJParams<Real> p;
+  p.c12 = Real(c12);
+  p.c6 = Real(c6);
+  p.u_rc = mode == CutoffMode::kTruncate ? Real(0) : Real(u_rc);
+  p.f_rc = mode == CutoffMode::kForceShift ? Real(f_rc) : Real(0);
+  p.rc = Real(cutoff);
+  return p;
+}
+
+// Evaluates one pair at squared distance r2. Returns false (and leaves the outputs alone) when
+// r2 >= rc2. Otherwise sets force_over_r = F_c(r) / r, so that the force on i is force_over_r *
+// (x_i - x_j), and, when Energy, the pair energy U_c(r). Mode and Energy are compile-time so that
+// the unused arithmetic is not there at all.
+template <CutoffMode Mode, bool Energy, class Real>
+CF_HD bool lj_pair(Real r2, Real rc2, const LJParams<Real>& p, Real& force_over_r, Real& energy) {
+  if (!(r2 < rc2)) return false;
+  const Real ir2 = Real(1) / r2;
+  const Real ir6 = ir2 * ir2 * ir2;
+  const Real a12 = p.c12 * ir6 * ir6;
+  const Real a6 = p.c6 * ir6;
+  Real fr = (Real(12) * a12 - Real(6) * a6) * ir2;
+  if constexpr (Mode == CutoffMode::kForceShift) {
+    const Real r = std::sqrt(r2);
+    fr -= p.f_rc / r;
+    if constexpr (Energy) energy = a12 - a6 - p.u_rc + (r - p.rc) * p.f_rc;
+  } else if constexpr (Mode == CutoffMode::kShift) {
+    if constexpr (Energy) energy = a12 - a6 - p.u_rc;
+  } else {
+    if constexpr (Energy) energy = a12 - a6;
+  }
+  force_over_r = fr;
+  return true;
+}
+
+}  // namespace cellforce

@@ -1,0 +1,43 @@
+// What a force evaluation reads and writes, in the user's particle order.
+#pragma once
+
+#include <cstddef>
+#include <cstdint>
+#include <vector>
+
+#include "core/box.h"
+#include "core/force_field.h"
+
+namespace cellforce {
+
+// A non-owning view of the particles.
+struct SystemView {
+  Box box;
+  std::size_t n = 0;
+  const double* positions = nullptr;  // n x box.dim, row-major, length units, any periodic image
+  const uint32_t* types = nullptr;    // n indices into ForceField::types; null means all type 0
+};
+
+// Which observables to compute. Forces are always computed; energy and virial cost arithmetic
+// and are left out (at compile time) when nobody reads them.
+struct Request {
+  bool energy = true;
+  bool virial = true;
+};
+
+struct ForceResult {
+  int dim = 3;
+  std::vector<double> forces;    // n x dim, row-major, user order, energy/length units
+  std::vector<double> energies;  // n, half of each pair energy; empty unless energy requested
+  double energy = 0;             // total potential energy; 0 unless requested
+  double virial[kMaxDim][kMaxDim] = {};  // sum over pairs of r_ij (x) f_ij, r_ij = x_i - x_j
+                                         // (minimum image), f_ij the force on i from j; the
+                                         // dim x dim block is used; 0 unless requested
+};
+
+// Rejects bad input before any kernel runs; throws cellforce::Error naming the particle (index),
+// axis or parameter: non-finite coordinates, non-positive or non-finite box edges, cutoff not
+// positive or beyond half a periodic edge, type index out of range, bad force-field values.
+void validate_system(const SystemView& system, const ForceField& ff);
+
+}  // namespace cellforce

@@ -1,0 +1,50 @@
+// The engines under test, behind one interface, so that every pipeline property is one test body
+// instantiated for each backend (style.md, tests). Only the CPU engine exists now; a GPU engine is
+// added by appending a Backend to backends() in backends.cpp (its `unavailable` returns a reason,
+// e.g. "no CUDA device", so that its instances skip where there is no GPU).
+#pragma once
+
+#include <cstddef>
+#include <functional>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "core/grid.h"
+#include "core/system.h"
+#include "cpu/engine.h"
+#include "oracle.h"
+
+namespace cftest {
+
+// What a test may ask of any backend.
+struct EngineSpec {
+  cellforce::Precision precision = cellforce::Precision::kDouble;
+  cellforce::Accumulation accumulation = cellforce::Accumulation::kJacobi;
+  // Tests only: a grid used as given, unchecked (make_grid_unchecked), to break a condition.
+  std::optional<cellforce::Grid> grid_override;
+};
+
+class EngineUnderTest {
+ public:
+  virtual ~EngineUnderTest() = default;
+  virtual void evaluate(const cellforce::SystemView& system, const cellforce::ForceField& ff,
+                        const cellforce::Request& request, cellforce::ForceResult& result) = 0;
+  // Every pair evaluated with r < rc, once per evaluation (a pair evaluated twice appears twice).
+  virtual std::vector<Pair> visited_pairs(const cellforce::SystemView& system,
+                                          const cellforce::ForceField& ff) = 0;
+};
+
+struct Backend {
+  std::string name;  // [a-z0-9] only: it becomes part of test names
+  // Empty when the backend can run here; otherwise why not (the test is skipped with it).
+  std::function<std::string()> unavailable;
+  std::function<std::unique_ptr<EngineUnderTest>(const EngineSpec&)> make;
+};
+
+const std::vector<Backend>& backends();
+// 0 .. backends().size() - 1, for ::testing::ValuesIn.
+std::vector<std::size_t> backend_ids();
+
+}  // namespace cftest
