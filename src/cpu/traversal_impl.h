@@ -1,0 +1,272 @@
+// Stage 4, traversal (GPU Gems 3 ch. 32, section 32.2.5): each collision cell tests every H
+// occupant against every other occupant, H and P, skips the pairs that the control-bit rule
+// assigns to another cell, and evaluates Lennard-Jones directly for pairs with r < rc (the narrow
+// phase). Occupants are staged per cell (the CPU analogue of shared memory) with coordinates
+// relative to the cell centre, formed in double: r_ij keeps its digits far from the origin, and
+// with two or more cells per periodic axis the staged images are already the nearest ones, so the
+// pair loop wraps only along a periodic axis that has a single cell.
+//
+// Everything a scene may leave out (2D vs 3D, wrap, multiple types, cutoff mode, energy, virial)
+// is a template parameter, chosen once per evaluation by dispatch().
+//
+// This header holds the templates; traversal_{single,mixed,double}.cpp instantiate them, one
+// precision per file so that the builds run in parallel.
+#pragma once
+
+#include "cpu/traversal.h"
+
+#include <omp.h>
+
+#include <algorithm>
+#include <cmath>
+#include <type_traits>
+
+#include "core/lj.h"
+
+namespace cellforce::cpu {
+namespace detail {
+
+template <int D, bool Wrap, bool MultiType, CutoffMode Mode, bool Energy, bool Virial>
+struct Traits {
+  static constexpr int kDim = D;
+  static constexpr bool kWrap = Wrap;
+  static constexpr bool kMultiType = MultiType;
+  static constexpr CutoffMode kMode = Mode;
+  static constexpr bool kEnergy = Energy;
+  static constexpr bool kVirial = Virial;
+};
+
+template <class F>
+void with_bool(bool b, F&& f) {
+  if (b) f(std::true_type{});
+  else f(std::false_type{});
+}
+
+// Turns the run-time choices into one Traits instantiation.
+template <class F>
+void dispatch(int dim, bool wrap, bool multi, CutoffMode mode, bool energy, bool virial, F&& f) {
+  auto with_mode = [&](auto d, auto w, auto m) {
+    auto go = [&](auto cm) {
+      with_bool(energy, [&](auto e) {
+        with_bool(virial, [&](auto v) {
+          f(Traits<decltype(d)::value, decltype(w)::value, decltype(m)::value, decltype(cm)::value,
+                   decltype(e)::value, decltype(v)::value>{});
+        });
+      });
+    };
+    switch (mode) {
+      case CutoffMode::kTruncate: go(std::integral_constant<CutoffMode, CutoffMode::kTruncate>{}); break;
+      case CutoffMode::kShift: go(std::integral_constant<CutoffMode, CutoffMode::kShift>{}); break;
+      case CutoffMode::kForceShift: go(std::integral_constant<CutoffMode, CutoffMode::kForceShift>{}); break;
+    }
+  };
+  auto with_dim = [&](auto d) {
+    with_bool(wrap, [&](auto w) { with_bool(multi, [&](auto m) { with_mode(d, w, m); }); });
+  };
+  if (dim == 2) with_dim(std::integral_constant<int, 2>{});
+  else with_dim(std::integral_constant<int, 3>{});
+}
+
+// One collision cell's occupants, staged: entry e is sorted position start + e.
+template <class Real, class Accum>
+struct CellStage {
+  std::vector<uint32_t> index;  // particle index (user order)
+  std::vector<Control> control;
+  std::vector<uint32_t> type;
+  std::vector<Real> pos[kMaxDim];   // relative to the cell centre
+  std::vector<Accum> force[kMaxDim];
+  std::vector<Accum> energy;
+
+  void load(const TraversalInput& in, const CollisionCell& cell, int dim) {
+    const std::size_t m = std::size_t(cell.h) + cell.p;
+    if (index.size() < m) {
+      index.resize(m);
+      control.resize(m);
+      type.resize(m);
+      for (int a = 0; a < kMaxDim; ++a) {
+        pos[a].resize(m);
+        force[a].resize(m);
+      }
+      energy.resize(m);
+    }
+    int k[kMaxDim];
+    cell_coords(in.grid, cell.cell, k);
+    double center[kMaxDim];
+    for (int a = 0; a < dim; ++a) center[a] = cell_center(in.grid, a, k[a]);
+    const double* x = in.system.positions;
+    for (std::size_t e = 0; e < m; ++e) {
+      const uint32_t i = in.sorted_ids[cell.start + e];
+      index[e] = i;
+      control[e] = in.control[i];
+      type[e] = in.system.types ? in.system.types[i] : 0u;
+      for (int a = 0; a < dim; ++a)
+        pos[a][e] = Real(relative_coordinate(in.grid, a, x[std::size_t(i) * dim + a], center[a]));
+    }
+  }
+};
+
+// The candidate loop shared by the force traversal and the pair recorder: H x H pairs once, H x P
+// pairs unless the control-bit rule skips them. visit(a, b, d, r2) gets d = x_a - x_b.
+template <int D, bool Wrap, class Real, class Stage, class Visit>
+inline void for_each_candidate(const Stage& s, const CollisionCell& cell, unsigned cell_type,
+                               const Real* length, const Real* inv_length, Visit&& visit) {
+  const uint32_t h = cell.h, m = cell.h + cell.p;
+  auto test = [&](uint32_t a, uint32_t b) {
+    Real d[D];
+    Real r2 = 0;
+    for (int c = 0; c < D; ++c) {
+      Real v = s.pos[c][a] - s.pos[c][b];
+      if constexpr (Wrap) v = minimum_image(v, length[c], inv_length[c]);
+      d[c] = v;
+      r2 += v * v;
+    }
+    visit(a, b, d, r2);
+  };
+  for (uint32_t a = 0; a < h; ++a) {
+    for (uint32_t b = a + 1; b < h; ++b) test(a, b);  // both at home: same type, never skipped
+    for (uint32_t b = h; b < m; ++b)
+      if (!skip_pair(cell_type, s.control[a], s.control[b])) test(a, b);
+  }
+}
+
+// Per-axis wrap lengths for the pair loop: nonzero only where one cell spans a periodic axis.
+template <class Real>
+void wrap_lengths(const Grid& g, Real length[kMaxDim], Real inv_length[kMaxDim]) {
+  for (int a = 0; a < kMaxDim; ++a) {
+    const bool w = a < g.dim && g.wraps_inside_cell(a);
+    length[a] = w ? Real(g.length[a]) : Real(0);
+    inv_length[a] = w ? Real(g.inv_length[a]) : Real(0);
+  }
+}
+
+template <class T, class Real, class Accum>
+TraversalReport run(const TraversalInput& in, Accumulation mode, Accumulators<Accum>& out) {
+  constexpr int D = T::kDim;
+  const Grid& g = in.grid;
+  const std::size_t n = in.system.n;
+  const std::size_t nt = in.ff.num_types();
+  const std::vector<LJParams<Real>> table = make_pair_table<Real>(in.ff);
+  const Real rc2 = Real(in.ff.cutoff) * Real(in.ff.cutoff);
+  Real length[kMaxDim], inv_length[kMaxDim];
+  wrap_lengths(g, length, inv_length);
+  const bool jacobi = mode == Accumulation::kJacobi;
+
+  TraversalReport report;
+  const std::size_t ncells = in.cells.size();
+  const int passes = jacobi ? 1 : g.num_types();
+
+#pragma omp parallel
+  {
+    CellStage<Real, Accum> s;
+    TraversalReport local;
+    for (int pass = 0; pass < passes; ++pass) {
+      const std::size_t lo = jacobi ? 0 : in.type_start[pass];
+      const std::size_t hi = jacobi ? ncells : in.type_start[pass + 1];
+      // Gauss-Seidel: cells of one type share no particle, and the loop's barrier ends the pass.
+#pragma omp for schedule(dynamic, 1)
+      for (std::size_t ci = lo; ci < hi; ++ci) {
+        const CollisionCell& cell = in.cells[ci];
+        const uint32_t m = cell.h + cell.p;
+        s.load(in, cell, D);
+        for (int a = 0; a < D; ++a) std::fill_n(s.force[a].begin(), m, Accum(0));
+        if constexpr (T::kEnergy) std::fill_n(s.energy.begin(), m, Accum(0));
+        Accum cell_e = 0;
+        Accum w[kVirialComponents] = {};
+        const unsigned type = cell_type_of_id(g, cell.cell);
+        local.max_occupancy = std::max<std::size_t>(local.max_occupancy, m);
+
+        for_each_candidate<D, T::kWrap>(
+            s, cell, type, length, inv_length,
+            [&](uint32_t a, uint32_t b, const Real* d, Real r2) {
+              ++local.candidates;
+              const LJParams<Real>& p = T::kMultiType ? table[s.type[a] * nt + s.type[b]] : table[0];
+              Real fr, e = 0;
+              if (!lj_pair<T::kMode, T::kEnergy>(r2, rc2, p, fr, e)) return;
+              ++local.interacting;
+              if (!std::isfinite(fr)) [[unlikely]] {
+                const uint32_t i = std::min(s.index[a], s.index[b]), j = std::max(s.index[a], s.index[b]);
+                if (!local.bad || std::make_pair(i, j) < std::make_pair(local.bad_i, local.bad_j)) {
+                  local.bad = true;
+                  local.bad_i = i;
+                  local.bad_j = j;
+                  local.bad_r2 = double(r2);
+                }
+              }
+              for (int c = 0; c < D; ++c) {
+                const Real f = fr * d[c];
+                s.force[c][a] += f;
+                s.force[c][b] -= f;
+              }
+              if constexpr (T::kEnergy) {
+                const Accum half = Accum(Real(0.5) * e);
+                s.energy[a] += half;
+                s.energy[b] += half;
+                cell_e += Accum(e);
+              }
+              if constexpr (T::kVirial) {
+                w[0] += Accum(fr * d[0] * d[0]);
+                w[1] += Accum(fr * d[1] * d[1]);
+                w[3] += Accum(fr * d[0] * d[1]);
+                if constexpr (D == 3) {
+                  w[2] += Accum(fr * d[2] * d[2]);
+                  w[4] += Accum(fr * d[0] * d[2]);
+                  w[5] += Accum(fr * d[1] * d[2]);
+                }
+              }
+            });
+
+        // Jacobi: slot `type` of each occupant is written by this cell only (condition 1).
+        Accum* force = out.force.data() + (jacobi ? std::size_t(type) * n * D : 0);
+        Accum* energy = T::kEnergy ? out.energy.data() + (jacobi ? std::size_t(type) * n : 0) : nullptr;
+        for (uint32_t e = 0; e < m; ++e) {
+          const std::size_t i = s.index[e];
+          for (int c = 0; c < D; ++c) {
+            if (jacobi) force[i * D + c] = s.force[c][e];
+            else force[i * D + c] += s.force[c][e];
+          }
+          if constexpr (T::kEnergy) {
+            if (jacobi) energy[i] = s.energy[e];
+            else energy[i] += s.energy[e];
+          }
+        }
+        if constexpr (T::kEnergy) out.cell_energy[ci] = cell_e;
+        if constexpr (T::kVirial)
+          for (int k = 0; k < kVirialComponents; ++k) out.cell_virial[ci * kVirialComponents + k] = w[k];
+      }
+    }
+#pragma omp critical(cellforce_traversal_report)
+    {
+      report.candidates += local.candidates;
+      report.interacting += local.interacting;
+      report.max_occupancy = std::max(report.max_occupancy, local.max_occupancy);
+      if (local.bad && (!report.bad || std::make_pair(local.bad_i, local.bad_j) <
+                                           std::make_pair(report.bad_i, report.bad_j))) {
+        report.bad = true;
+        report.bad_i = local.bad_i;
+        report.bad_j = local.bad_j;
+        report.bad_r2 = local.bad_r2;
+      }
+    }
+  }
+  return report;
+}
+
+}  // namespace detail
+
+template <class Real, class Accum>
+TraversalReport traverse(const TraversalInput& in, const Request& request, Accumulation mode,
+                         Accumulators<Accum>& out) {
+  const Grid& g = in.grid;
+  const std::size_t n = in.system.n, dim = std::size_t(g.dim);
+  const std::size_t copies = mode == Accumulation::kJacobi ? std::size_t(g.num_types()) : 1;
+  out.force.assign(copies * n * dim, Accum(0));
+  out.energy.assign(request.energy ? copies * n : 0, Accum(0));
+  out.cell_energy.assign(request.energy ? in.cells.size() : 0, Accum(0));
+  out.cell_virial.assign(request.virial ? in.cells.size() * kVirialComponents : 0, Accum(0));
+  TraversalReport report;
+  detail::dispatch(g.dim, g.any_wrap_inside_cell(), in.ff.num_types() > 1, in.ff.mode, request.energy,
+           request.virial, [&](auto traits) { report = detail::run<decltype(traits), Real, Accum>(in, mode, out); });
+  return report;
+}
+
+}  // namespace cellforce::cpu
