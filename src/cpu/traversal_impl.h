@@ -77,6 +77,9 @@ struct CellStage {
   std::vector<Accum> force[kMaxDim];
   std::vector<Accum> energy;
 
+  // P entries, grouped by home type: group t is entries group[t] .. group[t + 1] - 1.
+  uint32_t group[kMaxCellTypes + 1];
+
   void load(const TraversalInput& in, const CollisionCell& cell, int dim) {
     const std::size_t m = std::size_t(cell.h) + cell.p;
     if (index.size() < m) {
@@ -93,24 +96,37 @@ struct CellStage {
     cell_coords(in.grid, cell.cell, k);
     double center[kMaxDim];
     for (int a = 0; a < dim; ++a) center[a] = cell_center(in.grid, a, k[a]);
+    // H entries keep their sorted order; P entries are placed stably by home type (a counting
+    // sort), so that the control-bit rule is decided once per group instead of once per pair.
+    const int types = 1 << dim;
+    uint32_t next[kMaxCellTypes + 1] = {};
+    for (uint32_t e = cell.h; e < m; ++e) ++next[home_type(in.control[in.sorted_ids[cell.start + e]]) + 1];
+    next[0] = cell.h;
+    for (int t = 0; t < types; ++t) next[t + 1] += next[t];
+    for (int t = 0; t <= types; ++t) group[t] = next[t];
     const double* x = in.system.positions;
-    for (std::size_t e = 0; e < m; ++e) {
+    for (uint32_t e = 0; e < m; ++e) {
       const uint32_t i = in.sorted_ids[cell.start + e];
-      index[e] = i;
-      control[e] = in.control[i];
-      type[e] = in.system.types ? in.system.types[i] : 0u;
+      const Control c = in.control[i];
+      const uint32_t to = e < cell.h ? e : next[home_type(c)]++;
+      index[to] = i;
+      control[to] = c;
+      type[to] = in.system.types ? in.system.types[i] : 0u;
       for (int a = 0; a < dim; ++a)
-        pos[a][e] = Real(relative_coordinate(in.grid, a, x[std::size_t(i) * dim + a], center[a]));
+        pos[a][to] = Real(relative_coordinate(in.grid, a, x[std::size_t(i) * dim + a], center[a]));
     }
   }
 };
 
 // The candidate loop shared by the force traversal and the pair recorder: H x H pairs once, H x P
 // pairs unless the control-bit rule skips them. visit(a, b, d, r2) gets d = x_a - x_b.
+// For an H occupant a, skip_pair depends on a P occupant b only through b's home type (a's home
+// type is the cell's type, and b's mask always holds b's home type), so the rule is applied once
+// per group of P occupants with one home type, with a stand-in control word for the group.
 template <int D, bool Wrap, class Real, class Stage, class Visit>
 inline void for_each_candidate(const Stage& s, const CollisionCell& cell, unsigned cell_type,
                                const Real* length, const Real* inv_length, Visit&& visit) {
-  const uint32_t h = cell.h, m = cell.h + cell.p;
+  const uint32_t h = cell.h;
   auto test = [&](uint32_t a, uint32_t b) {
     Real d[D];
     Real r2 = 0;
@@ -124,8 +140,10 @@ inline void for_each_candidate(const Stage& s, const CollisionCell& cell, unsign
   };
   for (uint32_t a = 0; a < h; ++a) {
     for (uint32_t b = a + 1; b < h; ++b) test(a, b);  // both at home: same type, never skipped
-    for (uint32_t b = h; b < m; ++b)
-      if (!skip_pair(cell_type, s.control[a], s.control[b])) test(a, b);
+    for (unsigned t = 0; t < (1u << D); ++t) {
+      if (skip_pair(cell_type, s.control[a], make_control(t, 1u << t))) continue;
+      for (uint32_t b = s.group[t]; b < s.group[t + 1]; ++b) test(a, b);
+    }
   }
 }
 
