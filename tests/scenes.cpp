@@ -282,7 +282,7 @@ Configuration faces_configuration(const Box& box, double cutoff, std::size_t n, 
   const cellforce::Grid g =
       cellforce::plan_grid(box, cutoff, corners.empty() ? nullptr : corners.data(),
                            corners.size() / std::size_t(d));
-  std::vector<std::vector<double>> values(std::size_t(d));
+  std::vector<std::vector<double>> values(static_cast<std::size_t>(d));
   for (int a = 0; a < d; ++a) {
     auto& v = values[std::size_t(a)];
     const double l = box.length[a], cell = g.cell[a], h = g.half_width, o = g.origin[a];

@@ -47,13 +47,11 @@ LJParams<Real> make_lj_params(double sigma, double epsilon, double cutoff, Cutof
   return p;
 }
 
-// Evaluates one pair at squared distance r2. Returns false (and leaves the outputs alone) when
-// r2 >= rc2. Otherwise sets force_over_r = F_c(r) / r, so that the force on i is force_over_r *
-// (x_i - x_j), and, when Energy, the pair energy U_c(r). Mode and Energy are compile-time so that
-// the unused arithmetic is not there at all.
+// The pair terms at squared distance r2 > 0, with no cutoff test: force_over_r = F_c(r) / r, so
+// that the force on i is force_over_r * (x_i - x_j), and, when Energy, the pair energy U_c(r).
+// Mode and Energy are compile-time so that the unused arithmetic is not there at all.
 template <CutoffMode Mode, bool Energy, class Real>
-CF_HD bool lj_pair(Real r2, Real rc2, const LJParams<Real>& p, Real& force_over_r, Real& energy) {
-  if (!(r2 < rc2)) return false;
+CF_HD void lj_terms(Real r2, const LJParams<Real>& p, Real& force_over_r, Real& energy) {
   const Real ir2 = Real(1) / r2;
   const Real ir6 = ir2 * ir2 * ir2;
   const Real a12 = p.c12 * ir6 * ir6;
@@ -69,6 +67,14 @@ CF_HD bool lj_pair(Real r2, Real rc2, const LJParams<Real>& p, Real& force_over_
     if constexpr (Energy) energy = a12 - a6;
   }
   force_over_r = fr;
+}
+
+// Evaluates one pair under the cutoff contract. Returns false (and leaves the outputs alone) when
+// r2 >= rc2; otherwise sets the outputs as lj_terms does.
+template <CutoffMode Mode, bool Energy, class Real>
+CF_HD bool lj_pair(Real r2, Real rc2, const LJParams<Real>& p, Real& force_over_r, Real& energy) {
+  if (!(r2 < rc2)) return false;
+  lj_terms<Mode, Energy>(r2, p, force_over_r, energy);
   return true;
 }
 

@@ -36,11 +36,14 @@ void radix_sort(std::vector<uint32_t>& keys, std::vector<uint32_t>& values, int 
     auto digit = [&](uint32_t key) { return ((key & window) >> shift) & (kRadix - 1); };
 #pragma omp parallel num_threads(blocks)
     {
-      const int b = omp_get_thread_num();
-      const std::size_t lo = std::min(n, b * per_block), hi = std::min(n, lo + per_block);
-      std::size_t local[kRadix] = {};
-      for (std::size_t i = lo; i < hi; ++i) ++local[digit(src_k[i])];  // tabulate
-      for (std::size_t d = 0; d < kRadix; ++d) counts[d * blocks + b] = local[d];
+      // Blocks are fixed by n, not by the threads granted (fewer inside a nested region).
+      const int tid = omp_get_thread_num(), nth = omp_get_num_threads();
+      for (int b = tid; b < blocks; b += nth) {  // tabulate
+        const std::size_t lo = std::min(n, b * per_block), hi = std::min(n, lo + per_block);
+        std::size_t local[kRadix] = {};
+        for (std::size_t i = lo; i < hi; ++i) ++local[digit(src_k[i])];
+        for (std::size_t d = 0; d < kRadix; ++d) counts[d * blocks + b] = local[d];
+      }
 #pragma omp barrier
 #pragma omp single
       {
@@ -51,11 +54,15 @@ void radix_sort(std::vector<uint32_t>& keys, std::vector<uint32_t>& values, int 
           sum += c;
         }
       }
-      for (std::size_t d = 0; d < kRadix; ++d) local[d] = counts[d * blocks + b];
-      for (std::size_t i = lo; i < hi; ++i) {  // stable reorder
-        const std::size_t to = local[digit(src_k[i])]++;
-        dst_k[to] = src_k[i];
-        dst_v[to] = src_v[i];
+      for (int b = tid; b < blocks; b += nth) {  // stable reorder
+        const std::size_t lo = std::min(n, b * per_block), hi = std::min(n, lo + per_block);
+        std::size_t next[kRadix];
+        for (std::size_t d = 0; d < kRadix; ++d) next[d] = counts[d * blocks + b];
+        for (std::size_t i = lo; i < hi; ++i) {
+          const std::size_t to = next[digit(src_k[i])]++;
+          dst_k[to] = src_k[i];
+          dst_v[to] = src_v[i];
+        }
       }
     }
     std::swap(src_k, dst_k);

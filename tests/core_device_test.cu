@@ -1,0 +1,304 @@
+// The shared __host__ __device__ core on a GPU: lj_pair (every cutoff mode, with and without
+// energy, double and float) and bin_particle (periodic, open and slab grids, 2D and 3D, points on
+// faces, box edges, -0.0, -1e-8 and random) evaluated in a kernel and compared BITWISE with the
+// same calls on the host (style.md: "the CPU and GPU bin a particle identically"). Any difference
+// (for instance from contracting a * b - c into an FMA on one side only) fails the test.
+//
+// Skips with a clear message where no CUDA device is present. Every CUDA call is checked.
+#include <cuda_runtime.h>
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <cstring>
+#include <string>
+#include <vector>
+
+#include "core/box.h"
+#include "core/grid.h"
+#include "core/lj.h"
+
+namespace {
+
+using cellforce::Control;
+using cellforce::CutoffMode;
+using cellforce::Grid;
+using cellforce::kMaxCellTypes;
+using cellforce::LJParams;
+
+#define CF_CUDA_ASSERT(call)                                                                   \
+  do {                                                                                         \
+    const cudaError_t err_ = (call);                                                           \
+    ASSERT_EQ(err_, cudaSuccess) << #call << ": " << cudaGetErrorName(err_) << ": "            \
+                                 << cudaGetErrorString(err_);                                  \
+  } while (0)
+
+// Device buffer whose release is checked too.
+template <class T>
+class DeviceArray {
+ public:
+  DeviceArray() = default;
+  DeviceArray(const DeviceArray&) = delete;
+  DeviceArray& operator=(const DeviceArray&) = delete;
+  ~DeviceArray() {
+    if (ptr_) {
+      const cudaError_t err = cudaFree(ptr_);
+      if (err != cudaSuccess) ADD_FAILURE() << "cudaFree: " << cudaGetErrorString(err);
+    }
+  }
+  cudaError_t allocate(std::size_t n) {
+    n_ = n;
+    return cudaMalloc(reinterpret_cast<void**>(&ptr_), std::max<std::size_t>(n, 1) * sizeof(T));
+  }
+  cudaError_t upload(const std::vector<T>& v) {
+    return cudaMemcpy(ptr_, v.data(), v.size() * sizeof(T), cudaMemcpyHostToDevice);
+  }
+  cudaError_t download(std::vector<T>& v) const {
+    v.resize(n_);
+    return cudaMemcpy(v.data(), ptr_, n_ * sizeof(T), cudaMemcpyDeviceToHost);
+  }
+  T* get() const { return ptr_; }
+
+ private:
+  T* ptr_ = nullptr;
+  std::size_t n_ = 0;
+};
+
+class CoreOnDevice : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    int count = 0;
+    const cudaError_t err = cudaGetDeviceCount(&count);
+    if (err != cudaSuccess) {
+      (void)cudaGetLastError();  // clear the error this call left
+      GTEST_SKIP() << "no CUDA device: cudaGetDeviceCount failed with " << cudaGetErrorName(err)
+                   << " (" << cudaGetErrorString(err) << ")";
+    }
+    if (count == 0) GTEST_SKIP() << "no CUDA device: cudaGetDeviceCount returned 0";
+  }
+};
+
+// ---- lj_pair ------------------------------------------------------------------------------------
+// Per input: for each of the 3 modes x {energy, no energy}: hit, force_over_r, energy (outputs
+// start from sentinels so that "left alone" is compared too).
+constexpr int kLjOutputs = 3 * 2 * 3;
+
+template <class Real, CutoffMode Mode, bool Energy>
+CF_HD void lj_one(Real r2, Real rc2, const LJParams<Real>& p, Real* out) {
+  Real f = Real(-777), u = Real(-555);
+  const bool hit = cellforce::lj_pair<Mode, Energy>(r2, rc2, p, f, u);
+  out[0] = hit ? Real(1) : Real(0);
+  out[1] = f;
+  out[2] = u;
+}
+
+template <class Real>
+CF_HD void lj_all(Real r2, Real rc2, const LJParams<Real>* p, Real* out) {
+  lj_one<Real, CutoffMode::kTruncate, true>(r2, rc2, p[0], out + 0);
+  lj_one<Real, CutoffMode::kTruncate, false>(r2, rc2, p[0], out + 3);
+  lj_one<Real, CutoffMode::kShift, true>(r2, rc2, p[1], out + 6);
+  lj_one<Real, CutoffMode::kShift, false>(r2, rc2, p[1], out + 9);
+  lj_one<Real, CutoffMode::kForceShift, true>(r2, rc2, p[2], out + 12);
+  lj_one<Real, CutoffMode::kForceShift, false>(r2, rc2, p[2], out + 15);
+}
+
+struct LjCase {
+  double sigma, epsilon, cutoff;
+};
+
+template <class Real>
+__global__ void lj_kernel(const Real* r2, int n, Real rc2, const LJParams<Real>* params,
+                          Real* out) {
+  const int i = int(blockIdx.x * blockDim.x + threadIdx.x);
+  if (i < n) lj_all<Real>(r2[i], rc2, params, out + std::size_t(i) * kLjOutputs);
+}
+
+template <class Real>
+void compare_lj(const LjCase& c) {
+  const LJParams<Real> params[3] = {
+      cellforce::make_lj_params<Real>(c.sigma, c.epsilon, c.cutoff, CutoffMode::kTruncate),
+      cellforce::make_lj_params<Real>(c.sigma, c.epsilon, c.cutoff, CutoffMode::kShift),
+      cellforce::make_lj_params<Real>(c.sigma, c.epsilon, c.cutoff, CutoffMode::kForceShift)};
+  const Real rc2 = Real(c.cutoff) * Real(c.cutoff);
+  std::vector<Real> r2;
+  for (double x = 0.2; x < 1.3; x += 0.00137) r2.push_back(Real(x * c.cutoff) * Real(x * c.cutoff));
+  for (Real v : {rc2, std::nextafter(rc2, Real(0)), std::nextafter(rc2, Real(1e30)), Real(0.25),
+                 Real(1e-6), Real(1e30)})
+    r2.push_back(v);
+  const int n = int(r2.size());
+
+  std::vector<Real> host(r2.size() * kLjOutputs);
+  for (int i = 0; i < n; ++i) lj_all<Real>(r2[std::size_t(i)], rc2, params, &host[std::size_t(i) * kLjOutputs]);
+
+  DeviceArray<Real> d_r2, d_out;
+  DeviceArray<LJParams<Real>> d_params;
+  CF_CUDA_ASSERT(d_r2.allocate(r2.size()));
+  CF_CUDA_ASSERT(d_out.allocate(host.size()));
+  CF_CUDA_ASSERT(d_params.allocate(3));
+  CF_CUDA_ASSERT(d_r2.upload(r2));
+  CF_CUDA_ASSERT(d_params.upload(std::vector<LJParams<Real>>(params, params + 3)));
+  lj_kernel<Real><<<(n + 127) / 128, 128>>>(d_r2.get(), n, rc2, d_params.get(), d_out.get());
+  CF_CUDA_ASSERT(cudaGetLastError());
+  CF_CUDA_ASSERT(cudaDeviceSynchronize());
+  std::vector<Real> device;
+  CF_CUDA_ASSERT(d_out.download(device));
+
+  std::size_t mismatches = 0;
+  for (std::size_t k = 0; k < host.size(); ++k)
+    if (std::memcmp(&host[k], &device[k], sizeof(Real)) != 0) {
+      if (++mismatches <= 5)
+        ADD_FAILURE() << "sigma " << c.sigma << " r2 " << r2[k / kLjOutputs] << " output "
+                      << k % kLjOutputs << ": host " << host[k] << ", device " << device[k]
+                      << " (diff " << double(device[k]) - double(host[k]) << ")";
+    }
+  EXPECT_EQ(mismatches, 0u) << "of " << host.size() << " outputs";
+}
+
+const LjCase kLjCases[] = {{1.0, 1.0, 2.5}, {0.88, 0.5, 2.2}, {1.3, 2.7, 3.25}, {3.4, 0.0104, 8.5}};
+
+// Double: all 18 outputs per r2 bitwise equal (memcmp).
+TEST_F(CoreOnDevice, LjPairDoubleBitwiseEqualsHost) {
+  for (const LjCase& c : kLjCases) compare_lj<double>(c);
+}
+
+// Float: all 18 outputs per r2 bitwise equal (memcmp).
+TEST_F(CoreOnDevice, LjPairFloatBitwiseEqualsHost) {
+  for (const LjCase& c : kLjCases) compare_lj<float>(c);
+}
+
+// ---- bin_particle --------------------------------------------------------------------------------
+__global__ void bin_kernel(Grid g, const double* x, int n, uint32_t* ids, Control* control) {
+  const int i = int(blockIdx.x * blockDim.x + threadIdx.x);
+  if (i < n) {
+    uint32_t local[kMaxCellTypes];
+    for (int t = 0; t < kMaxCellTypes; ++t) local[t] = 0xdeadbeefu;
+    control[i] = cellforce::bin_particle(g, x + std::size_t(i) * 3, local);
+    for (int t = 0; t < kMaxCellTypes; ++t) ids[std::size_t(i) * kMaxCellTypes + t] = local[t];
+  }
+}
+
+struct AxisSpec {
+  bool periodic;
+  double length;  // box edge (periodic) or extent of the particles (open)
+  double origin;  // 0 on periodic axes
+  uint32_t cells;
+};
+
+// A grid built by hand the way core/grid.h documents its fields (this binary does not link the
+// library's plan_grid).
+Grid make_grid(int dim, const AxisSpec (&axes)[3], double cutoff) {
+  Grid g;
+  g.dim = dim;
+  g.half_width = 0.70710678118654752440 * (1.0 + 1e-6) * cutoff;
+  uint32_t total = 1;
+  for (int a = 0; a < 3; ++a) {
+    const AxisSpec s = a < dim ? axes[a] : AxisSpec{false, 1.0, 0.0, 1};
+    g.n[a] = s.cells;
+    g.origin[a] = s.periodic ? 0.0 : s.origin;
+    g.cell[a] = s.length / s.cells;
+    g.inv_cell[a] = 1.0 / g.cell[a];
+    g.length[a] = s.periodic ? s.length : 0.0;
+    g.inv_length[a] = s.periodic ? 1.0 / s.length : 0.0;
+    g.half_width_cells[a] = a < dim ? g.half_width * g.inv_cell[a] : 0.0;
+    total *= s.cells;
+  }
+  g.num_cells = total;
+  return g;
+}
+
+std::vector<double> special_values(const Grid& g, int a) {
+  const bool periodic = g.inv_length[a] != 0.0;
+  const double l = g.n[a] * g.cell[a];
+  std::vector<double> v = {g.origin[a], g.origin[a] + l, std::nextafter(g.origin[a] + l, -1e300)};
+  if (periodic) v.insert(v.end(), {-0.0, -1e-8, -1e-300, -l, 1e3 * l + 0.5, 3 * l - 1e-9});
+  for (uint32_t k = 0; k <= g.n[a]; ++k) {
+    const double f = g.origin[a] + k * g.cell[a];
+    for (double x : {f, std::nextafter(f, -1e300), std::nextafter(f, 1e300), f + 1e-12, f - 1e-12,
+                     f + g.half_width, f - g.half_width, f + g.half_width * (1 + 1e-12),
+                     f + 0.5 * g.cell[a]})
+      if (periodic || (x >= g.origin[a] && x <= g.origin[a] + l)) v.push_back(x);
+  }
+  return v;
+}
+
+void compare_binning(const char* name, const Grid& g) {
+  std::vector<std::vector<double>> values;
+  for (int a = 0; a < g.dim; ++a) values.push_back(special_values(g, a));
+  std::vector<double> x;
+  std::size_t total = 1;
+  for (const auto& v : values) total *= v.size();
+  for (std::size_t idx = 0; idx < total; ++idx) {
+    std::size_t r = idx;
+    for (int a = 0; a < 3; ++a) {
+      if (a < g.dim) {
+        x.push_back(values[std::size_t(a)][r % values[std::size_t(a)].size()]);
+        r /= values[std::size_t(a)].size();
+      } else {
+        x.push_back(0.0);
+      }
+    }
+  }
+  uint64_t state = 12345;  // plus random points (splitmix64)
+  auto uniform = [&state] {
+    uint64_t z = (state += 0x9E3779B97F4A7C15ull);
+    z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
+    z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
+    return double((z ^ (z >> 31)) >> 11) * 0x1.0p-53;
+  };
+  for (int i = 0; i < 5000; ++i)
+    for (int a = 0; a < 3; ++a)
+      x.push_back(a < g.dim ? g.origin[a] + (uniform() * 1.2 - 0.1) * g.n[a] * g.cell[a] : 0.0);
+  const int n = int(x.size() / 3);
+
+  std::vector<uint32_t> host_ids(std::size_t(n) * kMaxCellTypes, 0xdeadbeefu);
+  std::vector<Control> host_control(static_cast<std::size_t>(n));
+  for (int i = 0; i < n; ++i)
+    host_control[std::size_t(i)] =
+        cellforce::bin_particle(g, &x[std::size_t(i) * 3], &host_ids[std::size_t(i) * kMaxCellTypes]);
+
+  DeviceArray<double> d_x;
+  DeviceArray<uint32_t> d_ids;
+  DeviceArray<Control> d_control;
+  CF_CUDA_ASSERT(d_x.allocate(x.size()));
+  CF_CUDA_ASSERT(d_ids.allocate(host_ids.size()));
+  CF_CUDA_ASSERT(d_control.allocate(host_control.size()));
+  CF_CUDA_ASSERT(d_x.upload(x));
+  bin_kernel<<<(n + 127) / 128, 128>>>(g, d_x.get(), n, d_ids.get(), d_control.get());
+  CF_CUDA_ASSERT(cudaGetLastError());
+  CF_CUDA_ASSERT(cudaDeviceSynchronize());
+  std::vector<uint32_t> dev_ids;
+  std::vector<Control> dev_control;
+  CF_CUDA_ASSERT(d_ids.download(dev_ids));
+  CF_CUDA_ASSERT(d_control.download(dev_control));
+
+  std::size_t mismatches = 0;
+  for (int i = 0; i < n; ++i) {
+    bool same = host_control[std::size_t(i)] == dev_control[std::size_t(i)];
+    for (int t = 0; t < kMaxCellTypes; ++t)
+      same = same && host_ids[std::size_t(i) * kMaxCellTypes + std::size_t(t)] ==
+                         dev_ids[std::size_t(i) * kMaxCellTypes + std::size_t(t)];
+    if (!same && ++mismatches <= 5)
+      ADD_FAILURE() << name << ": point (" << x[std::size_t(i) * 3] << ", "
+                    << x[std::size_t(i) * 3 + 1] << ", " << x[std::size_t(i) * 3 + 2]
+                    << "): host home " << host_ids[std::size_t(i) * kMaxCellTypes] << " control "
+                    << host_control[std::size_t(i)] << ", device home "
+                    << dev_ids[std::size_t(i) * kMaxCellTypes] << " control "
+                    << dev_control[std::size_t(i)];
+  }
+  EXPECT_EQ(mismatches, 0u) << name << ": of " << n << " points";
+}
+
+// Cell IDs (all 8 slots) and control bits equal exactly, host vs device, on every grid.
+TEST_F(CoreOnDevice, BinParticleEqualsHost) {
+  const double rc = 2.5;
+  compare_binning("periodic3d_L20", make_grid(3, {{true, 20, 0, 4}, {true, 20, 0, 4}, {true, 20, 0, 4}}, rc));
+  compare_binning("periodic3d_uneven", make_grid(3, {{true, 9, 0, 2}, {true, 13, 0, 2}, {true, 21.3, 0, 4}}, rc));
+  compare_binning("periodic3d_one_cell", make_grid(3, {{true, 5, 0, 1}, {true, 5, 0, 1}, {true, 5, 0, 1}}, rc));
+  compare_binning("periodic2d", make_grid(2, {{true, 20, 0, 4}, {true, 17.7, 0, 4}, {false, 1, 0, 1}}, rc));
+  compare_binning("open3d", make_grid(3, {{false, 20, -3.1, 4}, {false, 17, 1.7, 3}, {false, 40, -20, 9}}, rc));
+  compare_binning("slab3d", make_grid(3, {{true, 20, 0, 4}, {true, 20, 0, 4}, {false, 13, 2.2, 3}}, rc));
+  compare_binning("slab2d", make_grid(2, {{true, 30.7, 0, 6}, {false, 20, -10, 4}, {false, 1, 0, 1}}, rc));
+}
+
+}  // namespace
