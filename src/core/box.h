@@ -34,14 +34,14 @@ struct Box {
 // that value is mapped to 0, which is the same point modulo L.
 template <class Real>
 CF_HD Real wrap_coordinate(Real x, Real length, Real inv_length) {
-  Real w = x - length * std::floor(x * inv_length);
+  Real w = x - mul_rn(length, std::floor(x * inv_length));
   return (w >= length || w < Real(0)) ? Real(0) : w;
 }
 
 // Minimum image of a separation along one axis; inv_length == 0 marks an open axis (no change).
 template <class Real>
 CF_HD Real minimum_image(Real dx, Real length, Real inv_length) {
-  return dx - length * std::rint(dx * inv_length);
+  return dx - mul_rn(length, std::rint(dx * inv_length));
 }
 
 }  // namespace cellforce

@@ -93,7 +93,9 @@ CF_HD unsigned cell_type_of_id(const Grid& g, uint32_t id) {
   cell_coords(g, id, k);
   return cell_type(k);
 }
-CF_HD double cell_center(const Grid& g, int a, int k) { return g.origin[a] + (k + 0.5) * g.cell[a]; }
+CF_HD double cell_center(const Grid& g, int a, int k) {
+  return g.origin[a] + mul_rn(k + 0.5, g.cell[a]);
+}
 
 // Position of x relative to a point of a cell along axis a, as the image nearest to that point on
 // a periodic axis. Forming r_ij from these keeps the digits a far-from-origin coordinate loses.
