@@ -7,6 +7,7 @@
 #include <numeric>
 #include <sstream>
 #include <stdexcept>
+#include <unordered_map>
 
 namespace cftest {
 
@@ -41,6 +42,85 @@ double min_image_d2(const Box& box, const double* a, const double* b) {
 }
 }  // namespace
 
+namespace {
+// Bins of edge >= min_distance, so that a new particle need only be checked against the particles
+// of its own and the neighbouring bins (periodic axes wrap). Gives the same accept/reject
+// decisions as checking every particle, in O(1) per trial.
+class Bins {
+ public:
+  Bins(const Box& box, const double* lo, const double* hi, double width) : box_(box) {
+    for (int k = 0; k < 3; ++k) {
+      if (k >= box.dim) {
+        n_[k] = 1;
+        continue;
+      }
+      periodic_[k] = box.periodic[k];
+      origin_[k] = periodic_[k] ? 0.0 : lo[k];
+      const double extent = periodic_[k] ? box.length[k] : hi[k] - lo[k];
+      n_[k] = std::max<long>(1, std::min<long>(long(extent / width), 1L << 20));
+      width_[k] = extent > 0 ? extent / double(n_[k]) : 1.0;
+    }
+  }
+  template <class F>
+  bool all_neighbours(const double* x, F&& ok) const {
+    long c[3];
+    coords(x, c);
+    long lo[3], hi[3];
+    for (int k = 0; k < 3; ++k) {
+      if (n_[k] <= 3 && (periodic_[k] || k >= box_.dim)) {
+        lo[k] = 0;
+        hi[k] = n_[k] - 1;
+      } else {
+        lo[k] = c[k] - 1;
+        hi[k] = c[k] + 1;
+      }
+    }
+    for (long a = lo[0]; a <= hi[0]; ++a)
+      for (long b = lo[1]; b <= hi[1]; ++b)
+        for (long d = lo[2]; d <= hi[2]; ++d) {
+          auto it = map_.find(key(a, b, d));
+          if (it == map_.end()) continue;
+          for (std::size_t j : it->second)
+            if (!ok(j)) return false;
+        }
+    return true;
+  }
+  void insert(const double* x, std::size_t j) {
+    long c[3];
+    coords(x, c);
+    map_[key(c[0], c[1], c[2])].push_back(j);
+  }
+
+ private:
+  void coords(const double* x, long c[3]) const {
+    for (int k = 0; k < 3; ++k) {
+      if (k >= box_.dim) {
+        c[k] = 0;
+        continue;
+      }
+      double u = x[k] - origin_[k];
+      if (periodic_[k]) u -= box_.length[k] * std::floor(u / box_.length[k]);
+      c[k] = long(std::floor(u / width_[k]));
+      if (periodic_[k]) c[k] = std::min(std::max(c[k], 0L), n_[k] - 1);
+    }
+  }
+  uint64_t key(long a, long b, long d) const {
+    auto wrap = [&](long v, int k) {
+      if (periodic_[k] || k >= box_.dim) return ((v % n_[k]) + n_[k]) % n_[k];
+      return v;
+    };
+    const uint64_t ua = uint64_t(wrap(a, 0) + (1L << 20)), ub = uint64_t(wrap(b, 1) + (1L << 20)),
+                   ud = uint64_t(wrap(d, 2) + (1L << 20));
+    return ua | ub << 21 | ud << 42;
+  }
+  const Box& box_;
+  bool periodic_[3] = {false, false, false};
+  double origin_[3] = {0, 0, 0}, width_[3] = {1, 1, 1};
+  long n_[3] = {1, 1, 1};
+  std::unordered_map<uint64_t, std::vector<std::size_t>> map_;
+};
+}  // namespace
+
 Configuration random_configuration(const Box& box, std::size_t n, uint64_t seed,
                                    const RandomSpec& spec) {
   Rng rng(seed);
@@ -49,12 +129,13 @@ Configuration random_configuration(const Box& box, std::size_t n, uint64_t seed,
   const int d = box.dim;
   c.positions.reserve(n * std::size_t(d));
   c.types.reserve(n);
-  double lo[3], hi[3];
+  double lo[3] = {0, 0, 0}, hi[3] = {0, 0, 0};
   for (int k = 0; k < d; ++k) {
     lo[k] = spec.lo ? (*spec.lo)[std::size_t(k)] : 0.0;
     hi[k] = spec.hi ? (*spec.hi)[std::size_t(k)] : box.length[k];
   }
   const double dmin2 = spec.min_distance * spec.min_distance;
+  Bins bins(box, lo, hi, std::max(spec.min_distance, 1e-9));
   const std::size_t max_attempts = 2000 * (n + 1);
   std::size_t attempts = 0;
   double x[3] = {0, 0, 0};
@@ -63,12 +144,11 @@ Configuration random_configuration(const Box& box, std::size_t n, uint64_t seed,
       throw std::runtime_error("random_configuration: cannot place " + std::to_string(n) +
                                " particles with min_distance " + std::to_string(spec.min_distance));
     for (int k = 0; k < d; ++k) x[k] = rng.uniform(lo[k], hi[k]);
-    bool ok = true;
-    if (dmin2 > 0) {
-      for (std::size_t j = 0; j < c.types.size() && ok; ++j)
-        ok = min_image_d2(box, x, &c.positions[j * std::size_t(d)]) >= dmin2;
-    }
-    if (!ok) continue;
+    if (dmin2 > 0 && !bins.all_neighbours(x, [&](std::size_t j) {
+          return min_image_d2(box, x, &c.positions[j * std::size_t(d)]) >= dmin2;
+        }))
+      continue;
+    if (dmin2 > 0) bins.insert(x, c.types.size());
     for (int k = 0; k < d; ++k) c.positions.push_back(x[k]);
     c.types.push_back(spec.num_types > 1 ? uint32_t(rng.below(spec.num_types)) : 0u);
   }

@@ -471,6 +471,43 @@ TEST_P(BrokenCondition, DiagonalPairExactWithPlannedGrid) {
   expect_exact_with_planned_grid(c, ff(1.0));
 }
 
+// The coverage argument is tight: pairs at r < rc whose only shared collision cell is reached
+// because one box reaches across two faces, one of them at u h with u = 0.9 .. 0.99999 (the
+// default h has 1e-6 to spare), while the other particle's box misses by a hair (w h, w > 1).
+// Diagonally adjacent cells, all four orientations, planned grid (rc = 1, L = 32, 18 cells):
+// the pair set must equal the brute force's exactly, and contain all 16 constructed pairs.
+TEST_P(BrokenCondition, PairsAtTheCoverageLimitAreFound) {
+  const ForceField f = ff(1.0);
+  Configuration probe = config({32, 32, 32}, {});
+  const Grid g = cellforce::plan_grid(probe.box, 1.0, nullptr, 0);
+  const double c = g.cell[0], h = g.half_width;
+  ASSERT_GE(c, 1.0 + h);
+  std::vector<std::array<double, 3>> xs;
+  std::vector<Pair> constructed;
+  const double us[] = {0.9, 0.99, 0.999, 0.99999};
+  int group = 0;
+  const double eps = 1e-7, e = eps / h, rc_over_h = 1.0 / h;
+  for (double u : us) {
+    // r^2 / h^2 = (u + e)^2 + (w + e)^2 < (rc / h)^2; w halfway between 1 and the largest such w
+    const double wmax = std::sqrt(rc_over_h * rc_over_h - (u + e) * (u + e)) - e;
+    ASSERT_GT(wmax, 1.0) << "u " << u;
+    const double w = 0.5 * (1.0 + wmax);
+    for (int sx : {1, -1})
+      for (int sy : {1, -1}) {
+        const double cx = c * (3 + 4 * (group % 4)), cy = c * (3 + 4 * (group / 4)), z = 0.5 * c;
+        xs.push_back({cx - sx * eps, cy - sy * w * h, z});    // A: its box misses B's cell in y
+        xs.push_back({cx + sx * u * h, cy + sy * eps, z});    // B: reaches A's cell across 2 faces
+        constructed.push_back({uint32_t(2 * group), uint32_t(2 * group + 1)});
+        ++group;
+      }
+  }
+  const Configuration conf = config({32, 32, 32}, xs);
+  const auto expected = cellforce::brute_force_pairs(conf.view(), f);
+  ASSERT_TRUE(missing(constructed, expected).empty()) << "construction error: a pair is not < rc";
+  auto engine_ = make();
+  EXPECT_TRUE(pair_sets_equal(expected, engine_->visited_pairs(conf.view(), f)));
+}
+
 // (b) The exactly-once rule needs c >= rc + h. rc = 1, h = rc/sqrt(2), cells of edge 1.5 along x
 // (2h = 1.414 <= 1.5 still holds, n = 4 even): particle 0 at x = 1.4 in cell 0 touches cell 1,
 // particle 1 at x = 2.35 in cell 1 is within h of cell 2's face and touches cell 2 (type 0, like
