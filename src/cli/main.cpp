@@ -22,6 +22,7 @@
 namespace {
 
 using namespace cellforce;
+using cli::median;
 
 struct EvaluateArgs {
   Lattice lattice = Lattice::kFcc;
@@ -38,12 +39,6 @@ struct EvaluateArgs {
   bool brute = false;
   std::string json;
 };
-
-double median(std::vector<double> v) {
-  std::sort(v.begin(), v.end());
-  const std::size_t m = v.size() / 2;
-  return v.size() % 2 ? v[m] : 0.5 * (v[m - 1] + v[m]);
-}
 
 int evaluate(const EvaluateArgs& args) {
   Configuration config = make_lattice(args.lattice, args.cells, args.density);

@@ -1,8 +1,10 @@
 // Names of the run-time choices, shared by the CLI and the benchmark programs.
 #pragma once
 
+#include <algorithm>
 #include <map>
 #include <string>
+#include <vector>
 
 #include "core/force_field.h"
 #include "cpu/engine.h"
@@ -24,5 +26,12 @@ inline const std::map<std::string, Lattice> kLattices = {{"sc", Lattice::kSimple
                                                          {"bcc", Lattice::kBcc},
                                                          {"fcc", Lattice::kFcc},
                                                          {"square", Lattice::kSquare}};
+
+// Median of a sample (the middle two averaged for an even count); v must not be empty.
+inline double median(std::vector<double> v) {
+  std::sort(v.begin(), v.end());
+  const std::size_t m = v.size() / 2;
+  return v.size() % 2 ? v[m] : 0.5 * (v[m - 1] + v[m]);
+}
 
 }  // namespace cellforce::cli

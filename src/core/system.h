@@ -40,4 +40,8 @@ struct ForceResult {
 // positive or beyond half a periodic edge, type index out of range, bad force-field values.
 void validate_system(const SystemView& system, const ForceField& ff);
 
+// The error for a pair whose force is not finite: coincident (r2 == 0) or so close that the
+// Lennard-Jones force overflows in the precision used. Names both particles and their positions.
+[[noreturn]] void throw_close_pair(const SystemView& system, uint32_t i, uint32_t j, double r2);
+
 }  // namespace cellforce

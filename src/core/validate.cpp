@@ -48,4 +48,22 @@ void validate_system(const SystemView& system, const ForceField& ff) {
   }
 }
 
+void throw_close_pair(const SystemView& system, uint32_t i, uint32_t j, double r2) {
+  std::ostringstream s;
+  s.precision(17);
+  if (r2 == 0.0)
+    s << "particles " << i << " and " << j << " are at the same position";
+  else
+    s << "particles " << i << " and " << j << " are too close (r = " << std::sqrt(r2)
+      << "): the Lennard-Jones force is not finite in this precision";
+  const int dim = system.box.dim;
+  s << "; positions";
+  for (uint32_t k : {i, j}) {
+    s << " (";
+    for (int a = 0; a < dim; ++a) s << (a ? ", " : "") << system.positions[std::size_t(k) * dim + a];
+    s << ")";
+  }
+  throw Error(s.str());
+}
+
 }  // namespace cellforce

@@ -2,8 +2,6 @@
 #include "cpu/engine.h"
 
 #include <chrono>
-#include <cmath>
-#include <sstream>
 
 #include "core/error.h"
 #include "cpu/stages.h"
@@ -27,28 +25,11 @@ double seconds_since(Clock::time_point t0) {
   return std::chrono::duration<double>(Clock::now() - t0).count();
 }
 
-[[noreturn]] void throw_bad_pair(const SystemView& system, const cpu::TraversalReport& r) {
-  std::ostringstream s;
-  s.precision(17);
-  if (r.bad_r2 == 0.0)
-    s << "particles " << r.bad_i << " and " << r.bad_j << " are at the same position";
-  else
-    s << "particles " << r.bad_i << " and " << r.bad_j << " are too close (r = "
-      << std::sqrt(r.bad_r2) << "): the Lennard-Jones force is not finite in this precision";
-  const int dim = system.box.dim;
-  s << "; positions";
-  for (uint32_t i : {r.bad_i, r.bad_j}) {
-    s << " (";
-    for (int a = 0; a < dim; ++a) s << (a ? ", " : "") << system.positions[std::size_t(i) * dim + a];
-    s << ")";
-  }
-  throw Error(s.str());
-}
-
 }  // namespace
 
-CpuEngine::CpuEngine(CpuOptions options) : options_(std::move(options)), scratch_(new Scratch) {}
-CpuEngine::~CpuEngine() { delete scratch_; }
+CpuEngine::CpuEngine(CpuOptions options)
+    : options_(std::move(options)), scratch_(std::make_unique<Scratch>()) {}
+CpuEngine::~CpuEngine() = default;
 
 // Stages 1-3, shared by evaluate() and visited_pairs().
 void CpuEngine::build(const SystemView& system, const ForceField& ff, bool split) {
@@ -106,7 +87,7 @@ void CpuEngine::evaluate(const SystemView& system, const ForceField& ff, const R
   stats_.candidate_pairs = report.candidates;
   stats_.interacting_pairs = report.interacting;
   stats_.max_occupancy = report.max_occupancy;
-  if (report.bad) throw_bad_pair(system, report);
+  if (report.bad) throw_close_pair(system, report.bad_i, report.bad_j, report.bad_r2);
 
   t = Clock::now();
   if (options_.precision == Precision::kSingle)

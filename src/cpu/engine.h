@@ -5,6 +5,7 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <memory>
 #include <optional>
 #include <utility>
 #include <vector>
@@ -74,7 +75,7 @@ class CpuEngine {
   void build(const SystemView& system, const ForceField& ff, bool split_by_type);
   CpuOptions options_;
   PipelineStats stats_;
-  Scratch* scratch_;
+  std::unique_ptr<Scratch> scratch_;
 };
 
 const char* to_string(Precision precision);

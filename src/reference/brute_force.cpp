@@ -6,7 +6,6 @@
 #include <omp.h>
 
 #include <cmath>
-#include <sstream>
 
 #include "core/error.h"
 #include "core/lj.h"
@@ -73,14 +72,7 @@ void run(const SystemView& sys, const ForceField& ff, const Request& request, Fo
     for (int a = 0; a < dim; ++a) out.forces[i * dim + a] = f[a];
     if (request.energy) out.energies[i] = e_i;
   }
-  if (bad_r2 >= 0) {
-    std::ostringstream s;
-    s.precision(17);
-    if (bad_r2 == 0) s << "particles " << bad_i << " and " << bad_j << " are at the same position";
-    else s << "particles " << bad_i << " and " << bad_j << " are too close (r = " << std::sqrt(bad_r2)
-           << "): the Lennard-Jones force is not finite";
-    throw Error(s.str());
-  }
+  if (bad_r2 >= 0) throw_close_pair(sys, uint32_t(bad_i), uint32_t(bad_j), bad_r2);
   out.energy = 0;
   if (request.energy)
     for (std::size_t i = 0; i < n; ++i) out.energy += out.energies[i];

@@ -14,6 +14,7 @@
 #include <string>
 #include <vector>
 
+#include "cli/options.h"
 #include "cpu/engine.h"
 #include "reference/brute_force.h"
 #include "scene/lattice.h"
@@ -21,13 +22,8 @@
 namespace {
 
 using namespace cellforce;
+using cli::median;
 using Clock = std::chrono::steady_clock;
-
-double median(std::vector<double> v) {
-  std::sort(v.begin(), v.end());
-  const std::size_t m = v.size() / 2;
-  return v.size() % 2 ? v[m] : 0.5 * (v[m - 1] + v[m]);
-}
 
 // Median relative force error and max of |dF_i| / max(|F_i|, F_rms).
 void force_error(const ForceResult& r, const ForceResult& ref, int dim, double& med, double& worst) {
