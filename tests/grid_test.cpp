@@ -28,16 +28,7 @@ using ::testing::HasSubstr;
 constexpr double kSqrtHalf = 0.70710678118654752440;
 const double kDefaultFactor = cellforce::GridOptions{}.half_width_factor;
 
-Box box_of(int dim, std::array<double, 3> l, std::array<bool, 3> periodic) {
-  Box b;
-  b.dim = dim;
-  for (int a = 0; a < 3; ++a) {
-    b.length[a] = l[std::size_t(a)];
-    b.periodic[a] = periodic[std::size_t(a)];
-  }
-  return b;
-}
-Box periodic_box(int dim, double l) { return box_of(dim, {l, l, l}, {true, true, true}); }
+Box periodic_box(int dim, double l) { return cftest::cube(dim, l); }
 
 Grid unchecked(const Box& box, std::array<uint32_t, 3> cells, double h,
                const std::vector<double>& positions = {}) {
@@ -113,7 +104,7 @@ TEST(PlanGrid, PeriodicSweepMeetsConditions) {
   for (int dim : {2, 3})
     for (double rc : {1.0, 2.5, 3.7})
       for (double lx = 2 * rc; lx < 40 * rc; lx *= 1.173) {
-        const Box box = box_of(dim, {lx, 1.31 * lx + 0.5, 2.0 * lx}, {true, true, true});
+        const Box box = cftest::make_box(dim, {lx, 1.31 * lx + 0.5, 2.0 * lx}, {true, true, true});
         const Grid g = cellforce::plan_grid(box, rc, nullptr, 0);
         ASSERT_EQ(g.dim, dim);
         const double h = g.half_width;
@@ -198,7 +189,7 @@ TEST(PlanGrid, TwoCellsOnceTheyFit) {
 TEST(PlanGrid, OpenAxesCoverBoundingBox) {
   for (auto periodic : {std::array<bool, 3>{false, false, false},
                         std::array<bool, 3>{true, true, false}}) {
-    const Box box = box_of(3, {20, 20, 20}, periodic);
+    const Box box = cftest::make_box(3, {20, 20, 20}, periodic);
     Rng rng(3);
     std::vector<double> pos;
     for (int i = 0; i < 300; ++i)
@@ -228,7 +219,7 @@ TEST(PlanGrid, OpenAxesCoverBoundingBox) {
 // An open axis where every particle has the same coordinate: one cell of positive, finite edge,
 // and binning still gives a valid cell.
 TEST(PlanGrid, OpenAxisOfZeroExtent) {
-  const Box box = box_of(2, {10, 10, 1}, {false, false, false});
+  const Box box = cftest::make_box(2, {10, 10, 1}, {false, false, false});
   const std::vector<double> pos = {1.0, 4.0, 2.0, 4.0, 7.0, 4.0};  // y == 4 for all
   const Grid g = cellforce::plan_grid(box, 1.0, pos.data(), 3);
   EXPECT_EQ(g.n[1], 1u);
@@ -286,7 +277,7 @@ TEST(CheckGrid, RejectsOddCellCountOnPeriodicAxis) {
 
 // Parity needs no tiling on an open axis: 3 cells of edge 6 over particles spanning [0, 18].
 TEST(CheckGrid, AcceptsOddCellCountOnOpenAxis) {
-  const Box box = box_of(3, {18, 18, 18}, {false, false, false});
+  const Box box = cftest::make_box(3, {18, 18, 18}, {false, false, false});
   const std::vector<double> pos = {0, 0, 0, 18, 18, 18};
   const Grid g = unchecked(box, {3, 3, 3}, kDefaultFactor * 2.5, pos);
   EXPECT_EQ(g.n[0], 3u);
@@ -418,12 +409,12 @@ TEST(BinParticle, ConsistentOnFacesEdgesAndRandomPoints) {
   const BinCase cases[] = {
       {"periodic3d", periodic_box(3, 20), 2.5},
       {"periodic2d", periodic_box(2, 20), 2.5},
-      {"periodic3d_uneven", box_of(3, {9, 13, 21}, {true, true, true}), 2.5},
+      {"periodic3d_uneven", cftest::make_box(3, {9, 13, 21}, {true, true, true}), 2.5},
       {"two_cells", periodic_box(3, 9), 2.5},
       {"one_cell", periodic_box(3, 5), 2.5},
-      {"open3d", box_of(3, {20, 20, 20}, {false, false, false}), 2.5},
-      {"slab3d", box_of(3, {20, 20, 20}, {true, true, false}), 2.5},
-      {"slab2d", box_of(2, {20, 20, 1}, {true, false, false}), 2.5},
+      {"open3d", cftest::make_box(3, {20, 20, 20}, {false, false, false}), 2.5},
+      {"slab3d", cftest::make_box(3, {20, 20, 20}, {true, true, false}), 2.5},
+      {"slab2d", cftest::make_box(2, {20, 20, 1}, {true, false, false}), 2.5},
   };
   for (const BinCase& c : cases) {
     const int d = c.box.dim;
@@ -511,7 +502,7 @@ TEST(BinParticle, ExactFacesBelongToTheUpperCell) {
 // Open axes: the bounding-box maximum lies in the last cell (clamped), the minimum in the first,
 // and neither has a P cell beyond the open face.
 TEST(BinParticle, OpenAxisExtremes) {
-  const Box box = box_of(3, {20, 20, 20}, {false, false, false});
+  const Box box = cftest::make_box(3, {20, 20, 20}, {false, false, false});
   const std::vector<double> pos = {-3, -3, -3, 17, 17, 17};
   const Grid g = cellforce::plan_grid(box, 2.5, pos.data(), 2);
   ASSERT_GT(g.n[0], 1u);

@@ -11,6 +11,21 @@
 
 namespace cftest {
 
+cellforce::Box make_box(int dim, std::array<double, 3> lengths, std::array<bool, 3> periodic) {
+  cellforce::Box b;
+  b.dim = dim;
+  for (int a = 0; a < 3; ++a) {
+    b.length[a] = lengths[std::size_t(a)];
+    b.periodic[a] = periodic[std::size_t(a)];
+  }
+  return b;
+}
+
+cellforce::Box cube(int dim, double l, bool periodic) {
+  return make_box(dim, {l, l, l}, {periodic, periodic, periodic});
+}
+
+
 using cellforce::Box;
 using cellforce::Configuration;
 using cellforce::ForceResult;

@@ -37,6 +37,11 @@ class Rng {
   uint64_t state_;
 };
 
+// ---- boxes -------------------------------------------------------------------------------------
+cellforce::Box make_box(int dim, std::array<double, 3> lengths, std::array<bool, 3> periodic);
+// A cube (square in 2D) of edge l, periodic or open on every axis.
+cellforce::Box cube(int dim, double l, bool periodic = true);
+
 // ---- configurations ------------------------------------------------------------------------------
 struct RandomSpec {
   // No two particles closer than this (minimum image on periodic axes); 0 = no constraint.

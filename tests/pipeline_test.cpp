@@ -596,20 +596,10 @@ class KnownAnswers : public ::testing::TestWithParam<VariantParam>, protected Ba
   }
 };
 
-Box periodic_cube(int dim, double l) {
-  Box b;
-  b.dim = dim;
-  for (int a = 0; a < 3; ++a) {
-    b.length[a] = l;
-    b.periodic[a] = true;
-  }
-  return b;
-}
-
 // No particles: empty forces, zero energy and virial (exact).
 TEST_P(KnownAnswers, EmptySystem) {
   Configuration c;
-  c.box = periodic_cube(3, 10);
+  c.box = cftest::cube(3, 10);
   auto e = make();
   const ForceResult r = run(*e, c, ForceField{});
   EXPECT_TRUE(r.forces.empty());
@@ -622,7 +612,7 @@ TEST_P(KnownAnswers, EmptySystem) {
 TEST_P(KnownAnswers, SingleParticle) {
   for (bool periodic : {true, false}) {
     Configuration c;
-    c.box = periodic_cube(3, 10);
+    c.box = cftest::cube(3, 10);
     for (bool& p : c.box.periodic) p = periodic;
     c.positions = {1.0, 2.0, 3.0};
     c.types = {0};
@@ -637,7 +627,7 @@ TEST_P(KnownAnswers, SingleParticle) {
 // energy and virial of one LJ pair, from lj_pair, to 1e-12 relative.
 TEST_P(KnownAnswers, PairAcrossPeriodicBoundary) {
   Configuration c;
-  c.box = periodic_cube(3, 10);
+  c.box = cftest::cube(3, 10);
   c.positions = {0.3, 5.0, 5.0, 9.6, 5.0, 5.0};
   c.types = {0, 0};
   ForceField f;
@@ -665,7 +655,7 @@ TEST_P(KnownAnswers, PairAcrossPeriodicBoundary) {
 // and through the boundary, and one at 3.5 that does interact. Exact comparisons.
 TEST_P(KnownAnswers, PairAtExactlyCutoffIsExcluded) {
   Configuration c;
-  c.box = periodic_cube(3, 16);
+  c.box = cftest::cube(3, 16);
   c.positions = {1, 1, 1,  5, 1, 1,   // 0-1: dx = 4
                  1, 9, 1,  13, 9, 1,  // 2-3: dx = 12 -> minimum image 4
                  1, 1, 9,  1, 4.5, 9};  // 4-5: dy = 3.5 interacts

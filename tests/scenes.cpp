@@ -16,26 +16,6 @@ using cellforce::ForceField;
 
 namespace {
 
-Box cube(int dim, double l, bool periodic = true) {
-  Box b;
-  b.dim = dim;
-  for (int a = 0; a < 3; ++a) {
-    b.length[a] = l;
-    b.periodic[a] = periodic;
-  }
-  return b;
-}
-
-Box make_box(int dim, std::array<double, 3> l, std::array<bool, 3> periodic) {
-  Box b;
-  b.dim = dim;
-  for (int a = 0; a < 3; ++a) {
-    b.length[a] = l[std::size_t(a)];
-    b.periodic[a] = periodic[std::size_t(a)];
-  }
-  return b;
-}
-
 ForceField lj(double cutoff = 2.5, double sigma = 1.0) {
   ForceField ff;
   ff.cutoff = cutoff;
