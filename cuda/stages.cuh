@@ -1,0 +1,34 @@
+// The stages of the CUDA pipeline (issue 3), with the same names and array layouts as src/cpu:
+// so far stage 1 (cell IDs and the count of valid entries) and stage 2 (the sort, with CUB).
+// All work is enqueued on `stream`; pointers are device pointers.
+#pragma once
+
+#include <cuda_runtime.h>
+
+#include <cstddef>
+#include <cstdint>
+
+#include "core/grid.h"
+#include "device_buffer.cuh"
+
+namespace cellforce::cuda {
+
+// Stage 1 (GPU Gems 3 ch. 32, section 32.2.2): one thread per particle. positions: n x grid.dim
+// doubles, user order. Writes keys and object_ids (n x 2^d, entry i * 2^d + t as on the CPU:
+// key = cell << 1 | phantom, kInvalidCell where unused) and control (n).
+void build_cell_ids(const Grid& grid, const double* positions, std::size_t n, uint32_t* keys,
+                    uint32_t* object_ids, Control* control, cudaStream_t stream);
+
+// The count of valid entries, by a device reduction; `scratch` grows as CUB asks. Synchronises
+// the stream to return the count to the host.
+std::size_t count_valid(const uint32_t* keys, std::size_t entries, DeviceBuffer<std::byte>& scratch,
+                        cudaStream_t stream);
+
+// Stage 2 with CUB's device radix sort: stable, on bits [0, key_bits) only, so that invalid
+// entries (all ones in the window) sort last and each cell's H entries precede its P entries.
+// Sorts (keys_in, values_in) into (keys_out, values_out).
+void radix_sort_cub(const uint32_t* keys_in, const uint32_t* values_in, uint32_t* keys_out,
+                    uint32_t* values_out, std::size_t entries, int key_bits,
+                    DeviceBuffer<std::byte>& scratch, cudaStream_t stream);
+
+}  // namespace cellforce::cuda
