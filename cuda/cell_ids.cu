@@ -46,14 +46,19 @@ void build_cell_ids(const Grid& grid, const double* positions, std::size_t n, ui
 std::size_t count_valid(const uint32_t* keys, std::size_t entries, DeviceBuffer<std::byte>& scratch,
                         cudaStream_t stream) {
   if (entries == 0) return 0;
-  DeviceBuffer<std::size_t> result(1);
+  // The sum lands in the first 256 bytes of the scratch; CUB's temporary storage follows it, so
+  // that a count allocates nothing once the scratch is large enough.
+  constexpr std::size_t kResultBytes = 256;
   auto valid = thrust::make_transform_iterator(keys, IsValid{});
   std::size_t bytes = 0;
-  CF_CUDA_CHECK(cub::DeviceReduce::Sum(nullptr, bytes, valid, result.data(), entries, stream));
-  scratch.reserve(bytes);
-  CF_CUDA_CHECK(cub::DeviceReduce::Sum(scratch.data(), bytes, valid, result.data(), entries, stream));
+  CF_CUDA_CHECK(cub::DeviceReduce::Sum(nullptr, bytes, valid, static_cast<std::size_t*>(nullptr),
+                                       entries, stream));
+  scratch.reserve(kResultBytes + bytes);
+  auto* result = reinterpret_cast<std::size_t*>(scratch.data());
+  CF_CUDA_CHECK(cub::DeviceReduce::Sum(scratch.data() + kResultBytes, bytes, valid, result, entries,
+                                       stream));
   std::size_t count = 0;
-  CF_CUDA_CHECK(cudaMemcpyAsync(&count, result.data(), sizeof(count), cudaMemcpyDeviceToHost, stream));
+  CF_CUDA_CHECK(cudaMemcpyAsync(&count, result, sizeof(count), cudaMemcpyDeviceToHost, stream));
   CF_CUDA_CHECK(cudaStreamSynchronize(stream));
   return count;
 }
