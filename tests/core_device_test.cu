@@ -18,6 +18,7 @@
 #include <vector>
 
 #include "core/box.h"
+#include "cuda_device.h"
 #include "core/grid.h"
 #include "core/lj.h"
 
@@ -67,19 +68,7 @@ class DeviceArray {
   std::size_t n_ = 0;
 };
 
-class CoreOnDevice : public ::testing::Test {
- protected:
-  void SetUp() override {
-    int count = 0;
-    const cudaError_t err = cudaGetDeviceCount(&count);
-    if (err != cudaSuccess) {
-      (void)cudaGetLastError();  // clear the error this call left
-      GTEST_SKIP() << "no CUDA device: cudaGetDeviceCount failed with " << cudaGetErrorName(err)
-                   << " (" << cudaGetErrorString(err) << ")";
-    }
-    if (count == 0) GTEST_SKIP() << "no CUDA device: cudaGetDeviceCount returned 0";
-  }
-};
+class CoreOnDevice : public cftest::NeedsCudaDevice {};
 
 // ---- lj_pair ------------------------------------------------------------------------------------
 // Per input: for each of the 3 modes x {energy, no energy}: hit, force_over_r, energy (outputs

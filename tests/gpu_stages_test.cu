@@ -11,6 +11,7 @@
 #include <vector>
 
 #include "check.cuh"
+#include "cuda_device.h"
 #include "cpu/stages.h"
 #include "oracle.h"
 #include "scene/lattice.h"
@@ -20,18 +21,7 @@ namespace {
 
 using namespace cellforce;
 
-class GpuStages : public ::testing::Test {
- protected:
-  void SetUp() override {
-    int count = 0;
-    const cudaError_t err = cudaGetDeviceCount(&count);
-    if (err != cudaSuccess) {
-      (void)cudaGetLastError();
-      GTEST_SKIP() << "no CUDA device: cudaGetDeviceCount failed with " << cudaGetErrorName(err);
-    }
-    if (count == 0) GTEST_SKIP() << "no CUDA device: cudaGetDeviceCount returned 0";
-  }
-};
+class GpuStages : public cftest::NeedsCudaDevice {};
 
 template <class T>
 std::vector<T> download(const cuda::DeviceBuffer<T>& d, std::size_t n) {
@@ -110,11 +100,7 @@ TEST_F(GpuStages, CubSortEdgeCases) {
   auto check = [&](std::vector<uint32_t> keys, int bits) {
     std::vector<uint32_t> values(keys.size());
     std::iota(values.begin(), values.end(), 0u);
-    const uint32_t window = bits >= 32 ? 0xffffffffu : (uint32_t(1) << bits) - 1;
-    std::vector<std::pair<uint32_t, uint32_t>> expected;
-    for (std::size_t i = 0; i < keys.size(); ++i) expected.emplace_back(keys[i], values[i]);
-    std::stable_sort(expected.begin(), expected.end(),
-                     [&](auto& a, auto& b) { return (a.first & window) < (b.first & window); });
+    const auto expected = cftest::stable_sorted_with_positions(keys, bits);
     cuda::DeviceBuffer<uint32_t> ki, vi, ko, vo;
     upload(ki, keys);
     upload(vi, values);

@@ -11,6 +11,17 @@
 
 namespace cftest {
 
+std::vector<std::pair<uint32_t, uint32_t>> stable_sorted_with_positions(
+    const std::vector<uint32_t>& keys, int key_bits) {
+  const uint32_t window = key_bits >= 32 ? 0xffffffffu : (uint32_t(1) << key_bits) - 1;
+  std::vector<std::pair<uint32_t, uint32_t>> sorted;
+  for (std::size_t i = 0; i < keys.size(); ++i) sorted.emplace_back(keys[i], uint32_t(i));
+  std::stable_sort(sorted.begin(), sorted.end(),
+                   [&](const auto& a, const auto& b) { return (a.first & window) < (b.first & window); });
+  return sorted;
+}
+
+
 cellforce::Box make_box(int dim, std::array<double, 3> lengths, std::array<bool, 3> periodic) {
   cellforce::Box b;
   b.dim = dim;

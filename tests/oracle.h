@@ -37,6 +37,12 @@ class Rng {
   uint64_t state_;
 };
 
+// ---- sort oracle -------------------------------------------------------------------------------
+// (key, value) with value = input position, stably sorted on the key's low `key_bits` bits by
+// std::stable_sort: what every radix sort of the project must reproduce exactly.
+std::vector<std::pair<uint32_t, uint32_t>> stable_sorted_with_positions(
+    const std::vector<uint32_t>& keys, int key_bits);
+
 // ---- boxes -------------------------------------------------------------------------------------
 cellforce::Box make_box(int dim, std::array<double, 3> lengths, std::array<bool, 3> periodic);
 // A cube (square in 2D) of edge l, periodic or open on every axis.

@@ -11,6 +11,7 @@
 
 #include "core/grid.h"
 #include "cpu/stages.h"
+#include "oracle.h"
 #include "scene/lattice.h"
 
 namespace {
@@ -22,11 +23,7 @@ using cellforce::cpu::SortScratch;
 void expect_sorted_like_stable_sort(std::vector<uint32_t> keys, int key_bits) {
   std::vector<uint32_t> values(keys.size());
   std::iota(values.begin(), values.end(), 0u);
-  const uint32_t window = key_bits >= 32 ? 0xffffffffu : (uint32_t(1) << key_bits) - 1;
-  std::vector<std::pair<uint32_t, uint32_t>> expected;
-  for (std::size_t i = 0; i < keys.size(); ++i) expected.emplace_back(keys[i], values[i]);
-  std::stable_sort(expected.begin(), expected.end(),
-                   [&](auto& a, auto& b) { return (a.first & window) < (b.first & window); });
+  const auto expected = cftest::stable_sorted_with_positions(keys, key_bits);
   SortScratch scratch;
   radix_sort(keys, values, key_bits, scratch);
   ASSERT_EQ(keys.size(), expected.size());
