@@ -1,5 +1,6 @@
 // The stages of the CUDA pipeline (issue 3), with the same names and array layouts as src/cpu:
-// so far stage 1 (cell IDs and the count of valid entries) and stage 2 (the sort, with CUB).
+// so far stage 1 (cell IDs and the count of valid entries), stage 2 (the sort, with CUB) and
+// stage 3 (the collision-cell list).
 // All work is enqueued on `stream`; pointers are device pointers.
 #pragma once
 
@@ -30,5 +31,19 @@ std::size_t count_valid(const uint32_t* keys, std::size_t entries, DeviceBuffer<
 void radix_sort_cub(const uint32_t* keys_in, const uint32_t* values_in, uint32_t* keys_out,
                     uint32_t* values_out, std::size_t entries, int key_bits,
                     DeviceBuffer<std::byte>& scratch, cudaStream_t stream);
+
+// Stage 3 (section 32.2.5): the collision cells of the first `valid` sorted keys, in cell order,
+// written to `cells` (grown as needed); returns their number (synchronises the stream). Scratch
+// buffers are grown from the counts.
+struct CollisionScratch {
+  DeviceBuffer<uint8_t> flags;
+  DeviceBuffer<uint32_t> run_start;
+  DeviceBuffer<CollisionCell> runs;
+  DeviceBuffer<int> count;
+  DeviceBuffer<std::byte> cub;
+};
+std::size_t find_collision_cells(const uint32_t* sorted_keys, std::size_t valid,
+                                 DeviceBuffer<CollisionCell>& cells, CollisionScratch& scratch,
+                                 cudaStream_t stream);
 
 }  // namespace cellforce::cuda

@@ -1,6 +1,6 @@
-// CUDA stages 1 and 2 against the CPU stages (themselves tested against direct tallies and
+// CUDA stages 1-3 against the CPU stages (themselves tested against direct tallies and
 // std::stable_sort in sort_test.cpp): cell-ID, object-ID and control arrays, the valid count,
-// and the sorted arrays must be identical element for element. CUB's sort is also checked on the
+// the sorted arrays and the collision-cell list must be identical element for element. CUB's sort is also checked on the
 // edge cases a sort must survive. Skips with a message where no CUDA device exists.
 #include <cuda_runtime.h>
 #include <gtest/gtest.h>
@@ -37,7 +37,7 @@ void upload(cuda::DeviceBuffer<T>& d, const std::vector<T>& h) {
     CF_CUDA_CHECK(cudaMemcpy(d.data(), h.data(), h.size() * sizeof(T), cudaMemcpyHostToDevice));
 }
 
-// Stages 1 and 2 on both backends for one configuration; every array must be identical.
+// Stages 1-3 on both backends for one configuration; every array must be identical.
 void expect_stages_equal(const Configuration& c, double cutoff) {
   const SystemView sys = c.view();
   const Grid g = plan_grid(sys.box, cutoff, sys.positions, sys.n);
@@ -68,6 +68,21 @@ void expect_stages_equal(const Configuration& c, double cutoff) {
   cpu::radix_sort(host.keys, host.object_ids, g.key_bits, sort_scratch);
   EXPECT_EQ(download(d_keys_sorted, entries), host.keys) << "sorted keys";
   EXPECT_EQ(download(d_ids_sorted, entries), host.object_ids) << "sorted object IDs (stability)";
+
+  std::vector<CollisionCell> host_cells;
+  cpu::find_collision_cells(host.keys.data(), host.valid, host_cells);
+  cuda::DeviceBuffer<CollisionCell> d_cells;
+  cuda::CollisionScratch collision_scratch;
+  const std::size_t ncells =
+      cuda::find_collision_cells(d_keys_sorted.data(), valid, d_cells, collision_scratch, 0);
+  ASSERT_EQ(ncells, host_cells.size()) << "collision cells";
+  const auto cells = download(d_cells, ncells);
+  for (std::size_t i = 0; i < ncells; ++i) {
+    const CollisionCell &a = cells[i], &b = host_cells[i];
+    ASSERT_TRUE(a.start == b.start && a.h == b.h && a.p == b.p && a.cell == b.cell)
+        << "collision cell " << i << ": GPU (" << a.start << ", " << a.h << ", " << a.p << ", "
+        << a.cell << ") CPU (" << b.start << ", " << b.h << ", " << b.p << ", " << b.cell << ")";
+  }
 }
 
 TEST_F(GpuStages, LiquidMatchesCpu) {

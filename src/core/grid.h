@@ -154,6 +154,15 @@ CF_HD Control bin_particle(const Grid& g, const double x[kMaxDim], uint32_t ids[
   return make_control(home, mask);
 }
 
+// ---- collision cells (stage 3, both backends) ---------------------------------------------------
+// A collision cell holds at least one H entry and at least two entries in all (section 32.2.5).
+struct CollisionCell {
+  uint32_t start;  // first entry in sorted order
+  uint32_t h;      // H entries: sorted positions start .. start + h - 1
+  uint32_t p;      // P entries: sorted positions start + h .. start + h + p - 1
+  uint32_t cell;   // cell ID
+};
+
 // ---- planning (host) ----------------------------------------------------------------------------
 
 // Chooses the grid for a box, cutoff and (for open axes) the particles' bounding box:

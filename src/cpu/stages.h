@@ -34,13 +34,7 @@ struct SortScratch {
 void radix_sort(std::vector<uint32_t>& keys, std::vector<uint32_t>& values, int key_bits,
                 SortScratch& scratch);
 
-// Stage 3: a collision cell holds at least one H entry and at least two entries in all.
-struct CollisionCell {
-  uint32_t start;  // first entry in sorted order
-  uint32_t h;      // H entries: sorted positions start .. start + h - 1
-  uint32_t p;      // P entries: sorted positions start + h .. start + h + p - 1
-  uint32_t cell;   // cell ID
-};
+using cellforce::CollisionCell;
 
 // Scans the first `valid` sorted keys for transitions and lists the collision cells in cell order.
 void find_collision_cells(const uint32_t* sorted_keys, std::size_t valid,

@@ -1,4 +1,5 @@
-// Benchmark, not a test: CUDA stages 1 and 2 (cell IDs, count of valid entries, CUB radix sort)
+// Benchmark, not a test: CUDA stages 1-3 (cell IDs, count of valid entries, CUB radix sort,
+// collision cells)
 // for the LJ liquid (fcc at density 0.8442, jittered by 0.05 sigma, rc 2.5) at several sizes.
 // Median of repeated runs timed with CUDA events after a warm-up. Prints a Markdown table and
 // writes JSON. The remaining stages join as issue 3 brings them.
@@ -30,8 +31,8 @@ int main(int argc, char** argv) {
   cudaDeviceProp prop{};
   CF_CUDA_CHECK(cudaGetDeviceProperties(&prop, 0));
   std::printf("device: %s\n\n", prop.name);
-  std::printf("| N | grid | entries | valid | key bits | cell IDs ms | count ms | CUB sort ms | cell IDs GB/s |\n");
-  std::printf("|---|---|---|---|---|---|---|---|---|\n");
+  std::printf("| N | grid | entries | valid | key bits | cell IDs ms | count ms | CUB sort ms | collision cells ms | cells | cell IDs GB/s |\n");
+  std::printf("|---|---|---|---|---|---|---|---|---|---|---|\n");
   nlohmann::json rows = nlohmann::json::array();
   cudaEvent_t t0, t1;
   CF_CUDA_CHECK(cudaEventCreate(&t0));
@@ -72,13 +73,20 @@ int main(int argc, char** argv) {
       cuda::radix_sort_cub(keys.data(), ids.data(), keys_out.data(), ids_out.data(), entries,
                            g.key_bits, scratch, 0);
     });
+    cuda::DeviceBuffer<CollisionCell> cells_out;
+    cuda::CollisionScratch collision_scratch;
+    std::size_t ncells = 0;
+    const double t_cells = time_ms([&] {
+      ncells = cuda::find_collision_cells(keys_out.data(), valid, cells_out, collision_scratch, 0);
+    });
     // Stage 1 moves at least: positions read, keys and object IDs written, control written.
     const double bytes = double(n) * (g.dim * 8.0 + double(std::size_t(1) << g.dim) * 8.0 + 2.0);
-    std::printf("| %zu | %u^3 | %zu | %zu | %d | %.4f | %.4f | %.4f | %.0f |\n", n, g.n[0], entries,
-                valid, g.key_bits, t_ids, t_count, t_sort, bytes / (t_ids * 1e-3) / 1e9);
+    std::printf("| %zu | %u^3 | %zu | %zu | %d | %.4f | %.4f | %.4f | %.4f | %zu | %.0f |\n", n, g.n[0],
+                entries, valid, g.key_bits, t_ids, t_count, t_sort, t_cells, ncells,
+                bytes / (t_ids * 1e-3) / 1e9);
     rows.push_back({{"n", n}, {"cells_per_axis", g.n[0]}, {"entries", entries}, {"valid", valid},
                     {"key_bits", g.key_bits}, {"cell_ids_ms", t_ids}, {"count_ms", t_count},
-                    {"cub_sort_ms", t_sort}});
+                    {"cub_sort_ms", t_sort}, {"collision_cells_ms", t_cells}, {"collision_cells", ncells}});
   }
   if (!json_path.empty()) {
     std::ofstream f(json_path);
