@@ -30,43 +30,9 @@ using cellforce::Grid;
 using cellforce::kMaxCellTypes;
 using cellforce::LJParams;
 
-#define CF_CUDA_ASSERT(call)                                                                   \
-  do {                                                                                         \
-    const cudaError_t err_ = (call);                                                           \
-    ASSERT_EQ(err_, cudaSuccess) << #call << ": " << cudaGetErrorName(err_) << ": "            \
-                                 << cudaGetErrorString(err_);                                  \
-  } while (0)
-
-// Device buffer whose release is checked too.
-template <class T>
-class DeviceArray {
- public:
-  DeviceArray() = default;
-  DeviceArray(const DeviceArray&) = delete;
-  DeviceArray& operator=(const DeviceArray&) = delete;
-  ~DeviceArray() {
-    if (ptr_) {
-      const cudaError_t err = cudaFree(ptr_);
-      if (err != cudaSuccess) ADD_FAILURE() << "cudaFree: " << cudaGetErrorString(err);
-    }
-  }
-  cudaError_t allocate(std::size_t n) {
-    n_ = n;
-    return cudaMalloc(reinterpret_cast<void**>(&ptr_), std::max<std::size_t>(n, 1) * sizeof(T));
-  }
-  cudaError_t upload(const std::vector<T>& v) {
-    return cudaMemcpy(ptr_, v.data(), v.size() * sizeof(T), cudaMemcpyHostToDevice);
-  }
-  cudaError_t download(std::vector<T>& v) const {
-    v.resize(n_);
-    return cudaMemcpy(v.data(), ptr_, n_ * sizeof(T), cudaMemcpyDeviceToHost);
-  }
-  T* get() const { return ptr_; }
-
- private:
-  T* ptr_ = nullptr;
-  std::size_t n_ = 0;
-};
+using cellforce::cuda::DeviceBuffer;
+using cftest::download;
+using cftest::upload;
 
 class CoreOnDevice : public cftest::NeedsCudaDevice {};
 
@@ -122,18 +88,15 @@ void compare_lj(const LjCase& c) {
   std::vector<Real> host(r2.size() * kLjOutputs);
   for (int i = 0; i < n; ++i) lj_all<Real>(r2[std::size_t(i)], rc2, params, &host[std::size_t(i) * kLjOutputs]);
 
-  DeviceArray<Real> d_r2, d_out;
-  DeviceArray<LJParams<Real>> d_params;
-  CF_CUDA_ASSERT(d_r2.allocate(r2.size()));
-  CF_CUDA_ASSERT(d_out.allocate(host.size()));
-  CF_CUDA_ASSERT(d_params.allocate(3));
-  CF_CUDA_ASSERT(d_r2.upload(r2));
-  CF_CUDA_ASSERT(d_params.upload(std::vector<LJParams<Real>>(params, params + 3)));
-  lj_kernel<Real><<<(n + 127) / 128, 128>>>(d_r2.get(), n, rc2, d_params.get(), d_out.get());
-  CF_CUDA_ASSERT(cudaGetLastError());
-  CF_CUDA_ASSERT(cudaDeviceSynchronize());
+  DeviceBuffer<Real> d_r2, d_out(host.size());
+  DeviceBuffer<LJParams<Real>> d_params;
+  upload(d_r2, r2);
+  upload(d_params, std::vector<LJParams<Real>>(params, params + 3));
+  lj_kernel<Real><<<(n + 127) / 128, 128>>>(d_r2.data(), n, rc2, d_params.data(), d_out.data());
+  CF_CUDA_CHECK_LAUNCH();
+  CF_CUDA_CHECK(cudaDeviceSynchronize());
   std::vector<Real> device;
-  CF_CUDA_ASSERT(d_out.download(device));
+  device = download(d_out, host.size());
 
   // The hit flag and every output left alone must match bitwise (the cutoff contract has no
   // arithmetic in it). Force and energy may differ in their last bits: nvcc contracts a * b + c
@@ -267,20 +230,17 @@ void compare_binning(const char* name, const Grid& g) {
     host_control[std::size_t(i)] =
         cellforce::bin_particle(g, &x[std::size_t(i) * 3], &host_ids[std::size_t(i) * kMaxCellTypes]);
 
-  DeviceArray<double> d_x;
-  DeviceArray<uint32_t> d_ids;
-  DeviceArray<Control> d_control;
-  CF_CUDA_ASSERT(d_x.allocate(x.size()));
-  CF_CUDA_ASSERT(d_ids.allocate(host_ids.size()));
-  CF_CUDA_ASSERT(d_control.allocate(host_control.size()));
-  CF_CUDA_ASSERT(d_x.upload(x));
-  bin_kernel<<<(n + 127) / 128, 128>>>(g, d_x.get(), n, d_ids.get(), d_control.get());
-  CF_CUDA_ASSERT(cudaGetLastError());
-  CF_CUDA_ASSERT(cudaDeviceSynchronize());
+  DeviceBuffer<double> d_x;
+  DeviceBuffer<uint32_t> d_ids(std::max<std::size_t>(host_ids.size(), 1));
+  DeviceBuffer<Control> d_control(std::max<std::size_t>(host_control.size(), 1));
+  upload(d_x, x);
+  bin_kernel<<<(n + 127) / 128, 128>>>(g, d_x.data(), n, d_ids.data(), d_control.data());
+  CF_CUDA_CHECK_LAUNCH();
+  CF_CUDA_CHECK(cudaDeviceSynchronize());
   std::vector<uint32_t> dev_ids;
   std::vector<Control> dev_control;
-  CF_CUDA_ASSERT(d_ids.download(dev_ids));
-  CF_CUDA_ASSERT(d_control.download(dev_control));
+  dev_ids = download(d_ids, host_ids.size());
+  dev_control = download(d_control, host_control.size());
 
   std::size_t mismatches = 0;
   for (int i = 0; i < n; ++i) {

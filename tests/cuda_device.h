@@ -5,6 +5,12 @@
 #include <cuda_runtime.h>
 #include <gtest/gtest.h>
 
+#include <algorithm>
+#include <vector>
+
+#include "check.cuh"
+#include "device_buffer.cuh"
+
 namespace cftest {
 
 class NeedsCudaDevice : public ::testing::Test {
@@ -20,5 +26,20 @@ class NeedsCudaDevice : public ::testing::Test {
     if (count == 0) GTEST_SKIP() << "no CUDA device: cudaGetDeviceCount returned 0";
   }
 };
+
+// Host <-> device copies for tests; a failed CUDA call throws cellforce::Error (the test fails).
+template <class T>
+void upload(cellforce::cuda::DeviceBuffer<T>& d, const std::vector<T>& h) {
+  d.reserve(std::max<std::size_t>(h.size(), 1));
+  if (!h.empty())
+    CF_CUDA_CHECK(cudaMemcpy(d.data(), h.data(), h.size() * sizeof(T), cudaMemcpyHostToDevice));
+}
+
+template <class T>
+std::vector<T> download(const cellforce::cuda::DeviceBuffer<T>& d, std::size_t n) {
+  std::vector<T> h(n);
+  if (n) CF_CUDA_CHECK(cudaMemcpy(h.data(), d.data(), n * sizeof(T), cudaMemcpyDeviceToHost));
+  return h;
+}
 
 }  // namespace cftest

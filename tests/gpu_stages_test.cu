@@ -23,19 +23,8 @@ using namespace cellforce;
 
 class GpuStages : public cftest::NeedsCudaDevice {};
 
-template <class T>
-std::vector<T> download(const cuda::DeviceBuffer<T>& d, std::size_t n) {
-  std::vector<T> h(n);
-  if (n) CF_CUDA_CHECK(cudaMemcpy(h.data(), d.data(), n * sizeof(T), cudaMemcpyDeviceToHost));
-  return h;
-}
-
-template <class T>
-void upload(cuda::DeviceBuffer<T>& d, const std::vector<T>& h) {
-  d.reserve(std::max<std::size_t>(h.size(), 1));
-  if (!h.empty())
-    CF_CUDA_CHECK(cudaMemcpy(d.data(), h.data(), h.size() * sizeof(T), cudaMemcpyHostToDevice));
-}
+using cftest::download;
+using cftest::upload;
 
 // Stages 1-3 on both backends for one configuration; every array must be identical.
 void expect_stages_equal(const Configuration& c, double cutoff) {
