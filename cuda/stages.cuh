@@ -1,6 +1,6 @@
 // The stages of the CUDA pipeline (issue 3), with the same names and array layouts as src/cpu:
-// so far stage 1 (cell IDs and the count of valid entries), stage 2 (the sort, with CUB) and
-// stage 3 (the collision-cell list).
+// so far stage 1 (cell IDs and the count of valid entries), stage 2 (the sort, with CUB or the
+// chapter's own radix sort) and stage 3 (the collision-cell list).
 // All work is enqueued on `stream`; pointers are device pointers.
 #pragma once
 
@@ -32,6 +32,19 @@ void radix_sort_cub(const uint32_t* keys_in, const uint32_t* values_in, uint32_t
                     uint32_t* values_out, std::size_t entries, int key_bits,
                     DeviceBuffer<std::byte>& scratch, cudaStream_t stream);
 
+// Stage 2 with the chapter's own three-phase radix sort (section 32.2.3): the same contract as
+// radix_sort_cub (stable, bits [0, key_bits) only, key_bits in 1..32, else cellforce::Error) and
+// the same result element for element. The inputs are only read; outputs must not overlap them.
+// Deterministic, no atomics. The scratch grows from the counts and is reused across calls.
+struct ChapterSortScratch {
+  DeviceBuffer<uint32_t> keys, values;  // entries each: the outputs' partners between passes
+  DeviceBuffer<uint32_t> counts;        // radix x tiles, counts[digit * tiles + tile]
+  DeviceBuffer<uint32_t> digit_totals;  // radix: entries per digit in the current pass
+};
+void radix_sort_chapter(const uint32_t* keys_in, const uint32_t* values_in, uint32_t* keys_out,
+                        uint32_t* values_out, std::size_t entries, int key_bits,
+                        ChapterSortScratch& scratch, cudaStream_t stream);
+
 // Stage 3 (section 32.2.5): the collision cells of the first `valid` sorted keys, in cell order,
 // written to `cells` (grown as needed); returns their number (synchronises the stream). Scratch
 // buffers are grown from the counts.
@@ -45,5 +58,18 @@ struct CollisionScratch {
 std::size_t find_collision_cells(const uint32_t* sorted_keys, std::size_t valid,
                                  DeviceBuffer<CollisionCell>& cells, CollisionScratch& scratch,
                                  cudaStream_t stream);
+
+// Stage 3's option for Gauss-Seidel: splits the `count` cells stably by cell type (cell order kept
+// within a type); type_start[t] .. type_start[t + 1] - 1 are the cells of type t afterwards
+// (synchronises the stream to read the counts).
+struct SplitScratch {
+  DeviceBuffer<uint32_t> keys, keys_out, order, order_out;
+  DeviceBuffer<CollisionCell> cells;
+  DeviceBuffer<unsigned> counts;
+  DeviceBuffer<std::byte> cub;
+};
+void split_by_type(const Grid& grid, DeviceBuffer<CollisionCell>& cells, std::size_t count,
+                   SplitScratch& scratch, std::size_t type_start[kMaxCellTypes + 1],
+                   cudaStream_t stream);
 
 }  // namespace cellforce::cuda

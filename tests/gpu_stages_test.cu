@@ -1,13 +1,16 @@
 // CUDA stages 1-3 against the CPU stages (themselves tested against direct tallies and
 // std::stable_sort in sort_test.cpp): cell-ID, object-ID and control arrays, the valid count,
-// the sorted arrays and the collision-cell list must be identical element for element. CUB's sort is also checked on the
-// edge cases a sort must survive. Skips with a message where no CUDA device exists.
+// the sorted arrays and the collision-cell list must be identical element for element, and the
+// chapter's sort must give CUB's arrays. Both device sorts run through the same test bodies on the
+// edge cases a sort must survive, against std::stable_sort. Skips with a message where no CUDA
+// device exists.
 #include <cuda_runtime.h>
 #include <gtest/gtest.h>
 
 #include <algorithm>
 #include <numeric>
 #include <random>
+#include <string>
 #include <vector>
 
 #include "check.cuh"
@@ -58,6 +61,18 @@ void expect_stages_equal(const Configuration& c, double cutoff) {
   EXPECT_EQ(download(d_keys_sorted, entries), host.keys) << "sorted keys";
   EXPECT_EQ(download(d_ids_sorted, entries), host.object_ids) << "sorted object IDs (stability)";
 
+  // The chapter's sort on the same arrays: CUB's result element for element.
+  cuda::DeviceBuffer<uint32_t> d_keys_chapter(std::max<std::size_t>(entries, 1)),
+      d_ids_chapter(std::max<std::size_t>(entries, 1));
+  cuda::ChapterSortScratch chapter_scratch;
+  cuda::radix_sort_chapter(d_keys.data(), d_ids.data(), d_keys_chapter.data(), d_ids_chapter.data(),
+                           entries, g.key_bits, chapter_scratch, 0);
+  CF_CUDA_CHECK(cudaDeviceSynchronize());
+  EXPECT_EQ(download(d_keys_chapter, entries), download(d_keys_sorted, entries))
+      << "chapter sort keys against CUB, key bits " << g.key_bits;
+  EXPECT_EQ(download(d_ids_chapter, entries), download(d_ids_sorted, entries))
+      << "chapter sort object IDs against CUB, key bits " << g.key_bits;
+
   std::vector<CollisionCell> host_cells;
   cpu::find_collision_cells(host.keys.data(), host.valid, host_cells);
   cuda::DeviceBuffer<CollisionCell> d_cells;
@@ -97,42 +112,172 @@ TEST_F(GpuStages, ClusteredEmptyAndSingleMatchCpu) {
   expect_stages_equal(cftest::random_configuration(cftest::cube(3, 10.0), 1, 12), 2.5);
 }
 
-// CUB's sort against std::stable_sort on the masked key: 0 and 1 elements, all keys equal, keys
-// using every bit (31- and 32-bit windows), sizes that are not multiples of any block.
-TEST_F(GpuStages, CubSortEdgeCases) {
-  std::mt19937_64 rng(3);
-  auto check = [&](std::vector<uint32_t> keys, int bits) {
+// ---- both device sorts on the edge cases a sort must survive ----------------------------------
+
+enum class DeviceSort { kCub, kChapter };
+
+std::string sort_name(const ::testing::TestParamInfo<DeviceSort>& info) {
+  return info.param == DeviceSort::kCub ? "Cub" : "Chapter";
+}
+
+// One device sort, its scratch kept across calls as the pipeline keeps it.
+class GpuSort : public cftest::NeedsCudaDevice, public ::testing::WithParamInterface<DeviceSort> {
+ protected:
+  void sort(const uint32_t* keys_in, const uint32_t* values_in, uint32_t* keys_out,
+            uint32_t* values_out, std::size_t entries, int key_bits) {
+    if (GetParam() == DeviceSort::kCub)
+      cuda::radix_sort_cub(keys_in, values_in, keys_out, values_out, entries, key_bits, cub_, 0);
+    else
+      cuda::radix_sort_chapter(keys_in, values_in, keys_out, values_out, entries, key_bits,
+                               chapter_, 0);
+  }
+
+  // Sorts `keys` with values = input positions: the result must be std::stable_sort's on the
+  // window [0, key_bits) (keys and positions, so stability is checked), and the inputs must be
+  // left as they were.
+  ::testing::AssertionResult sorts_like_stable_sort(const std::vector<uint32_t>& keys,
+                                                    int key_bits) {
     std::vector<uint32_t> values(keys.size());
     std::iota(values.begin(), values.end(), 0u);
-    const auto expected = cftest::stable_sorted_with_positions(keys, bits);
-    cuda::DeviceBuffer<uint32_t> ki, vi, ko, vo;
+    const auto expected = cftest::stable_sorted_with_positions(keys, key_bits);
+    cuda::DeviceBuffer<uint32_t> ki, vi, ko(std::max<std::size_t>(keys.size(), 1)),
+        vo(std::max<std::size_t>(keys.size(), 1));
     upload(ki, keys);
     upload(vi, values);
-    ko.reserve(std::max<std::size_t>(keys.size(), 1));
-    vo.reserve(std::max<std::size_t>(keys.size(), 1));
-    cuda::DeviceBuffer<std::byte> scratch;
-    cuda::radix_sort_cub(ki.data(), vi.data(), ko.data(), vo.data(), keys.size(), bits, scratch, 0);
+    sort(ki.data(), vi.data(), ko.data(), vo.data(), keys.size(), key_bits);
     CF_CUDA_CHECK(cudaDeviceSynchronize());
     const auto k = download(ko, keys.size()), v = download(vo, keys.size());
-    for (std::size_t i = 0; i < keys.size(); ++i) {
-      ASSERT_EQ(k[i], expected[i].first) << "n " << keys.size() << " bits " << bits << " at " << i;
-      ASSERT_EQ(v[i], expected[i].second) << "n " << keys.size() << " bits " << bits << " at " << i;
-    }
-  };
-  check({}, 8);
-  check({42}, 8);
-  check(std::vector<uint32_t>(10007, 5u), 9);
-  std::vector<uint32_t> wide(20011);
-  for (auto& x : wide) x = uint32_t(rng());
-  wide[3] = 0;
-  wide[4] = 0xffffffffu;
-  check(wide, 31);
-  check(wide, 32);
-  for (std::size_t n : {2u, 255u, 257u, 4097u, 65537u, 1000003u}) {
-    std::vector<uint32_t> k(n);
-    for (auto& x : k) x = uint32_t(rng() % 1000);
-    check(k, 10);
+    const std::string where =
+        "n " + std::to_string(keys.size()) + ", key bits " + std::to_string(key_bits);
+    for (std::size_t i = 0; i < keys.size(); ++i)
+      if (k[i] != expected[i].first || v[i] != expected[i].second)
+        return ::testing::AssertionFailure()
+               << where << ", at " << i << ": got (key " << k[i] << ", position " << v[i]
+               << "), std::stable_sort (key " << expected[i].first << ", position "
+               << expected[i].second << ")";
+    if (download(ki, keys.size()) != keys || download(vi, keys.size()) != values)
+      return ::testing::AssertionFailure() << where << ": the input arrays were modified";
+    return ::testing::AssertionSuccess();
   }
+
+  cuda::DeviceBuffer<std::byte> cub_;
+  cuda::ChapterSortScratch chapter_;
+};
+
+std::vector<uint32_t> random_keys(std::size_t n, uint64_t bound, uint64_t seed) {
+  std::mt19937_64 rng(seed);
+  std::vector<uint32_t> k(n);
+  for (auto& x : k) x = uint32_t(bound ? rng() % bound : rng());  // bound 0: all 32 bits
+  return k;
+}
+
+TEST_P(GpuSort, EmptyAndSingle) {
+  EXPECT_TRUE(sorts_like_stable_sort({}, 8));
+  EXPECT_TRUE(sorts_like_stable_sort({42}, 8));
+  EXPECT_TRUE(sorts_like_stable_sort({0xffffffffu}, 32));
+  EXPECT_TRUE(sorts_like_stable_sort({3}, 1));
+}
+
+TEST_P(GpuSort, AllKeysEqual) {
+  EXPECT_TRUE(sorts_like_stable_sort(std::vector<uint32_t>(10007, 5u), 9));
+  EXPECT_TRUE(sorts_like_stable_sort(std::vector<uint32_t>(5000, 0xffffffffu), 17));
+  EXPECT_TRUE(sorts_like_stable_sort(std::vector<uint32_t>(4096, 0u), 32));
+}
+
+// 31- and 32-bit windows over keys using every bit, 0 and all ones included.
+TEST_P(GpuSort, KeysUsingEveryBit) {
+  for (std::size_t n : {20011u, 262147u}) {
+    std::vector<uint32_t> wide = random_keys(n, 0, n);
+    wide[3] = 0;
+    wide[4] = 0xffffffffu;
+    wide[n - 1] = 0x80000000u;
+    EXPECT_TRUE(sorts_like_stable_sort(wide, 31));
+    EXPECT_TRUE(sorts_like_stable_sort(wide, 32));
+  }
+}
+
+// Windows giving one to four passes of 8 bits or fewer, odd and even counts; the bits above the
+// window are random and must be carried, not compared (small windows: many equal keys).
+TEST_P(GpuSort, EveryPassCount) {
+  std::vector<uint32_t> keys = random_keys(70001, 0, 4);
+  keys[10] = 0xffffffffu;
+  keys[70000] = 0xffffffffu;
+  for (int bits : {1, 7, 8, 9, 16, 17, 24, 25, 31, 32})
+    EXPECT_TRUE(sorts_like_stable_sort(keys, bits));
+}
+
+// Sizes around the warp, the block and the chapter sort's 4096-key tile, and a large odd one.
+TEST_P(GpuSort, SizesNotMultiplesOfTheTile) {
+  for (std::size_t n : {2u, 31u, 32u, 33u, 255u, 256u, 257u, 4095u, 4096u, 4097u, 8193u, 65537u,
+                        1000003u})
+    EXPECT_TRUE(sorts_like_stable_sort(random_keys(n, 1000, n), 10));
+  EXPECT_TRUE(sorts_like_stable_sort(random_keys(1000003, 1u << 17, 6), 17));
+}
+
+// Keys as stage 1 writes them (cell << 1 | phantom below 2^key_bits - 1, and kInvalidCell): every
+// invalid entry sorts after every valid one, in input order.
+TEST_P(GpuSort, InvalidEntriesSortLast) {
+  constexpr int kBits = 13;
+  std::mt19937_64 rng(8);
+  std::vector<uint32_t> keys(300007);
+  std::size_t invalid = 0;
+  for (auto& k : keys) {
+    k = rng() % 4 == 0 ? 0xffffffffu : uint32_t(rng() % ((1u << kBits) - 1));
+    invalid += k == 0xffffffffu;
+  }
+  ASSERT_TRUE(sorts_like_stable_sort(keys, kBits));
+  // The oracle agrees; say it directly too.
+  std::vector<uint32_t> values(keys.size());
+  std::iota(values.begin(), values.end(), 0u);
+  cuda::DeviceBuffer<uint32_t> ki, vi, ko(keys.size()), vo(keys.size());
+  upload(ki, keys);
+  upload(vi, values);
+  sort(ki.data(), vi.data(), ko.data(), vo.data(), keys.size(), kBits);
+  CF_CUDA_CHECK(cudaDeviceSynchronize());
+  const auto k = download(ko, keys.size()), v = download(vo, keys.size());
+  const std::size_t first_invalid = keys.size() - invalid;
+  for (std::size_t i = 0; i < keys.size(); ++i) {
+    ASSERT_EQ(k[i] == 0xffffffffu, i >= first_invalid) << "at " << i;
+    if (i > first_invalid) ASSERT_LT(v[i - 1], v[i]) << "invalid entries out of order at " << i;
+  }
+}
+
+// Few distinct keys spread over 28 bits (four passes): equal keys must keep their input order
+// through every pass, not only the last.
+TEST_P(GpuSort, StableThroughEveryPass) {
+  const uint32_t distinct[] = {0x0000001u, 0x0000080u, 0x0004000u, 0x0200000u, 0x8000000u,
+                               0x8000001u, 0x0204080u, 0xfffffffu, 0x0000000u, 0x5555555u,
+                               0xaaaaaaau, 0x0010000u, 0x0001000u, 0x0100001u, 0x7ffffffu,
+                               0x0000fffu};
+  std::mt19937_64 rng(9);
+  std::vector<uint32_t> keys(300007);
+  for (auto& k : keys) k = distinct[rng() % 16];
+  EXPECT_TRUE(sorts_like_stable_sort(keys, 28));
+}
+
+// One scratch through growing, shrinking and differently wide sorts: nothing left from an earlier
+// call may leak into a later one.
+TEST_P(GpuSort, ScratchReusedAcrossCalls) {
+  EXPECT_TRUE(sorts_like_stable_sort(random_keys(1000003, 1u << 17, 10), 17));
+  EXPECT_TRUE(sorts_like_stable_sort(random_keys(257, 0, 11), 32));
+  EXPECT_TRUE(sorts_like_stable_sort(random_keys(70001, 0, 12), 9));
+  EXPECT_TRUE(sorts_like_stable_sort(random_keys(1, 0, 13), 3));
+  EXPECT_TRUE(sorts_like_stable_sort(random_keys(1000003, 0, 14), 31));
+}
+
+TEST_P(GpuSort, MoreThanInt32MaxEntriesThrows) {
+  EXPECT_THROW(sort(nullptr, nullptr, nullptr, nullptr, std::size_t(INT32_MAX) + 1, 8), Error);
+}
+
+INSTANTIATE_TEST_SUITE_P(DeviceSorts, GpuSort,
+                         ::testing::Values(DeviceSort::kCub, DeviceSort::kChapter), sort_name);
+
+TEST_F(GpuStages, ChapterSortRejectsKeyBitsOutside1To32) {
+  cuda::ChapterSortScratch scratch;
+  for (int bits : {0, -1, 33})
+    EXPECT_THROW(cuda::radix_sort_chapter(nullptr, nullptr, nullptr, nullptr, 10, bits, scratch, 0),
+                 Error)
+        << "key bits " << bits;
 }
 
 }  // namespace
