@@ -3,6 +3,7 @@
 // positions (CUB select), (3) one thread per cell finds where its H entries end (they sort first)
 // and whether it is a collision cell (H >= 1, H + P >= 2), (4) compact those. The list comes out
 // in cell order, identical to the CPU stage's.
+#include <cub/device/device_radix_sort.cuh>
 #include <cub/device/device_select.cuh>
 #include <thrust/iterator/counting_iterator.h>
 
@@ -73,6 +74,66 @@ std::size_t find_collision_cells(const uint32_t* sorted_keys, std::size_t valid,
   CF_CUDA_CHECK_LAUNCH();
   cells.reserve(std::size_t(runs));
   return std::size_t(select_flagged(s.runs.data(), s.flags.data(), cells.data(), std::size_t(runs), s, stream));
+}
+
+}  // namespace cellforce::cuda
+
+// ---- split by cell type (Gauss-Seidel) ---------------------------------------------------------
+// The cells of one type share no particle, so each type is one race-free pass. The list is
+// split stably by a 3-bit radix sort of (type, position), which keeps cell order within a type.
+namespace cellforce::cuda {
+namespace {
+
+__global__ void cell_types(const Grid grid, const CollisionCell* __restrict__ cells, std::size_t n,
+                           uint32_t* __restrict__ types, uint32_t* __restrict__ positions,
+                           unsigned* __restrict__ counts) {
+  const std::size_t c = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
+  if (c >= n) return;
+  const uint32_t t = cell_type_of_id(grid, cells[c].cell);
+  types[c] = t;
+  positions[c] = uint32_t(c);
+  atomicAdd(&counts[t], 1u);  // integer counts: the result does not depend on the order
+}
+
+__global__ void gather_cells(const CollisionCell* __restrict__ in, const uint32_t* __restrict__ order,
+                             std::size_t n, CollisionCell* __restrict__ out) {
+  const std::size_t c = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
+  if (c < n) out[c] = in[order[c]];
+}
+
+}  // namespace
+
+void split_by_type(const Grid& grid, DeviceBuffer<CollisionCell>& cells, std::size_t count,
+                   SplitScratch& s, std::size_t type_start[kMaxCellTypes + 1], cudaStream_t stream) {
+  const int types = grid.num_types();
+  for (int t = 0; t <= types; ++t) type_start[t] = 0;
+  if (count == 0) return;
+  s.keys.reserve(count);
+  s.keys_out.reserve(count);
+  s.order.reserve(count);
+  s.order_out.reserve(count);
+  s.cells.reserve(count);
+  s.counts.reserve(kMaxCellTypes);
+  CF_CUDA_CHECK(cudaMemsetAsync(s.counts.data(), 0, kMaxCellTypes * sizeof(unsigned), stream));
+  cell_types<<<blocks_for(count), kBlock, 0, stream>>>(grid, cells.data(), count, s.keys.data(),
+                                                       s.order.data(), s.counts.data());
+  CF_CUDA_CHECK_LAUNCH();
+  std::size_t bytes = 0;
+  CF_CUDA_CHECK(cub::DeviceRadixSort::SortPairs(nullptr, bytes, s.keys.data(), s.keys_out.data(),
+                                                s.order.data(), s.order_out.data(), int(count), 0,
+                                                grid.dim, stream));
+  s.cub.reserve(bytes);
+  CF_CUDA_CHECK(cub::DeviceRadixSort::SortPairs(s.cub.data(), bytes, s.keys.data(), s.keys_out.data(),
+                                                s.order.data(), s.order_out.data(), int(count), 0,
+                                                grid.dim, stream));
+  gather_cells<<<blocks_for(count), kBlock, 0, stream>>>(cells.data(), s.order_out.data(), count,
+                                                         s.cells.data());
+  CF_CUDA_CHECK_LAUNCH();
+  std::swap(cells, s.cells);
+  unsigned counts[kMaxCellTypes] = {};
+  CF_CUDA_CHECK(cudaMemcpyAsync(counts, s.counts.data(), sizeof(counts), cudaMemcpyDeviceToHost, stream));
+  CF_CUDA_CHECK(cudaStreamSynchronize(stream));
+  for (int t = 0; t < types; ++t) type_start[t + 1] = type_start[t] + counts[t];
 }
 
 }  // namespace cellforce::cuda

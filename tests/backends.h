@@ -1,7 +1,7 @@
 // The engines under test, behind one interface, so that every pipeline property is one test body
-// instantiated for each backend (style.md, tests). Only the CPU engine exists now; a GPU engine is
-// added by appending a Backend to backends() in backends.cpp (its `unavailable` returns a reason,
-// e.g. "no CUDA device", so that its instances skip where there is no GPU).
+// instantiated for each backend (style.md, tests): the CPU engine and, where CUDA is built, the
+// CUDA engine in each traversal form, whose `unavailable` returns a reason ("no CUDA device: ...")
+// so that its instances skip where there is no GPU.
 #pragma once
 
 #include <cstddef>

@@ -289,10 +289,13 @@ class ReducedPrecision : public ::testing::TestWithParam<PrecisionParam>,
   void SetUp() override { CF_SKIP_IF_UNAVAILABLE(std::get<0>(GetParam())); }
 };
 
-// Median over particles of |dF_i| / |F_ref_i| < 1e-5 (float pairs). The far-from-origin scenes
-// (1e4 sigma, and 1000 box edges away) are the pitfall of spatial-subdivision.md: r_ij formed from
-// raw float coordinates there gives ~1e-2.
-TEST_P(ReducedPrecision, MedianRelativeForceErrorBelow1e5) {
+// Median over particles of |dF_i| / |F_ref_i| < 1e-6 (float pairs). The floor is the rounding of
+// the staged float coordinates (|x| up to c/2 + h ~ 4.6 sigma from the cell centre): measured
+// 0.80-0.97e-6 on these scenes on the CPU and GPU, in single and in mixed (which sums in double
+// but stages the same float coordinates). The far-from-origin scenes (1e4 sigma, and 1000 box
+// edges away) are the pitfall of spatial-subdivision.md: r_ij formed from raw float coordinates
+// there gives ~1e-2.
+TEST_P(ReducedPrecision, MedianRelativeForceErrorBelow1e6) {
   const auto& [backend, acc, precision, scene_name] = GetParam();
   const Scene s = make_scene(scene_name);
   auto e = engine(backend, acc, precision);
@@ -300,7 +303,7 @@ TEST_P(ReducedPrecision, MedianRelativeForceErrorBelow1e5) {
   const ForceResult ref = oracle(s.config, s.ff);
   ASSERT_EQ(got.forces.size(), ref.forces.size());
   const double median = median_relative_force_error(ref, got);
-  EXPECT_LT(median, 1e-5);
+  EXPECT_LT(median, 1e-6);
 }
 
 INSTANTIATE_TEST_SUITE_P(
@@ -369,13 +372,16 @@ TEST_P(Invariance, TranslationByBoxVectorKeepsForces) {
   EXPECT_TRUE(forces_match(base, run(*e, moved, scene_.ff), 1e-12));
 }
 
-// Repeated evaluation, by the same engine and by a fresh one: bitwise identical results (memcmp).
+// Ten repeated evaluations by the same engine, and one by a fresh engine: bitwise identical
+// results (memcmp).
 TEST_P(Invariance, RepeatedEvaluationIsBitwiseIdentical) {
   auto e = make();
   const ForceResult first = run(*e, scene_.config, scene_.ff);
-  const ForceResult second = run(*e, scene_.config, scene_.ff);
-  EXPECT_TRUE(bitwise_equal(first, second));
-  EXPECT_EQ(first.energy, second.energy);
+  for (int repeat = 1; repeat < 10; ++repeat) {
+    const ForceResult again = run(*e, scene_.config, scene_.ff);
+    EXPECT_TRUE(bitwise_equal(first, again)) << "repeat " << repeat;
+    EXPECT_EQ(first.energy, again.energy);
+  }
   auto fresh = make();
   EXPECT_TRUE(bitwise_equal(first, run(*fresh, scene_.config, scene_.ff)));
 }

@@ -1,6 +1,6 @@
 // Bad input is refused with a cellforce::Error whose message names the culprit: the particle
-// index, the box, the cutoff, the type. Every entry point that takes a system is checked (the CPU
-// engine in each precision, and the brute force, which promises the same errors). Messages are
+// index, the box, the cutoff, the type. Every entry point that takes a system is checked (each
+// backend of backends.h in each precision, and the brute force, which promises the same errors). Messages are
 // matched loosely: a keyword and the indices as whole numbers, never a full sentence.
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
@@ -13,6 +13,7 @@
 #include "core/error.h"
 #include "core/force_field.h"
 #include "core/system.h"
+#include "backends.h"
 #include "cpu/engine.h"
 #include "oracle.h"
 #include "reference/brute_force.h"
@@ -30,36 +31,43 @@ struct EntryPoint {
   std::string name;
   bool float_pairs;  // evaluates pairs in float (can overflow where double does not)
   std::function<void(const cellforce::SystemView&, const ForceField&)> call;
+  std::function<std::string()> unavailable = [] { return std::string(); };
 };
 
-EntryPoint engine_entry(const std::string& name, cellforce::Precision p) {
-  return {name, p != cellforce::Precision::kDouble,
-          [p](const cellforce::SystemView& s, const ForceField& ff) {
-            cellforce::CpuOptions o;
-            o.precision = p;
-            cellforce::CpuEngine e(o);
+EntryPoint engine_entry(std::size_t backend, cellforce::Precision p) {
+  const Backend& b = backends()[backend];
+  return {b.name + "_" + cellforce::to_string(p), p != cellforce::Precision::kDouble,
+          [backend, p](const cellforce::SystemView& s, const ForceField& ff) {
+            EngineSpec spec;
+            spec.precision = p;
+            auto e = backends()[backend].make(spec);
             ForceResult r;
-            e.evaluate(s, ff, cellforce::Request{}, r);
-          }};
+            e->evaluate(s, ff, cellforce::Request{}, r);
+          },
+          b.unavailable};
 }
 
 const std::vector<EntryPoint>& entry_points() {
-  static const std::vector<EntryPoint> list = {
-      engine_entry("cpu_double", cellforce::Precision::kDouble),
-      engine_entry("cpu_mixed", cellforce::Precision::kMixed),
-      engine_entry("cpu_single", cellforce::Precision::kSingle),
-      {"brute_force", false,
-       [](const cellforce::SystemView& s, const ForceField& ff) {
-         ForceResult r;
-         cellforce::brute_force(s, ff, cellforce::Request{}, r);
-       }},
-  };
+  static const std::vector<EntryPoint> list = [] {
+    std::vector<EntryPoint> l;
+    for (std::size_t b : backend_ids())
+      for (auto p : {cellforce::Precision::kDouble, cellforce::Precision::kMixed,
+                     cellforce::Precision::kSingle})
+        l.push_back(engine_entry(b, p));
+    l.push_back({"brute_force", false, [](const cellforce::SystemView& s, const ForceField& ff) {
+                   ForceResult r;
+                   cellforce::brute_force(s, ff, cellforce::Request{}, r);
+                 }});
+    return l;
+  }();
   return list;
 }
 
 class BadInput : public ::testing::TestWithParam<std::size_t> {
  protected:
   void SetUp() override {
+    const std::string why = entry().unavailable();
+    if (!why.empty()) GTEST_SKIP() << entry().name << ": " << why;
     // fcc 3^3 at 0.8442: 108 particles, L = 5.0387, rc = 2.5 <= L/2.
     config_ = cellforce::make_lattice(cellforce::Lattice::kFcc, 3, 0.8442);
     cellforce::jitter(config_, 0.05, 4);

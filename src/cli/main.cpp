@@ -1,7 +1,7 @@
 // The cellforce command line. `cellforce evaluate` builds a lattice scene (by default the LAMMPS
 // in.lj fluid's starting state: fcc, density 0.8442, 32,000 particles, rc 2.5), evaluates forces,
-// energy and virial once per repeat with the CPU pipeline, and reports the physics, the pipeline's
-// counts and its stage times, optionally next to the O(n^2) brute force.
+// energy and virial once per repeat with the CPU or the CUDA pipeline, and reports the physics, the
+// pipeline's counts and its stage times, optionally next to the O(n^2) brute force.
 #include <omp.h>
 
 #include <CLI/CLI.hpp>
@@ -19,6 +19,10 @@
 #include "reference/brute_force.h"
 #include "scene/lattice.h"
 
+#ifdef CELLFORCE_HAVE_CUDA
+#include "engine.h"  // cuda/engine.h
+#endif
+
 namespace {
 
 using namespace cellforce;
@@ -35,6 +39,9 @@ struct EvaluateArgs {
   Precision precision = Precision::kDouble;
   Accumulation accumulation = Accumulation::kJacobi;
   CellRule rule = CellRule::kTight;
+  std::string backend = "auto";
+  std::string traversal = "warp";
+  std::string sort = "cub";
   int repeats = 5;
   bool brute = false;
   std::string json;
@@ -52,28 +59,76 @@ int evaluate(const EvaluateArgs& args) {
   options.precision = args.precision;
   options.accumulation = args.accumulation;
   options.grid.rule = args.rule;
-  CpuEngine engine(options);
   const Request request{true, true};
   ForceResult result;
 
+  // The backend: "auto" takes the GPU when one can be used.
+  std::string backend = args.backend;
+#ifdef CELLFORCE_HAVE_CUDA
+  if (backend == "auto") backend = GpuEngine::unavailable().empty() ? "cuda" : "cpu";
+  std::unique_ptr<GpuEngine> gpu;
+  if (backend == "cuda") {
+    GpuOptions g;
+    g.precision = args.precision;
+    g.accumulation = args.accumulation;
+    g.grid.rule = args.rule;
+    g.traversal = args.traversal == "thread" ? TraversalForm::kThreadPerCell : TraversalForm::kWarpPerCell;
+    g.sort = args.sort == "chapter" ? SortMethod::kChapter : SortMethod::kCub;
+    gpu = std::make_unique<GpuEngine>(g);
+  }
+#else
+  if (backend == "auto") backend = "cpu";
+  if (backend == "cuda") throw Error("--backend cuda: this cellforce was built without CUDA");
+#endif
+  CpuEngine cpu(options);
+  std::string engine_name = "CPU, " + std::to_string(omp_get_max_threads()) + " threads";
+  auto evaluate_once = [&](bool counts) {
+#ifdef CELLFORCE_HAVE_CUDA
+    if (gpu) {
+      gpu->evaluate(sys, ff, request, result);
+      if (counts) {
+        const PipelineStats timing = gpu->stats();
+        (void)gpu->visited_pairs(sys, ff);  // candidate and interacting counts
+        PipelineStats merged = gpu->stats();
+        merged.t_cell_ids = timing.t_cell_ids;
+        merged.t_count = timing.t_count;
+        merged.t_sort = timing.t_sort;
+        merged.t_collision_cells = timing.t_collision_cells;
+        merged.t_traversal = timing.t_traversal;
+        merged.t_accumulate = timing.t_accumulate;
+        merged.t_transfer = timing.t_transfer;
+        merged.t_total = timing.t_total;
+        return merged;
+      }
+      return gpu->stats();
+    }
+#endif
+    (void)counts;
+    cpu.evaluate(sys, ff, request, result);
+    return cpu.stats();
+  };
+#ifdef CELLFORCE_HAVE_CUDA
+  if (gpu) engine_name = std::string("CUDA, ") + to_string(gpu->options().traversal) + ", " +
+                         to_string(gpu->options().sort) + " sort";
+#endif
+
   std::printf("cellforce evaluate: %zu particles (%s lattice, %d cells per axis, density %g, jitter %g)\n",
               sys.n, dim == 3 ? "3D" : "2D", args.cells, args.density, args.jitter);
-  std::printf("  box %.6g per edge, periodic; cutoff %g (%s); precision %s; %s; %d threads\n",
+  std::printf("  box %.6g per edge, periodic; cutoff %g (%s); precision %s; %s; %s\n",
               sys.box.length[0], ff.cutoff, to_string(ff.mode), to_string(args.precision),
-              to_string(args.accumulation), omp_get_max_threads());
+              to_string(args.accumulation), engine_name.c_str());
 
   std::vector<double> total, t_ids, t_sort, t_cells, t_trav, t_acc;
+  PipelineStats s;
   for (int r = 0; r < std::max(1, args.repeats); ++r) {
-    engine.evaluate(sys, ff, request, result);
-    const PipelineStats& s = engine.stats();
-    total.push_back(s.t_total);
-    t_ids.push_back(s.t_cell_ids);
+    s = evaluate_once(r + 1 == std::max(1, args.repeats));
+    total.push_back(s.t_total - s.t_transfer);
+    t_ids.push_back(s.t_cell_ids + s.t_count);
     t_sort.push_back(s.t_sort);
     t_cells.push_back(s.t_collision_cells);
     t_trav.push_back(s.t_traversal);
     t_acc.push_back(s.t_accumulate);
   }
-  const PipelineStats& s = engine.stats();
   const Grid& g = s.grid;
   std::printf("grid: %u x %u x %u cells, edge %.6g, half-width h %.6g (rule %s: edge >= %.6g)\n",
               g.n[0], g.n[1], g.n[2], g.cell[0], g.half_width,
@@ -94,16 +149,18 @@ int evaluate(const EvaluateArgs& args) {
   std::printf("potential energy per particle %.9f\n", result.energy / double(sys.n));
   std::printf("configurational pressure trace(W)/(d V) %.9f\n", trace / (dim * sys.box.volume()));
   std::printf("max |F| %.6g\n", fmax);
-  std::printf("time per evaluation, median of %zu: %.3f ms  [cell IDs %.3f | sort %.3f | collision cells %.3f | traversal %.3f | accumulate %.3f]\n",
+  std::printf("time per evaluation, median of %zu: %.3f ms  [cell IDs %.3f | sort %.3f | collision cells %.3f | traversal %.3f | accumulate %.3f]%s\n",
               total.size(), 1e3 * median(total), 1e3 * median(t_ids), 1e3 * median(t_sort),
-              1e3 * median(t_cells), 1e3 * median(t_trav), 1e3 * median(t_acc));
+              1e3 * median(t_cells), 1e3 * median(t_trav), 1e3 * median(t_acc),
+              backend == "cuda" ? " (device time, transfers excluded)" : "");
 
   nlohmann::json out = {{"n", sys.n},
                         {"cutoff", ff.cutoff},
                         {"cutoff_mode", to_string(ff.mode)},
                         {"precision", to_string(args.precision)},
                         {"accumulation", to_string(args.accumulation)},
-                        {"threads", omp_get_max_threads()},
+                        {"backend", backend},
+                        {"engine", engine_name},
                         {"energy_per_particle", result.energy / double(sys.n)},
                         {"time_median_s", median(total)}};
   if (args.brute) {
@@ -147,7 +204,7 @@ int main(int argc, char** argv) {
 
   EvaluateArgs ev;
   CLI::App* evaluate_cmd = app.add_subcommand(
-      "evaluate", "Evaluate forces, energy and virial of a lattice scene with the CPU pipeline "
+      "evaluate", "Evaluate forces, energy and virial of a lattice scene with the CPU or CUDA pipeline "
                   "(default: the LAMMPS in.lj fluid, fcc at density 0.8442, 32,000 particles, rc 2.5)");
   evaluate_cmd->add_option("--lattice", ev.lattice, "Lattice")
       ->transform(CLI::CheckedTransformer(cli::kLattices, CLI::ignore_case));
@@ -165,6 +222,12 @@ int main(int argc, char** argv) {
       ->transform(CLI::CheckedTransformer(cli::kAccumulations, CLI::ignore_case));
   evaluate_cmd->add_option("--cell-rule", ev.rule, "tight (c >= rc + h) or chapter (c >= 3h)")
       ->transform(CLI::CheckedTransformer(cli::kCellRules, CLI::ignore_case));
+  evaluate_cmd->add_option("--backend", ev.backend, "cpu, cuda, or auto (the GPU when one can be used)")
+      ->check(CLI::IsMember({"cpu", "cuda", "auto"}));
+  evaluate_cmd->add_option("--traversal", ev.traversal, "CUDA traversal: warp (a warp per cell) or thread (a thread per cell)")
+      ->check(CLI::IsMember({"warp", "thread"}));
+  evaluate_cmd->add_option("--sort", ev.sort, "CUDA sort: cub or chapter (the chapter's radix sort)")
+      ->check(CLI::IsMember({"cub", "chapter"}));
   evaluate_cmd->add_option("--repeats", ev.repeats, "Evaluations to time")->check(CLI::PositiveNumber);
   evaluate_cmd->add_flag("--brute-force", ev.brute, "Also run the O(n^2) double brute force and compare");
   evaluate_cmd->add_option("--json", ev.json, "Write a JSON summary here");

@@ -107,17 +107,4 @@ std::vector<std::pair<uint32_t, uint32_t>> CpuEngine::visited_pairs(const System
   return cpu::traverse_pairs(in);
 }
 
-const char* to_string(Precision precision) {
-  switch (precision) {
-    case Precision::kSingle: return "single";
-    case Precision::kMixed: return "mixed";
-    case Precision::kDouble: return "double";
-  }
-  return "?";
-}
-
-const char* to_string(Accumulation accumulation) {
-  return accumulation == Accumulation::kJacobi ? "jacobi" : "gauss-seidel";
-}
-
 }  // namespace cellforce

@@ -1,0 +1,73 @@
+// Stage 5, accumulation (GPU Gems 3 ch. 32, section 32.2.5's Jacobi option): each particle's 2^d
+// slots, one per cell type, are summed in slot order by one thread per particle; the per-cell
+// energies and virials are summed by one block in an order fixed by the cell count. No atomics
+// anywhere, so the results are bitwise reproducible. With Gauss-Seidel there is one slot.
+#include "check.cuh"
+#include "traversal.cuh"
+
+namespace cellforce::cuda {
+namespace {
+
+template <class Accum>
+__global__ void sum_slots_kernel(const Accum* __restrict__ force_slots,
+                                 const Accum* __restrict__ energy_slots, int dim, std::size_t n,
+                                 int copies, double* __restrict__ forces, double* __restrict__ energies) {
+  const std::size_t i = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
+  if (i >= n) return;
+  const std::size_t stride = n * std::size_t(dim);
+  for (int c = 0; c < dim; ++c) {
+    Accum f = 0;
+    for (int t = 0; t < copies; ++t) f += force_slots[std::size_t(t) * stride + i * dim + c];
+    forces[i * dim + c] = double(f);
+  }
+  if (energy_slots) {
+    Accum e = 0;
+    for (int t = 0; t < copies; ++t) e += energy_slots[std::size_t(t) * n + i];
+    energies[i] = double(e);
+  }
+}
+
+constexpr int kSumThreads = 256;
+
+template <class Accum>
+__global__ void __launch_bounds__(kSumThreads)
+    sum_cells_kernel(const Accum* __restrict__ cell_sums, std::size_t cells, double* __restrict__ totals) {
+  __shared__ Accum partial[kCellSums][kSumThreads];
+  Accum v[kCellSums] = {};
+  for (std::size_t c = threadIdx.x; c < cells; c += kSumThreads)
+    for (int k = 0; k < kCellSums; ++k) v[k] += cell_sums[c * kCellSums + k];
+  for (int k = 0; k < kCellSums; ++k) partial[k][threadIdx.x] = v[k];
+  __syncthreads();
+  for (int half = kSumThreads / 2; half > 0; half >>= 1) {
+    if (int(threadIdx.x) < half)
+      for (int k = 0; k < kCellSums; ++k) partial[k][threadIdx.x] += partial[k][threadIdx.x + half];
+    __syncthreads();
+  }
+  if (threadIdx.x < kCellSums) totals[threadIdx.x] = double(partial[threadIdx.x][0]);
+}
+
+}  // namespace
+
+template <class Accum>
+void sum_slots(const Accum* force_slots, const Accum* energy_slots, int dim, std::size_t n,
+               int copies, double* forces, double* energies, cudaStream_t stream) {
+  if (n == 0) return;
+  constexpr int kBlock = 256;
+  const unsigned blocks = unsigned((n + kBlock - 1) / kBlock);
+  sum_slots_kernel<Accum><<<blocks, kBlock, 0, stream>>>(force_slots, energy_slots, dim, n, copies,
+                                                         forces, energies);
+  CF_CUDA_CHECK_LAUNCH();
+}
+
+template <class Accum>
+void sum_cells(const Accum* cell_sums, std::size_t cells, double* totals, cudaStream_t stream) {
+  sum_cells_kernel<Accum><<<1, kSumThreads, 0, stream>>>(cell_sums, cells, totals);
+  CF_CUDA_CHECK_LAUNCH();
+}
+
+template void sum_slots<float>(const float*, const float*, int, std::size_t, int, double*, double*, cudaStream_t);
+template void sum_slots<double>(const double*, const double*, int, std::size_t, int, double*, double*, cudaStream_t);
+template void sum_cells<float>(const float*, std::size_t, double*, cudaStream_t);
+template void sum_cells<double>(const double*, std::size_t, double*, cudaStream_t);
+
+}  // namespace cellforce::cuda

@@ -1,0 +1,380 @@
+// The CUDA engine: plans the grid on the host, runs the stages on its own stream, times each with
+// CUDA events, and reads the kernels' flags once per evaluation. Device buffers live in Impl and
+// grow when a count says so (DeviceBuffer), so repeated evaluations allocate nothing.
+#include "engine.h"
+
+#include <cuda_runtime.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <string>
+
+#include "check.cuh"
+#include "core/error.h"
+#include "device_buffer.cuh"
+#include "stages.cuh"
+#include "traversal.cuh"
+
+namespace cellforce {
+
+using cuda::DeviceBuffer;
+
+namespace {
+
+// Events recorded between the stages of one evaluation.
+enum Event : int {
+  kStart,
+  kUploaded,
+  kCellIds,
+  kCounted,
+  kSorted,
+  kCellsFound,
+  kTraversed,
+  kAccumulated,
+  kDownloaded,
+  kNumEvents
+};
+
+template <class T>
+T* as(DeviceBuffer<std::byte>& b) {
+  return reinterpret_cast<T*>(b.data());
+}
+
+template <class T>
+void upload(DeviceBuffer<T>& d, const T* h, std::size_t count, cudaStream_t stream) {
+  d.reserve(std::max<std::size_t>(count, 1));
+  if (count)
+    CF_CUDA_CHECK(cudaMemcpyAsync(d.data(), h, count * sizeof(T), cudaMemcpyHostToDevice, stream));
+}
+
+template <class T>
+void download(std::vector<T>& h, const T* d, std::size_t count, cudaStream_t stream) {
+  h.resize(count);
+  if (count)
+    CF_CUDA_CHECK(cudaMemcpyAsync(h.data(), d, count * sizeof(T), cudaMemcpyDeviceToHost, stream));
+}
+
+// r^2 of a pair by minimum image in double, for the close-pair error message.
+double distance2(const SystemView& s, uint32_t i, uint32_t j) {
+  double r2 = 0;
+  for (int a = 0; a < s.box.dim; ++a) {
+    double d = s.positions[std::size_t(i) * s.box.dim + a] - s.positions[std::size_t(j) * s.box.dim + a];
+    if (s.box.periodic[a]) d -= s.box.length[a] * std::rint(d / s.box.length[a]);
+    r2 += d * d;
+  }
+  return r2;
+}
+
+}  // namespace
+
+struct GpuEngine::Impl {
+  cudaStream_t stream = nullptr;
+  cudaEvent_t events[kNumEvents] = {};
+  DeviceBuffer<double> positions;
+  DeviceBuffer<uint32_t> types;
+  DeviceBuffer<uint32_t> keys, object_ids, sorted_keys, sorted_ids;
+  DeviceBuffer<Control> control;
+  DeviceBuffer<std::byte> cub;  // count and sort temporaries
+  cuda::ChapterSortScratch chapter_sort;
+  DeviceBuffer<CollisionCell> cells;
+  cuda::CollisionScratch collision;
+  cuda::SplitScratch split;
+  std::size_t type_start[kMaxCellTypes + 1] = {};
+  DeviceBuffer<std::byte> staged, table, force_slots, energy_slots, cell_sums;
+  DeviceBuffer<double> forces, energies, totals;
+  DeviceBuffer<cuda::DeviceFlags> flags;
+  DeviceBuffer<uint2> pairs;
+  std::size_t valid = 0, num_cells = 0;
+  bool has_types = false;
+
+  ~Impl() {
+    for (cudaEvent_t e : events)
+      if (e) cudaEventDestroy(e);
+    if (stream) cudaStreamDestroy(stream);
+  }
+
+  void record(Event e) { CF_CUDA_CHECK(cudaEventRecord(events[e], stream)); }
+  double seconds(Event from, Event to) const {
+    float ms = 0;
+    CF_CUDA_CHECK(cudaEventElapsedTime(&ms, events[from], events[to]));
+    return 1e-3 * ms;
+  }
+
+  // Copies from pageable host memory: cudaMemcpyAsync returns once the source has been staged,
+  // so the host copies may change afterwards; they are members only to outlive the call.
+  cuda::DeviceFlags clear_flags{~0ull, 0, 0, 0, 0, 0};
+  std::vector<std::byte> host_table;
+
+  void reset_flags() {
+    flags.reserve(1);
+    CF_CUDA_CHECK(cudaMemcpyAsync(flags.data(), &clear_flags, sizeof(clear_flags),
+                                  cudaMemcpyHostToDevice, stream));
+  }
+
+  // Stages 1-3: upload, cell IDs, count, sort, collision cells (split by type when asked).
+  void build(const GpuOptions& o, PipelineStats& st, const SystemView& sys, const ForceField& ff,
+             bool split_by_type) {
+    validate_system(sys, ff);
+    if (ff.num_types() > cuda::kMaxStagedTypes)
+      throw Error("the CUDA engine supports at most " + std::to_string(cuda::kMaxStagedTypes) +
+                  " particle types; the force field has " + std::to_string(ff.num_types()));
+    if (o.grid_override) {
+      st.grid = *o.grid_override;
+    } else {
+      st.grid = plan_grid(sys.box, ff.cutoff, sys.positions, sys.n, o.grid);
+      check_grid(st.grid, sys.box, ff.cutoff, o.grid.rule);
+    }
+    const Grid& g = st.grid;
+    const std::size_t n = sys.n, entries = n << g.dim;
+    record(kStart);
+    upload(positions, sys.positions, n * std::size_t(g.dim), stream);
+    has_types = sys.types != nullptr;
+    if (has_types) upload(types, sys.types, n, stream);
+    record(kUploaded);
+
+    const std::size_t cap = std::max<std::size_t>(entries, 1);
+    keys.reserve(cap);
+    object_ids.reserve(cap);
+    sorted_keys.reserve(cap);
+    sorted_ids.reserve(cap);
+    control.reserve(std::max<std::size_t>(n, 1));
+    cuda::build_cell_ids(g, positions.data(), n, keys.data(), object_ids.data(), control.data(), stream);
+    record(kCellIds);
+    valid = cuda::count_valid(keys.data(), entries, cub, stream);
+    record(kCounted);
+    switch (o.sort) {
+      case SortMethod::kCub:
+        cuda::radix_sort_cub(keys.data(), object_ids.data(), sorted_keys.data(), sorted_ids.data(),
+                             entries, g.key_bits, cub, stream);
+        break;
+      case SortMethod::kChapter:
+        cuda::radix_sort_chapter(keys.data(), object_ids.data(), sorted_keys.data(),
+                                 sorted_ids.data(), entries, g.key_bits, chapter_sort, stream);
+        break;
+    }
+    record(kSorted);
+    num_cells = cuda::find_collision_cells(sorted_keys.data(), valid, cells, collision, stream);
+    if (split_by_type) cuda::split_by_type(g, cells, num_cells, split, type_start, stream);
+    record(kCellsFound);
+    st.entries = entries;
+    st.valid_entries = valid;
+    st.collision_cells = num_cells;
+  }
+
+  // The arguments shared by the force and pair-recording kernels; stages the occupants.
+  template <class Real, class Accum>
+  cuda::TraversalArgs<Real, Accum> prepare(const Grid& g, const SystemView& sys,
+                                           const ForceField& ff, CutoffMode mode) {
+    staged.reserve(std::max<std::size_t>(valid, 1) * sizeof(cuda::StagedEntry<Real>));
+    cuda::stage_occupants<Real>(g, sorted_keys.data(), sorted_ids.data(), valid, positions.data(),
+                                has_types ? types.data() : nullptr, control.data(),
+                                as<cuda::StagedEntry<Real>>(staged), stream);
+    ForceField f = ff;
+    f.mode = mode;
+    const std::vector<LJParams<Real>> params = make_pair_table<Real>(f);
+    const std::size_t bytes = params.size() * sizeof(LJParams<Real>);
+    host_table.resize(bytes);
+    std::memcpy(host_table.data(), params.data(), bytes);
+    table.reserve(bytes);
+    CF_CUDA_CHECK(cudaMemcpyAsync(table.data(), host_table.data(), bytes, cudaMemcpyHostToDevice, stream));
+    cuda::TraversalArgs<Real, Accum> args;
+    args.grid = g;
+    args.cells = cells.data();
+    args.num_cells = uint32_t(num_cells);
+    args.staged = as<cuda::StagedEntry<Real>>(staged);
+    args.sorted_ids = sorted_ids.data();
+    args.n = sys.n;
+    args.table = as<LJParams<Real>>(table);
+    args.num_types = uint32_t(ff.num_types());
+    args.rc2 = Real(ff.cutoff) * Real(ff.cutoff);
+    for (int a = 0; a < kMaxDim; ++a) {
+      const bool w = a < g.dim && g.wraps_inside_cell(a);
+      args.length[a] = w ? Real(g.length[a]) : Real(0);
+      args.inv_length[a] = w ? Real(g.inv_length[a]) : Real(0);
+    }
+    reset_flags();
+    args.flags = flags.data();
+    return args;
+  }
+
+  template <class Real, class Accum>
+  void traverse_and_sum(const GpuOptions& o, const Grid& g, const SystemView& sys,
+                        const ForceField& ff, const Request& req) {
+    const bool gs = o.accumulation == Accumulation::kGaussSeidel;
+    const bool observables = req.energy || req.virial;
+    const std::size_t n = sys.n, dim = std::size_t(g.dim);
+    const int copies = gs ? 1 : g.num_types();
+    cuda::TraversalArgs<Real, Accum> args = prepare<Real, Accum>(g, sys, ff, ff.mode);
+
+    force_slots.reserve(std::max<std::size_t>(copies * n * dim, 1) * sizeof(Accum));
+    CF_CUDA_CHECK(cudaMemsetAsync(force_slots.data(), 0, copies * n * dim * sizeof(Accum), stream));
+    args.force = as<Accum>(force_slots);
+    args.force_slot_stride = gs ? 0 : n * dim;
+    if (observables) {
+      energy_slots.reserve(std::max<std::size_t>(copies * n, 1) * sizeof(Accum));
+      CF_CUDA_CHECK(cudaMemsetAsync(energy_slots.data(), 0, copies * n * sizeof(Accum), stream));
+      cell_sums.reserve(std::max<std::size_t>(num_cells, 1) * cuda::kCellSums * sizeof(Accum));
+      args.energy = as<Accum>(energy_slots);
+      args.energy_slot_stride = gs ? 0 : n;
+      args.cell_sums = as<Accum>(cell_sums);
+    }
+    cuda::Switches sw;
+    sw.dim = g.dim;
+    sw.wrap = g.any_wrap_inside_cell();
+    sw.multi_type = ff.num_types() > 1;
+    sw.mode = ff.mode;
+    sw.observables = observables;
+    if (!gs) {
+      cuda::traverse(o.traversal, sw, args, stream);
+    } else {
+      for (int t = 0; t < g.num_types(); ++t) {  // one pass per cell type, in type order
+        args.cells = cells.data() + type_start[t];
+        args.num_cells = uint32_t(type_start[t + 1] - type_start[t]);
+        args.first_cell = uint32_t(type_start[t]);
+        cuda::traverse(o.traversal, sw, args, stream);
+      }
+    }
+    record(kTraversed);
+
+    forces.reserve(std::max<std::size_t>(n * dim, 1));
+    if (req.energy) energies.reserve(std::max<std::size_t>(n, 1));
+    cuda::sum_slots<Accum>(as<Accum>(force_slots), req.energy ? as<Accum>(energy_slots) : nullptr,
+                           g.dim, n, copies, forces.data(), req.energy ? energies.data() : nullptr,
+                           stream);
+    if (observables) {
+      totals.reserve(cuda::kCellSums);
+      cuda::sum_cells<Accum>(as<Accum>(cell_sums), num_cells, totals.data(), stream);
+    }
+    record(kAccumulated);
+  }
+};
+
+GpuEngine::GpuEngine(GpuOptions options)
+    : options_(std::move(options)), impl_(std::make_unique<Impl>()) {
+  const std::string why = unavailable();
+  if (!why.empty()) throw Error("CUDA engine: " + why);
+  int count = 0;
+  CF_CUDA_CHECK(cudaGetDeviceCount(&count));
+  if (options_.device < 0 || options_.device >= count)
+    throw Error("CUDA engine: device " + std::to_string(options_.device) + " does not exist (" +
+                std::to_string(count) + " device(s))");
+  CF_CUDA_CHECK(cudaSetDevice(options_.device));
+  CF_CUDA_CHECK(cudaStreamCreateWithFlags(&impl_->stream, cudaStreamNonBlocking));
+  for (cudaEvent_t& e : impl_->events) CF_CUDA_CHECK(cudaEventCreate(&e));
+}
+
+GpuEngine::~GpuEngine() = default;
+
+void GpuEngine::evaluate(const SystemView& system, const ForceField& ff, const Request& request,
+                         ForceResult& result) {
+  CF_CUDA_CHECK(cudaSetDevice(options_.device));
+  Impl& s = *impl_;
+  const bool gs = options_.accumulation == Accumulation::kGaussSeidel;
+  s.build(options_, stats_, system, ff, gs);
+  const Grid& g = stats_.grid;
+  switch (options_.precision) {
+    case Precision::kSingle: s.traverse_and_sum<float, float>(options_, g, system, ff, request); break;
+    case Precision::kMixed: s.traverse_and_sum<float, double>(options_, g, system, ff, request); break;
+    case Precision::kDouble: s.traverse_and_sum<double, double>(options_, g, system, ff, request); break;
+  }
+
+  const std::size_t n = system.n, dim = std::size_t(g.dim);
+  result.dim = g.dim;
+  download(result.forces, s.forces.data(), n * dim, s.stream);
+  download(result.energies, s.energies.data(), request.energy ? n : 0, s.stream);
+  double totals[cuda::kCellSums] = {};
+  if (request.energy || request.virial)
+    CF_CUDA_CHECK(cudaMemcpyAsync(totals, s.totals.data(), sizeof(totals), cudaMemcpyDeviceToHost, s.stream));
+  cuda::DeviceFlags flags{};
+  CF_CUDA_CHECK(cudaMemcpyAsync(&flags, s.flags.data(), sizeof(flags), cudaMemcpyDeviceToHost, s.stream));
+  s.record(kDownloaded);
+  CF_CUDA_CHECK(cudaStreamSynchronize(s.stream));
+
+  if (flags.impossible)
+    throw Error("CUDA engine: a traversal kernel met a particle index out of range (an internal "
+                "error, not bad input)");
+  if (flags.bad_pair != ~0ull) {
+    const auto i = uint32_t(flags.bad_pair >> 32), j = uint32_t(flags.bad_pair & 0xffffffffu);
+    throw_close_pair(system, i, j, distance2(system, i, j));
+  }
+
+  result.energy = request.energy ? totals[0] : 0.0;
+  for (auto& row : result.virial)
+    for (double& v : row) v = 0;
+  if (request.virial) {
+    static constexpr int kRow[6] = {0, 1, 2, 0, 0, 1};
+    static constexpr int kCol[6] = {0, 1, 2, 1, 2, 2};
+    for (int k = 0; k < 6; ++k) {
+      if (kRow[k] >= g.dim || kCol[k] >= g.dim) continue;
+      result.virial[kRow[k]][kCol[k]] = totals[1 + k];
+      result.virial[kCol[k]][kRow[k]] = totals[1 + k];
+    }
+  }
+
+  stats_.t_transfer = s.seconds(kStart, kUploaded) + s.seconds(kAccumulated, kDownloaded);
+  stats_.t_cell_ids = s.seconds(kUploaded, kCellIds);
+  stats_.t_count = s.seconds(kCellIds, kCounted);
+  stats_.t_sort = s.seconds(kCounted, kSorted);
+  stats_.t_collision_cells = s.seconds(kSorted, kCellsFound);
+  stats_.t_traversal = s.seconds(kCellsFound, kTraversed);
+  stats_.t_accumulate = s.seconds(kTraversed, kAccumulated);
+  stats_.t_total = s.seconds(kStart, kDownloaded);
+}
+
+std::vector<std::pair<uint32_t, uint32_t>> GpuEngine::visited_pairs(const SystemView& system,
+                                                                    const ForceField& ff) {
+  CF_CUDA_CHECK(cudaSetDevice(options_.device));
+  Impl& s = *impl_;
+  s.build(options_, stats_, system, ff, false);
+  const Grid& g = stats_.grid;
+  cuda::TraversalArgs<double, double> args =
+      s.prepare<double, double>(g, system, ff, CutoffMode::kTruncate);
+  cuda::DeviceFlags flags{};
+  for (;;) {  // the pair buffer grows to the count the kernel reports, then the kernel reruns
+    s.pairs.reserve(std::max<std::size_t>(s.valid * 8, 1024));
+    args.pairs = s.pairs.data();
+    args.pair_capacity = s.pairs.capacity();
+    cuda::record_pairs(options_.traversal, g.dim, g.any_wrap_inside_cell(), args, s.stream);
+    CF_CUDA_CHECK(cudaMemcpyAsync(&flags, s.flags.data(), sizeof(flags), cudaMemcpyDeviceToHost, s.stream));
+    CF_CUDA_CHECK(cudaStreamSynchronize(s.stream));
+    if (flags.impossible)
+      throw Error("CUDA engine: the pair recorder met a particle index out of range (an internal error)");
+    if (flags.recorded <= s.pairs.capacity()) break;
+    s.pairs.reserve(std::size_t(flags.recorded));
+    s.reset_flags();
+  }
+  std::vector<uint2> raw;
+  download(raw, s.pairs.data(), std::size_t(flags.recorded), s.stream);
+  std::vector<CollisionCell> cells;
+  download(cells, s.cells.data(), s.num_cells, s.stream);
+  CF_CUDA_CHECK(cudaStreamSynchronize(s.stream));
+  stats_.candidate_pairs = std::size_t(flags.candidates);
+  stats_.interacting_pairs = std::size_t(flags.interacting);
+  stats_.max_occupancy = 0;
+  for (const CollisionCell& c : cells)
+    stats_.max_occupancy = std::max<std::size_t>(stats_.max_occupancy, std::size_t(c.h) + c.p);
+  std::vector<std::pair<uint32_t, uint32_t>> pairs(raw.size());
+  for (std::size_t k = 0; k < raw.size(); ++k) pairs[k] = {raw[k].x, raw[k].y};
+  return pairs;
+}
+
+std::string GpuEngine::unavailable() {
+  int count = 0;
+  const cudaError_t err = cudaGetDeviceCount(&count);
+  if (err != cudaSuccess) {
+    (void)cudaGetLastError();  // clear the error this call left
+    return std::string("no CUDA device: cudaGetDeviceCount failed with ") + cudaGetErrorName(err) +
+           " (" + cudaGetErrorString(err) + ")";
+  }
+  if (count == 0) return "no CUDA device: cudaGetDeviceCount returned 0";
+  return {};
+}
+
+const char* to_string(TraversalForm form) {
+  return form == TraversalForm::kWarpPerCell ? "warp-per-cell" : "thread-per-cell";
+}
+
+const char* to_string(SortMethod sort) { return sort == SortMethod::kCub ? "cub" : "chapter"; }
+
+}  // namespace cellforce

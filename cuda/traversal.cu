@@ -1,0 +1,68 @@
+// Stage 4's preparation and its pair recorder. Staging (the GPU analogue of the CPU's per-cell
+// staging, and of the chapter's loading of a cell's objects): one thread per sorted entry writes
+// the occupant's position relative to the centre of its cell, formed in double through the shared
+// core's relative_coordinate(), so that both backends stage identical values, then rounded to the
+// pair precision. The pair recorder runs the force kernels' own candidate loop in double and
+// records what it finds, so that the tests check the traversal that computes forces.
+#include "traversal_impl.cuh"
+
+namespace cellforce::cuda {
+namespace {
+
+template <class Real>
+__global__ void stage_kernel(const Grid grid, const uint32_t* __restrict__ sorted_keys,
+                             const uint32_t* __restrict__ sorted_ids, std::size_t valid,
+                             const double* __restrict__ positions, const uint32_t* __restrict__ types,
+                             const Control* __restrict__ control, StagedEntry<Real>* __restrict__ staged) {
+  const std::size_t e = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
+  if (e >= valid) return;
+  const uint32_t i = sorted_ids[e];
+  int k[kMaxDim];
+  cell_coords(grid, sorted_keys[e] >> 1, k);
+  Real r[kMaxDim] = {0, 0, 0};
+  for (int a = 0; a < grid.dim; ++a)
+    r[a] = Real(relative_coordinate(grid, a, positions[std::size_t(i) * grid.dim + a],
+                                    cell_center(grid, a, k[a])));
+  StagedEntry<Real> s{};
+  s.x = r[0];
+  s.y = r[1];
+  s.z = r[2];
+  s.meta = uint32_t(control[i]) | (types ? types[i] : 0u) << 16;
+  staged[e] = s;
+}
+
+}  // namespace
+
+template <class Real>
+void stage_occupants(const Grid& grid, const uint32_t* sorted_keys, const uint32_t* sorted_ids,
+                     std::size_t valid, const double* positions, const uint32_t* types,
+                     const Control* control, StagedEntry<Real>* staged, cudaStream_t stream) {
+  if (valid == 0) return;
+  constexpr int kBlock = 256;
+  const unsigned blocks = unsigned((valid + kBlock - 1) / kBlock);
+  stage_kernel<Real><<<blocks, kBlock, 0, stream>>>(grid, sorted_keys, sorted_ids, valid, positions,
+                                                    types, control, staged);
+  CF_CUDA_CHECK_LAUNCH();
+}
+
+template void stage_occupants<float>(const Grid&, const uint32_t*, const uint32_t*, std::size_t,
+                                     const double*, const uint32_t*, const Control*,
+                                     StagedEntry<float>*, cudaStream_t);
+template void stage_occupants<double>(const Grid&, const uint32_t*, const uint32_t*, std::size_t,
+                                      const double*, const uint32_t*, const Control*,
+                                      StagedEntry<double>*, cudaStream_t);
+
+void record_pairs(TraversalForm form, int dim, bool wrap, const TraversalArgs<double, double>& args,
+                  cudaStream_t stream) {
+  Switches sw;
+  sw.dim = dim;
+  sw.wrap = wrap;
+  detail::dispatch(sw, [&](auto traits) {
+    using T = decltype(traits);
+    // Only the geometry matters when recording: one type, truncation, no observables.
+    if constexpr (!T::kMultiType && T::kMode == CutoffMode::kTruncate && !T::kObservables)
+      detail::launch<T, double, double, true>(form, args, stream);
+  });
+}
+
+}  // namespace cellforce::cuda

@@ -1,0 +1,114 @@
+// Stage 4, traversal = narrow phase, and stage 5, accumulation, on the GPU: the kernels' argument
+// blocks and launchers. Everything a scene may leave out (2D vs 3D, wrap inside a one-cell
+// periodic axis, multiple types, cutoff mode, energy and virial) is a template switch, chosen once
+// per evaluation by the launcher (traversal_impl.cuh); traversal_{single,mixed,double}.cu
+// instantiate one precision each so that the builds run side by side.
+#pragma once
+
+#include <cuda_runtime.h>
+
+#include <cstddef>
+#include <cstdint>
+
+#include "core/grid.h"
+#include "core/lj.h"
+#include "engine.h"
+
+namespace cellforce::cuda {
+
+// Per collision cell the traversal writes its pair-energy sum and the six virial components
+// (xx yy zz xy xz yz), so that the totals are summed in a fixed order afterwards.
+inline constexpr int kCellSums = 7;
+
+// One occupant of a collision cell in sorted order, staged by stage_occupants(): its position
+// relative to the centre of the cell it occupies (formed in double, then rounded to Real, so that
+// r_ij keeps its digits far from the origin and needs no wrap when a periodic axis has two or more
+// cells), and meta = control bits | type index << 16.
+template <class Real>
+struct StagedEntry;
+template <>
+struct alignas(16) StagedEntry<float> {
+  float x, y, z;
+  uint32_t meta;
+};
+template <>
+struct alignas(32) StagedEntry<double> {
+  double x, y, z;
+  uint32_t meta, unused;
+};
+inline constexpr uint32_t kMaxStagedTypes = 1u << 16;
+
+// Raised by kernels, read once per evaluation by the host (kernels never abort).
+struct DeviceFlags {
+  unsigned long long bad_pair;     // min over pairs with a non-finite force of min(i,j) << 32 | max(i,j); ~0 if none
+  unsigned long long candidates;   // record mode: pairs tested after the control-bit rule
+  unsigned long long interacting;  // record mode: pairs with r < rc
+  unsigned long long recorded;     // record mode: pairs found (may exceed the buffer: the host grows it and reruns)
+  unsigned int impossible;         // nonzero: a particle index out of range (a bug, never bad input)
+  unsigned int unused;
+};
+
+// Everything a traversal kernel reads and writes (device pointers). Jacobi: slot t of particle i
+// at force[t * force_slot_stride + i * dim] (force_slot_stride = n * dim), written only by the one
+// collision cell of type t that i occupies. Gauss-Seidel: force_slot_stride = 0, one launch per
+// cell type.
+template <class Real, class Accum>
+struct TraversalArgs {
+  Grid grid;
+  const CollisionCell* cells = nullptr;  // this launch's cells
+  uint32_t num_cells = 0;
+  uint32_t first_cell = 0;               // index of cells[0] in cell_sums
+  const StagedEntry<Real>* staged = nullptr;  // sorted order, as the cells' start counts
+  const uint32_t* sorted_ids = nullptr;       // particle index of each sorted entry
+  std::size_t n = 0;
+  const LJParams<Real>* table = nullptr;      // num_types x num_types
+  uint32_t num_types = 1;
+  Real rc2 = 0;
+  Real length[kMaxDim] = {0, 0, 0};      // nonzero only on a periodic axis with one cell
+  Real inv_length[kMaxDim] = {0, 0, 0};
+  Accum* force = nullptr;
+  std::size_t force_slot_stride = 0;
+  Accum* energy = nullptr;               // per particle, same slots with one component
+  std::size_t energy_slot_stride = 0;
+  Accum* cell_sums = nullptr;            // kCellSums per cell
+  DeviceFlags* flags = nullptr;
+  uint2* pairs = nullptr;                // record mode: (i, j) of each pair with r < rc
+  std::size_t pair_capacity = 0;
+};
+
+// The run-time choices that pick one kernel instantiation.
+struct Switches {
+  int dim = 3;
+  bool wrap = false;         // some periodic axis has a single cell
+  bool multi_type = false;
+  CutoffMode mode = CutoffMode::kTruncate;
+  bool observables = false;  // energy and virial (on the GPU they come together)
+};
+
+// Stages the first `valid` sorted entries: one thread per entry.
+template <class Real>
+void stage_occupants(const Grid& grid, const uint32_t* sorted_keys, const uint32_t* sorted_ids,
+                     std::size_t valid, const double* positions, const uint32_t* types,
+                     const Control* control, StagedEntry<Real>* staged, cudaStream_t stream);
+
+// Runs the traversal over args.cells in the given form.
+template <class Real, class Accum>
+void traverse(TraversalForm form, const Switches& sw, const TraversalArgs<Real, Accum>& args,
+              cudaStream_t stream);
+
+// The same candidate loop in double, recording each pair with r < rc in args.pairs and counting
+// candidates and interacting pairs in args.flags, instead of evaluating LJ.
+void record_pairs(TraversalForm form, int dim, bool wrap, const TraversalArgs<double, double>& args,
+                  cudaStream_t stream);
+
+// Stage 5: sums each particle's `copies` slots in slot order into forces (n x dim doubles) and,
+// when energy_slots is non-null, energies (n doubles).
+template <class Accum>
+void sum_slots(const Accum* force_slots, const Accum* energy_slots, int dim, std::size_t n,
+               int copies, double* forces, double* energies, cudaStream_t stream);
+
+// Sums the per-cell energy and virial over `cells` cells in a fixed order into totals[kCellSums].
+template <class Accum>
+void sum_cells(const Accum* cell_sums, std::size_t cells, double* totals, cudaStream_t stream);
+
+}  // namespace cellforce::cuda

@@ -1,0 +1,338 @@
+// Stage 4, traversal (GPU Gems 3 ch. 32, section 32.2.5), as kernels: each collision cell tests
+// every H occupant against every other occupant, H and P, skips the pairs that the control-bit
+// rule assigns to another cell, and evaluates Lennard-Jones directly for the pairs with r < rc.
+// Two forms:
+//  - thread per cell (the chapter's): one thread walks its cell's pairs serially;
+//  - warp per cell (the chapter's future work): a warp shares one cell. Rows of 32 H occupants
+//    are held in registers, columns of 32 occupants staged in shared memory; in step k lane l
+//    pairs its row occupant with column occupant (l + k) mod 32, so that no two lanes touch one
+//    column accumulator in a step. A __syncwarp after each step orders the steps.
+// Both write each occupant's sums into the cell's own output slot (Jacobi) or, one cell type per
+// launch, into the single output (Gauss-Seidel), with no atomics: every addition happens in an
+// order fixed by the cell's layout, so results are bitwise reproducible.
+//
+// This header holds the templates; traversal_{single,mixed,double}.cu instantiate them.
+#pragma once
+
+#include <cmath>
+#include <type_traits>
+
+#include "check.cuh"
+#include "traversal.cuh"
+
+namespace cellforce::cuda {
+namespace detail {
+
+template <int D, bool Wrap, bool MultiType, CutoffMode Mode, bool Observables>
+struct Traits {
+  static constexpr int kDim = D;
+  static constexpr bool kWrap = Wrap;
+  static constexpr bool kMultiType = MultiType;
+  static constexpr CutoffMode kMode = Mode;
+  static constexpr bool kObservables = Observables;
+};
+
+constexpr int kThreadsPerBlock = 128;          // thread per cell: cells per block
+constexpr int kWarpsPerBlock = 4;              // warp per cell: cells per block
+constexpr uint32_t kControlMask = 0xffffu;
+
+__device__ __forceinline__ Control control_of(uint32_t meta) { return Control(meta & kControlMask); }
+__device__ __forceinline__ uint32_t type_of(uint32_t meta) { return meta >> 16; }
+
+// d = x_a - x_b (minimum image along axes that need it inside a cell); returns r^2.
+template <class T, class Real>
+__device__ __forceinline__ Real separation(const StagedEntry<Real>& a, const StagedEntry<Real>& b,
+                                           const Real* length, const Real* inv_length, Real d[3]) {
+  d[0] = a.x - b.x;
+  d[1] = a.y - b.y;
+  d[2] = T::kDim == 3 ? a.z - b.z : Real(0);
+  if constexpr (T::kWrap)
+    for (int c = 0; c < T::kDim; ++c) d[c] = minimum_image(d[c], length[c], inv_length[c]);
+  Real r2 = d[0] * d[0] + d[1] * d[1];
+  if constexpr (T::kDim == 3) r2 += d[2] * d[2];
+  return r2;
+}
+
+template <class T, class Real, class Accum>
+__device__ __forceinline__ LJParams<Real> pair_params(const TraversalArgs<Real, Accum>& args,
+                                                      const LJParams<Real>& single, uint32_t meta_a,
+                                                      uint32_t meta_b) {
+  if constexpr (T::kMultiType) return args.table[type_of(meta_a) * args.num_types + type_of(meta_b)];
+  else return single;
+}
+
+__device__ __forceinline__ void flag_bad_pair(DeviceFlags* flags, uint32_t i, uint32_t j) {
+  const unsigned long long lo = i < j ? i : j, hi = i < j ? j : i;
+  atomicMin(&flags->bad_pair, lo << 32 | hi);
+}
+
+__device__ __forceinline__ void record_pair(const TraversalArgs<double, double>& args, uint32_t i,
+                                            uint32_t j) {
+  const unsigned long long k = atomicAdd(&args.flags->recorded, 1ull);
+  if (k < args.pair_capacity) args.pairs[k] = make_uint2(i < j ? i : j, i < j ? j : i);
+}
+
+// Per-cell energy and virial (xx yy zz xy xz yz).
+template <class Accum>
+struct CellTotals {
+  Accum v[kCellSums] = {};
+  template <int D, class Real>
+  __device__ __forceinline__ void add(Real e, Real fr, const Real d[3]) {
+    v[0] += Accum(e);
+    v[1] += Accum(fr * d[0] * d[0]);
+    v[2] += Accum(fr * d[1] * d[1]);
+    v[4] += Accum(fr * d[0] * d[1]);
+    if constexpr (D == 3) {
+      v[3] += Accum(fr * d[2] * d[2]);
+      v[5] += Accum(fr * d[0] * d[2]);
+      v[6] += Accum(fr * d[1] * d[2]);
+    }
+  }
+};
+
+// A warp's butterfly sum: the same tree every time, so the result is reproducible.
+template <class V>
+__device__ __forceinline__ V warp_sum(V v) {
+  for (int offset = 16; offset > 0; offset >>= 1) v += __shfl_xor_sync(0xffffffffu, v, offset);
+  return v;
+}
+
+// ---- thread per collision cell ----------------------------------------------------------------
+template <class T, class Real, class Accum, bool Record>
+__global__ void __launch_bounds__(kThreadsPerBlock)
+    thread_per_cell(const TraversalArgs<Real, Accum> args) {
+  constexpr int D = T::kDim;
+  const uint32_t ci = blockIdx.x * blockDim.x + threadIdx.x;
+  if (ci >= args.num_cells) return;
+  const CollisionCell cell = args.cells[ci];
+  const unsigned type = cell_type_of_id(args.grid, cell.cell);
+  Accum* force = args.force + type * args.force_slot_stride;
+  Accum* energy = T::kObservables ? args.energy + type * args.energy_slot_stride : nullptr;
+  const LJParams<Real> single = args.table[0];
+  const StagedEntry<Real>* occ = args.staged + cell.start;
+  const uint32_t* ids = args.sorted_ids + cell.start;
+  const uint32_t m = cell.h + cell.p;
+  CellTotals<Accum> totals;
+  unsigned long long candidates = 0, interacting = 0;
+
+  for (uint32_t a = 0; a < cell.h; ++a) {
+    const StagedEntry<Real> A = occ[a];
+    const uint32_t ia = ids[a];
+    if (ia >= args.n) {
+      args.flags->impossible = 1;
+      return;
+    }
+    Accum fa[D] = {};
+    Accum ea = 0;
+    for (uint32_t b = a + 1; b < m; ++b) {
+      const StagedEntry<Real> B = occ[b];
+      if (b >= cell.h && skip_pair(type, control_of(A.meta), control_of(B.meta))) continue;
+      ++candidates;
+      Real d[3];
+      const Real r2 = separation<T>(A, B, args.length, args.inv_length, d);
+      Real fr, e = 0;
+      if (!lj_pair<T::kMode, T::kObservables>(r2, args.rc2, pair_params<T>(args, single, A.meta, B.meta),
+                                              fr, e))
+        continue;
+      ++interacting;
+      const uint32_t ib = ids[b];
+      if (ib >= args.n) {
+        args.flags->impossible = 1;
+        return;
+      }
+      if constexpr (Record) {
+        record_pair(args, ia, ib);
+        continue;
+      } else {
+        if (!isfinite(fr)) flag_bad_pair(args.flags, ia, ib);
+        for (int c = 0; c < D; ++c) {
+          const Real f = mul_rn(fr, d[c]);  // no FMA: the same bits with and without observables
+          fa[c] += Accum(f);
+          force[std::size_t(ib) * D + c] -= Accum(f);
+        }
+        if constexpr (T::kObservables) {
+          const Accum half = Accum(Real(0.5) * e);
+          ea += half;
+          energy[ib] += half;
+          totals.template add<D>(e, fr, d);
+        }
+      }
+    }
+    if constexpr (!Record) {
+      for (int c = 0; c < D; ++c) force[std::size_t(ia) * D + c] += fa[c];
+      if constexpr (T::kObservables) energy[ia] += ea;
+    }
+  }
+  if constexpr (Record) {
+    atomicAdd(&args.flags->candidates, candidates);
+    atomicAdd(&args.flags->interacting, interacting);
+  } else if constexpr (T::kObservables) {
+    for (int k = 0; k < kCellSums; ++k)
+      args.cell_sums[(std::size_t(args.first_cell) + ci) * kCellSums + k] = totals.v[k];
+  }
+}
+
+// ---- warp per collision cell ------------------------------------------------------------------
+template <class T, class Real, class Accum, bool Record>
+__global__ void __launch_bounds__(kWarpsPerBlock * 32)
+    warp_per_cell(const TraversalArgs<Real, Accum> args) {
+  constexpr int D = T::kDim;
+  __shared__ StagedEntry<Real> col_occ[kWarpsPerBlock][32];
+  __shared__ Accum col_force[kWarpsPerBlock][D][32];
+  __shared__ Accum col_energy[kWarpsPerBlock][T::kObservables ? 32 : 1];
+  const int warp = int(threadIdx.x / 32), lane = int(threadIdx.x % 32);
+  const uint32_t ci = blockIdx.x * kWarpsPerBlock + uint32_t(warp);
+  if (ci >= args.num_cells) return;  // the whole warp: the cell index is warp-uniform
+  const CollisionCell cell = args.cells[ci];
+  const unsigned type = cell_type_of_id(args.grid, cell.cell);
+  Accum* force = args.force + type * args.force_slot_stride;
+  Accum* energy = T::kObservables ? args.energy + type * args.energy_slot_stride : nullptr;
+  const LJParams<Real> single = args.table[0];
+  const StagedEntry<Real>* occ = args.staged + cell.start;
+  const uint32_t* ids = args.sorted_ids + cell.start;
+  const uint32_t h = cell.h, m = cell.h + cell.p;
+  CellTotals<Accum> totals;
+  unsigned long long candidates = 0, interacting = 0;
+  bool impossible = false;
+
+  for (uint32_t row = 0; row < h; row += 32) {
+    const uint32_t a = row + uint32_t(lane);
+    const bool row_ok = a < h;
+    const StagedEntry<Real> A = row_ok ? occ[a] : StagedEntry<Real>{};
+    const uint32_t ia = row_ok ? ids[a] : 0;
+    Accum fa[D] = {};
+    Accum ea = 0;
+    for (uint32_t col = row; col < m; col += 32) {
+      const uint32_t own = col + uint32_t(lane);
+      if (own < m) col_occ[warp][lane] = occ[own];
+      for (int c = 0; c < D; ++c) col_force[warp][c][lane] = 0;
+      if constexpr (T::kObservables) col_energy[warp][lane] = 0;
+      __syncwarp();
+      for (int k = 0; k < 32; ++k) {
+        const int bl = (lane + k) & 31;
+        const uint32_t b = col + uint32_t(bl);
+        if (row_ok && b < m) {
+          const StagedEntry<Real> B = col_occ[warp][bl];
+          // H x H once (b > a); H x P unless the control-bit rule gives the pair to another cell.
+          const bool test = b < h ? b > a : !skip_pair(type, control_of(A.meta), control_of(B.meta));
+          if (test) {
+            ++candidates;
+            Real d[3];
+            const Real r2 = separation<T>(A, B, args.length, args.inv_length, d);
+            Real fr, e = 0;
+            if (lj_pair<T::kMode, T::kObservables>(r2, args.rc2,
+                                                   pair_params<T>(args, single, A.meta, B.meta), fr, e)) {
+              ++interacting;
+              if constexpr (Record) {
+                const uint32_t ib = ids[b];
+                if (ia >= args.n || ib >= args.n) impossible = true;
+                else record_pair(args, ia, ib);
+              } else {
+                if (!isfinite(fr)) flag_bad_pair(args.flags, ia, ids[b]);
+                for (int c = 0; c < D; ++c) {
+                  const Real f = mul_rn(fr, d[c]);  // no FMA: the same bits with and without observables
+                  fa[c] += Accum(f);
+                  col_force[warp][c][bl] -= Accum(f);
+                }
+                if constexpr (T::kObservables) {
+                  const Accum half = Accum(Real(0.5) * e);
+                  ea += half;
+                  col_energy[warp][bl] += half;
+                  totals.template add<D>(e, fr, d);
+                }
+              }
+            }
+          }
+        }
+        __syncwarp();
+      }
+      if constexpr (!Record) {
+        if (own < m) {
+          const uint32_t ib = ids[own];
+          if (ib >= args.n) {
+            impossible = true;
+          } else {
+            for (int c = 0; c < D; ++c) force[std::size_t(ib) * D + c] += col_force[warp][c][lane];
+            if constexpr (T::kObservables) energy[ib] += col_energy[warp][lane];
+          }
+        }
+      }
+      __syncwarp();
+    }
+    if constexpr (!Record) {
+      if (row_ok && ia < args.n) {
+        for (int c = 0; c < D; ++c) force[std::size_t(ia) * D + c] += fa[c];
+        if constexpr (T::kObservables) energy[ia] += ea;
+      }
+    }
+    __syncwarp();
+  }
+  if (impossible) args.flags->impossible = 1;
+  if constexpr (Record) {
+    candidates = warp_sum(candidates);
+    interacting = warp_sum(interacting);
+    if (lane == 0) {
+      atomicAdd(&args.flags->candidates, candidates);
+      atomicAdd(&args.flags->interacting, interacting);
+    }
+  } else if constexpr (T::kObservables) {
+    for (int k = 0; k < kCellSums; ++k) {
+      const Accum v = warp_sum(totals.v[k]);
+      if (lane == 0) args.cell_sums[(std::size_t(args.first_cell) + ci) * kCellSums + k] = v;
+    }
+  }
+}
+
+template <class T, class Real, class Accum, bool Record>
+void launch(TraversalForm form, const TraversalArgs<Real, Accum>& args, cudaStream_t stream) {
+  if (args.num_cells == 0) return;
+  if (form == TraversalForm::kThreadPerCell) {
+    const unsigned blocks = (args.num_cells + kThreadsPerBlock - 1) / kThreadsPerBlock;
+    thread_per_cell<T, Real, Accum, Record><<<blocks, kThreadsPerBlock, 0, stream>>>(args);
+  } else {
+    const unsigned blocks = (args.num_cells + kWarpsPerBlock - 1) / kWarpsPerBlock;
+    warp_per_cell<T, Real, Accum, Record><<<blocks, kWarpsPerBlock * 32, 0, stream>>>(args);
+  }
+  CF_CUDA_CHECK_LAUNCH();
+}
+
+template <class F>
+void with_bool(bool b, F&& f) {
+  if (b) f(std::true_type{});
+  else f(std::false_type{});
+}
+
+// Turns the run-time choices into one Traits instantiation.
+template <class F>
+void dispatch(const Switches& sw, F&& f) {
+  auto with_mode = [&](auto d, auto w, auto m) {
+    auto go = [&](auto cm) {
+      with_bool(sw.observables, [&](auto o) {
+        f(Traits<decltype(d)::value, decltype(w)::value, decltype(m)::value, decltype(cm)::value,
+                 decltype(o)::value>{});
+      });
+    };
+    switch (sw.mode) {
+      case CutoffMode::kTruncate: go(std::integral_constant<CutoffMode, CutoffMode::kTruncate>{}); break;
+      case CutoffMode::kShift: go(std::integral_constant<CutoffMode, CutoffMode::kShift>{}); break;
+      case CutoffMode::kForceShift: go(std::integral_constant<CutoffMode, CutoffMode::kForceShift>{}); break;
+    }
+  };
+  auto with_dim = [&](auto d) {
+    with_bool(sw.wrap, [&](auto w) { with_bool(sw.multi_type, [&](auto m) { with_mode(d, w, m); }); });
+  };
+  if (sw.dim == 2) with_dim(std::integral_constant<int, 2>{});
+  else with_dim(std::integral_constant<int, 3>{});
+}
+
+}  // namespace detail
+
+template <class Real, class Accum>
+void traverse(TraversalForm form, const Switches& sw, const TraversalArgs<Real, Accum>& args,
+              cudaStream_t stream) {
+  detail::dispatch(sw, [&](auto traits) {
+    detail::launch<decltype(traits), Real, Accum, false>(form, args, stream);
+  });
+}
+
+}  // namespace cellforce::cuda

@@ -1,0 +1,54 @@
+// What every force engine (CPU in src/cpu, CUDA in cuda/) is told and what it reports: the
+// precision and accumulation choices and the per-evaluation pipeline statistics.
+#pragma once
+
+#include <cstddef>
+#include <cstdint>
+
+#include "core/grid.h"
+
+namespace cellforce {
+
+// Arithmetic of the narrow phase / accumulation of its results.
+enum class Precision : uint8_t {
+  kSingle,  // float pairs, float sums
+  kMixed,   // float pairs, double sums
+  kDouble,  // double pairs, double sums
+};
+
+// How per-particle results are gathered (spatial-subdivision.md, stage 5).
+enum class Accumulation : uint8_t {
+  kJacobi,       // one pass; 2^d output slots per particle (one per cell type), summed at the end
+  kGaussSeidel,  // 2^d passes, one per cell type, adding straight into the output
+};
+
+// Counts and stage times (seconds) of the last evaluation. The CPU folds the valid count into
+// t_cell_ids; the GPU times it apart (t_count) and includes staging the occupants (the
+// relative-coordinate gather) in t_traversal. t_transfer: host <-> device copies (GPU only).
+struct PipelineStats {
+  Grid grid;
+  std::size_t entries = 0;            // n x 2^d cell-ID entries
+  std::size_t valid_entries = 0;      // H plus valid P entries
+  std::size_t collision_cells = 0;
+  std::size_t max_occupancy = 0;      // most entries in one collision cell
+  std::size_t candidate_pairs = 0;    // pairs tested (after the control-bit rule)
+  std::size_t interacting_pairs = 0;  // pairs with r < rc
+  double t_cell_ids = 0, t_count = 0, t_sort = 0, t_collision_cells = 0, t_traversal = 0,
+         t_accumulate = 0, t_transfer = 0;
+  double t_total = 0;
+};
+
+inline const char* to_string(Precision precision) {
+  switch (precision) {
+    case Precision::kSingle: return "single";
+    case Precision::kMixed: return "mixed";
+    case Precision::kDouble: return "double";
+  }
+  return "?";
+}
+
+inline const char* to_string(Accumulation accumulation) {
+  return accumulation == Accumulation::kJacobi ? "jacobi" : "gauss-seidel";
+}
+
+}  // namespace cellforce
