@@ -33,7 +33,7 @@ struct Traits {
 };
 
 constexpr int kThreadsPerBlock = 128;          // thread per cell: cells per block
-constexpr int kWarpsPerBlock = 4;              // warp per cell: cells per block
+constexpr int kWarpsPerBlock = 4;              // warp per cell: most cells (warps) per block
 constexpr uint32_t kControlMask = 0xffffu;
 
 __device__ __forceinline__ Control control_of(uint32_t meta) { return Control(meta & kControlMask); }
@@ -173,15 +173,23 @@ __global__ void __launch_bounds__(kThreadsPerBlock)
 }
 
 // ---- warp per collision cell ------------------------------------------------------------------
+// One warp's shared memory: a column tile of occupants and its accumulators.
+template <class T, class Real, class Accum>
+struct ColumnTile {
+  StagedEntry<Real> occ[32];
+  Accum force[T::kDim][32];
+  Accum energy[T::kObservables ? 32 : 1];
+};
+
 template <class T, class Real, class Accum, bool Record>
 __global__ void __launch_bounds__(kWarpsPerBlock * 32)
     warp_per_cell(const TraversalArgs<Real, Accum> args) {
   constexpr int D = T::kDim;
-  __shared__ StagedEntry<Real> col_occ[kWarpsPerBlock][32];
-  __shared__ Accum col_force[kWarpsPerBlock][D][32];
-  __shared__ Accum col_energy[kWarpsPerBlock][T::kObservables ? 32 : 1];
+  // Dynamic: the launcher picks 1 or kWarpsPerBlock warps per block from the cell count.
+  extern __shared__ __align__(32) unsigned char shared_bytes[];
   const int warp = int(threadIdx.x / 32), lane = int(threadIdx.x % 32);
-  const uint32_t ci = blockIdx.x * kWarpsPerBlock + uint32_t(warp);
+  ColumnTile<T, Real, Accum>& tile = reinterpret_cast<ColumnTile<T, Real, Accum>*>(shared_bytes)[warp];
+  const uint32_t ci = blockIdx.x * (blockDim.x / 32) + uint32_t(warp);
   if (ci >= args.num_cells) return;  // the whole warp: the cell index is warp-uniform
   const CollisionCell cell = args.cells[ci];
   const unsigned type = cell_type_of_id(args.grid, cell.cell);
@@ -204,15 +212,15 @@ __global__ void __launch_bounds__(kWarpsPerBlock * 32)
     Accum ea = 0;
     for (uint32_t col = row; col < m; col += 32) {
       const uint32_t own = col + uint32_t(lane);
-      if (own < m) col_occ[warp][lane] = occ[own];
-      for (int c = 0; c < D; ++c) col_force[warp][c][lane] = 0;
-      if constexpr (T::kObservables) col_energy[warp][lane] = 0;
+      if (own < m) tile.occ[lane] = occ[own];
+      for (int c = 0; c < D; ++c) tile.force[c][lane] = 0;
+      if constexpr (T::kObservables) tile.energy[lane] = 0;
       __syncwarp();
       for (int k = 0; k < 32; ++k) {
         const int bl = (lane + k) & 31;
         const uint32_t b = col + uint32_t(bl);
         if (row_ok && b < m) {
-          const StagedEntry<Real> B = col_occ[warp][bl];
+          const StagedEntry<Real> B = tile.occ[bl];
           // H x H once (b > a); H x P unless the control-bit rule gives the pair to another cell.
           const bool test = b < h ? b > a : !skip_pair(type, control_of(A.meta), control_of(B.meta));
           if (test) {
@@ -232,12 +240,12 @@ __global__ void __launch_bounds__(kWarpsPerBlock * 32)
                 for (int c = 0; c < D; ++c) {
                   const Real f = mul_rn(fr, d[c]);  // no FMA: the same bits with and without observables
                   fa[c] += Accum(f);
-                  col_force[warp][c][bl] -= Accum(f);
+                  tile.force[c][bl] -= Accum(f);
                 }
                 if constexpr (T::kObservables) {
                   const Accum half = Accum(Real(0.5) * e);
                   ea += half;
-                  col_energy[warp][bl] += half;
+                  tile.energy[bl] += half;
                   totals.template add<D>(e, fr, d);
                 }
               }
@@ -252,8 +260,8 @@ __global__ void __launch_bounds__(kWarpsPerBlock * 32)
           if (ib >= args.n) {
             impossible = true;
           } else {
-            for (int c = 0; c < D; ++c) force[std::size_t(ib) * D + c] += col_force[warp][c][lane];
-            if constexpr (T::kObservables) energy[ib] += col_energy[warp][lane];
+            for (int c = 0; c < D; ++c) force[std::size_t(ib) * D + c] += tile.force[c][lane];
+            if constexpr (T::kObservables) energy[ib] += tile.energy[lane];
           }
         }
       }
@@ -290,8 +298,16 @@ void launch(TraversalForm form, const TraversalArgs<Real, Accum>& args, cudaStre
     const unsigned blocks = (args.num_cells + kThreadsPerBlock - 1) / kThreadsPerBlock;
     thread_per_cell<T, Real, Accum, Record><<<blocks, kThreadsPerBlock, 0, stream>>>(args);
   } else {
-    const unsigned blocks = (args.num_cells + kWarpsPerBlock - 1) / kWarpsPerBlock;
-    warp_per_cell<T, Real, Accum, Record><<<blocks, kWarpsPerBlock * 32, 0, stream>>>(args);
+    // Few cells (a small system): one warp per block spreads them over every multiprocessor;
+    // many cells: kWarpsPerBlock per block, for more resident warps than the per-SM block limit
+    // allows with one.
+    int device = 0, sms = 0;
+    CF_CUDA_CHECK(cudaGetDevice(&device));
+    CF_CUDA_CHECK(cudaDeviceGetAttribute(&sms, cudaDevAttrMultiProcessorCount, device));
+    const unsigned warps = args.num_cells <= 32u * unsigned(sms) ? 1u : unsigned(kWarpsPerBlock);
+    const unsigned blocks = (args.num_cells + warps - 1) / warps;
+    warp_per_cell<T, Real, Accum, Record>
+        <<<blocks, warps * 32, warps * sizeof(ColumnTile<T, Real, Accum>), stream>>>(args);
   }
   CF_CUDA_CHECK_LAUNCH();
 }
