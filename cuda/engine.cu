@@ -66,6 +66,21 @@ double distance2(const SystemView& s, uint32_t i, uint32_t j) {
   return r2;
 }
 
+// Makes the engine's device current for a scope and restores the caller's afterwards.
+class DeviceScope {
+ public:
+  explicit DeviceScope(int device) {
+    CF_CUDA_CHECK(cudaGetDevice(&previous_));
+    if (previous_ != device) CF_CUDA_CHECK(cudaSetDevice(device));
+  }
+  ~DeviceScope() { cudaSetDevice(previous_); }  // cannot throw; a failure shows at the next call
+  DeviceScope(const DeviceScope&) = delete;
+  DeviceScope& operator=(const DeviceScope&) = delete;
+
+ private:
+  int previous_ = 0;
+};
+
 }  // namespace
 
 struct GpuEngine::Impl {
@@ -101,15 +116,13 @@ struct GpuEngine::Impl {
     return 1e-3 * ms;
   }
 
-  // Copies from pageable host memory: cudaMemcpyAsync returns once the source has been staged,
-  // so the host copies may change afterwards; they are members only to outlive the call.
-  cuda::DeviceFlags clear_flags{~0ull, 0, 0, 0, 0, 0};
-  std::vector<std::byte> host_table;
+  std::vector<std::byte> host_table;  // the table last uploaded (uploaded again only on change)
 
   void reset_flags() {
     flags.reserve(1);
-    CF_CUDA_CHECK(cudaMemcpyAsync(flags.data(), &clear_flags, sizeof(clear_flags),
-                                  cudaMemcpyHostToDevice, stream));
+    cuda::DeviceFlags* f = flags.data();
+    CF_CUDA_CHECK(cudaMemsetAsync(f, 0, sizeof(cuda::DeviceFlags), stream));
+    CF_CUDA_CHECK(cudaMemsetAsync(&f->bad_pair, 0xff, sizeof(f->bad_pair), stream));
   }
 
   // Stages 1-3: upload, cell IDs, count, sort, collision cells (split by type when asked).
@@ -127,6 +140,10 @@ struct GpuEngine::Impl {
     }
     const Grid& g = st.grid;
     const std::size_t n = sys.n, entries = n << g.dim;
+    if (entries > std::size_t(INT32_MAX))
+      throw Error("the CUDA engine takes at most 2^31 - 1 cell-ID entries (N x 2^d): " +
+                  std::to_string(n) + " particles in " + std::to_string(g.dim) + "D make " +
+                  std::to_string(entries));
     record(kStart);
     upload(positions, sys.positions, n * std::size_t(g.dim), stream);
     has_types = sys.types != nullptr;
@@ -174,10 +191,13 @@ struct GpuEngine::Impl {
     f.mode = mode;
     const std::vector<LJParams<Real>> params = make_pair_table<Real>(f);
     const std::size_t bytes = params.size() * sizeof(LJParams<Real>);
-    host_table.resize(bytes);
-    std::memcpy(host_table.data(), params.data(), bytes);
-    table.reserve(bytes);
-    CF_CUDA_CHECK(cudaMemcpyAsync(table.data(), host_table.data(), bytes, cudaMemcpyHostToDevice, stream));
+    // A copy from pageable memory waits for the stream: upload only when the table changes.
+    if (host_table.size() != bytes || std::memcmp(host_table.data(), params.data(), bytes) != 0) {
+      host_table.resize(bytes);
+      std::memcpy(host_table.data(), params.data(), bytes);
+      table.reserve(bytes);
+      CF_CUDA_CHECK(cudaMemcpyAsync(table.data(), host_table.data(), bytes, cudaMemcpyHostToDevice, stream));
+    }
     cuda::TraversalArgs<Real, Accum> args;
     args.grid = g;
     args.cells = cells.data();
@@ -259,16 +279,23 @@ GpuEngine::GpuEngine(GpuOptions options)
   if (options_.device < 0 || options_.device >= count)
     throw Error("CUDA engine: device " + std::to_string(options_.device) + " does not exist (" +
                 std::to_string(count) + " device(s))");
-  CF_CUDA_CHECK(cudaSetDevice(options_.device));
+  const DeviceScope scope(options_.device);
   CF_CUDA_CHECK(cudaStreamCreateWithFlags(&impl_->stream, cudaStreamNonBlocking));
   for (cudaEvent_t& e : impl_->events) CF_CUDA_CHECK(cudaEventCreate(&e));
 }
 
-GpuEngine::~GpuEngine() = default;
+GpuEngine::~GpuEngine() {
+  try {
+    const DeviceScope scope(options_.device);  // the buffers are freed on their own device
+    impl_.reset();
+  } catch (...) {
+    impl_.reset();  // a destructor cannot throw
+  }
+}
 
 void GpuEngine::evaluate(const SystemView& system, const ForceField& ff, const Request& request,
                          ForceResult& result) {
-  CF_CUDA_CHECK(cudaSetDevice(options_.device));
+  const DeviceScope scope(options_.device);
   Impl& s = *impl_;
   const bool gs = options_.accumulation == Accumulation::kGaussSeidel;
   s.build(options_, stats_, system, ff, gs);
@@ -279,18 +306,10 @@ void GpuEngine::evaluate(const SystemView& system, const ForceField& ff, const R
     case Precision::kDouble: s.traverse_and_sum<double, double>(options_, g, system, ff, request); break;
   }
 
-  const std::size_t n = system.n, dim = std::size_t(g.dim);
-  result.dim = g.dim;
-  download(result.forces, s.forces.data(), n * dim, s.stream);
-  download(result.energies, s.energies.data(), request.energy ? n : 0, s.stream);
-  double totals[cuda::kCellSums] = {};
-  if (request.energy || request.virial)
-    CF_CUDA_CHECK(cudaMemcpyAsync(totals, s.totals.data(), sizeof(totals), cudaMemcpyDeviceToHost, s.stream));
+  // The flags first: on an error the caller's result is left as it was (as the CPU engine does).
   cuda::DeviceFlags flags{};
   CF_CUDA_CHECK(cudaMemcpyAsync(&flags, s.flags.data(), sizeof(flags), cudaMemcpyDeviceToHost, s.stream));
-  s.record(kDownloaded);
   CF_CUDA_CHECK(cudaStreamSynchronize(s.stream));
-
   if (flags.impossible)
     throw Error("CUDA engine: a traversal kernel met a particle index out of range (an internal "
                 "error, not bad input)");
@@ -298,6 +317,16 @@ void GpuEngine::evaluate(const SystemView& system, const ForceField& ff, const R
     const auto i = uint32_t(flags.bad_pair >> 32), j = uint32_t(flags.bad_pair & 0xffffffffu);
     throw_close_pair(system, i, j, distance2(system, i, j));
   }
+
+  const std::size_t n = system.n, dim = std::size_t(g.dim);
+  result.dim = g.dim;
+  download(result.forces, s.forces.data(), n * dim, s.stream);
+  download(result.energies, s.energies.data(), request.energy ? n : 0, s.stream);
+  double totals[cuda::kCellSums] = {};
+  if (request.energy || request.virial)
+    CF_CUDA_CHECK(cudaMemcpyAsync(totals, s.totals.data(), sizeof(totals), cudaMemcpyDeviceToHost, s.stream));
+  s.record(kDownloaded);
+  CF_CUDA_CHECK(cudaStreamSynchronize(s.stream));
 
   result.energy = request.energy ? totals[0] : 0.0;
   for (auto& row : result.virial)
@@ -312,6 +341,8 @@ void GpuEngine::evaluate(const SystemView& system, const ForceField& ff, const R
     }
   }
 
+  // Pair counts come from count_pairs()/visited_pairs(), not from the force kernels.
+  stats_.candidate_pairs = stats_.interacting_pairs = stats_.max_occupancy = 0;
   stats_.t_transfer = s.seconds(kStart, kUploaded) + s.seconds(kAccumulated, kDownloaded);
   stats_.t_cell_ids = s.seconds(kUploaded, kCellIds);
   stats_.t_count = s.seconds(kCellIds, kCounted);
@@ -322,30 +353,34 @@ void GpuEngine::evaluate(const SystemView& system, const ForceField& ff, const R
   stats_.t_total = s.seconds(kStart, kDownloaded);
 }
 
-std::vector<std::pair<uint32_t, uint32_t>> GpuEngine::visited_pairs(const SystemView& system,
-                                                                    const ForceField& ff) {
-  CF_CUDA_CHECK(cudaSetDevice(options_.device));
+// Runs the pair recorder; with `keep` the pairs are stored (the buffer grows to the count the
+// kernel reports and the kernel reruns), without it only counted.
+std::vector<std::pair<uint32_t, uint32_t>> GpuEngine::record(const SystemView& system,
+                                                             const ForceField& ff, bool keep) {
+  const DeviceScope scope(options_.device);
   Impl& s = *impl_;
   s.build(options_, stats_, system, ff, false);
   const Grid& g = stats_.grid;
   cuda::TraversalArgs<double, double> args =
       s.prepare<double, double>(g, system, ff, CutoffMode::kTruncate);
   cuda::DeviceFlags flags{};
-  for (;;) {  // the pair buffer grows to the count the kernel reports, then the kernel reruns
-    s.pairs.reserve(std::max<std::size_t>(s.valid * 8, 1024));
-    args.pairs = s.pairs.data();
-    args.pair_capacity = s.pairs.capacity();
+  for (;;) {
+    if (keep) {
+      s.pairs.reserve(std::max<std::size_t>(s.valid * 8, 1024));
+      args.pairs = s.pairs.data();
+      args.pair_capacity = s.pairs.capacity();
+    }
     cuda::record_pairs(options_.traversal, g.dim, g.any_wrap_inside_cell(), args, s.stream);
     CF_CUDA_CHECK(cudaMemcpyAsync(&flags, s.flags.data(), sizeof(flags), cudaMemcpyDeviceToHost, s.stream));
     CF_CUDA_CHECK(cudaStreamSynchronize(s.stream));
     if (flags.impossible)
       throw Error("CUDA engine: the pair recorder met a particle index out of range (an internal error)");
-    if (flags.recorded <= s.pairs.capacity()) break;
+    if (!keep || flags.recorded <= s.pairs.capacity()) break;
     s.pairs.reserve(std::size_t(flags.recorded));
     s.reset_flags();
   }
   std::vector<uint2> raw;
-  download(raw, s.pairs.data(), std::size_t(flags.recorded), s.stream);
+  if (keep) download(raw, s.pairs.data(), std::size_t(flags.recorded), s.stream);
   std::vector<CollisionCell> cells;
   download(cells, s.cells.data(), s.num_cells, s.stream);
   CF_CUDA_CHECK(cudaStreamSynchronize(s.stream));
@@ -354,9 +389,21 @@ std::vector<std::pair<uint32_t, uint32_t>> GpuEngine::visited_pairs(const System
   stats_.max_occupancy = 0;
   for (const CollisionCell& c : cells)
     stats_.max_occupancy = std::max<std::size_t>(stats_.max_occupancy, std::size_t(c.h) + c.p);
+  // Stage times belong to evaluate().
+  stats_.t_cell_ids = stats_.t_count = stats_.t_sort = stats_.t_collision_cells = 0;
+  stats_.t_traversal = stats_.t_accumulate = stats_.t_transfer = stats_.t_total = 0;
   std::vector<std::pair<uint32_t, uint32_t>> pairs(raw.size());
   for (std::size_t k = 0; k < raw.size(); ++k) pairs[k] = {raw[k].x, raw[k].y};
   return pairs;
+}
+
+std::vector<std::pair<uint32_t, uint32_t>> GpuEngine::visited_pairs(const SystemView& system,
+                                                                    const ForceField& ff) {
+  return record(system, ff, true);
+}
+
+void GpuEngine::count_pairs(const SystemView& system, const ForceField& ff) {
+  (void)record(system, ff, false);
 }
 
 std::string GpuEngine::unavailable() {

@@ -62,7 +62,14 @@ class GpuEngine {
   std::vector<std::pair<uint32_t, uint32_t>> visited_pairs(const SystemView& system,
                                                            const ForceField& ff);
 
-  // Stage times are measured with CUDA events on the engine's stream.
+  // The candidate and interacting pair counts and the largest occupancy, in stats(), without
+  // storing the pairs (what visited_pairs() sets, for any size of system).
+  void count_pairs(const SystemView& system, const ForceField& ff);
+
+  // Stage times (evaluate) are measured with CUDA events on the engine's stream: stream time from
+  // one stage's start to the next, so they include the host round trips that size the next
+  // buffers (the valid count, the number of cells). Pair counts come from count_pairs() or
+  // visited_pairs(); each call zeroes what it does not compute.
   const PipelineStats& stats() const { return stats_; }
   const GpuOptions& options() const { return options_; }
 
@@ -72,6 +79,8 @@ class GpuEngine {
   struct Impl;  // device buffers, stream and events, reused across evaluations
 
  private:
+  std::vector<std::pair<uint32_t, uint32_t>> record(const SystemView& system, const ForceField& ff,
+                                                    bool keep);
   GpuOptions options_;
   PipelineStats stats_;
   std::unique_ptr<Impl> impl_;

@@ -2,8 +2,10 @@
 // staging, and of the chapter's loading of a cell's objects): one thread per sorted entry writes
 // the occupant's position relative to the centre of its cell, formed in double through the shared
 // core's relative_coordinate(), so that both backends stage identical values, then rounded to the
-// pair precision. The pair recorder runs the force kernels' own candidate loop in double and
-// records what it finds, so that the tests check the traversal that computes forces.
+// pair precision. The pair recorder is the force kernels' own template (same candidate loop, same
+// form) instantiated in double for one type, truncation and no observables, with one launch over
+// all cells: it records what that loop finds, so that the tests check the traversal's geometry.
+// The Gauss-Seidel launches per cell type are checked through their forces.
 #include "traversal_impl.cuh"
 
 namespace cellforce::cuda {

@@ -131,6 +131,11 @@ TEST_P(GpuCandidates, CountsEqualCpu) {
   EXPECT_EQ(gpu.stats().max_occupancy, cpu.stats().max_occupancy);
   EXPECT_EQ(gpu.stats().collision_cells, cpu.stats().collision_cells);
   EXPECT_EQ(gpu.stats().valid_entries, cpu.stats().valid_entries);
+  // Counting without storing gives the same counts.
+  GpuEngine counter(o);
+  counter.count_pairs(s.config.view(), s.ff);
+  EXPECT_EQ(counter.stats().candidate_pairs, cpu.stats().candidate_pairs);
+  EXPECT_EQ(counter.stats().interacting_pairs, cpu.stats().interacting_pairs);
 }
 
 INSTANTIATE_TEST_SUITE_P(
@@ -141,7 +146,7 @@ INSTANTIATE_TEST_SUITE_P(
       return std::string(name_of(std::get<0>(p.param))) + "_" + std::get<1>(p.param);
     });
 
-// ---- a dense cluster: one cell, hundreds of tiles, a pair buffer that must grow ---------------
+// ---- a dense cluster: one cell of 32 tiles, a pair buffer that must grow ------------------------
 class GpuDenseCluster : public ::testing::TestWithParam<TraversalForm> {
  protected:
   void SetUp() override { CF_SKIP_WITHOUT_DEVICE(); }
@@ -198,6 +203,30 @@ TEST(GpuEngineReuse, AlternatingScenesMatchFreshEngines) {
     fresh.evaluate(s.config.view(), s.ff, Request{true, true}, b);
     EXPECT_TRUE(bitwise_equal(a, b)) << name;
   }
+}
+
+// Energy alone and virial alone (one switch on the GPU computes both): each requested observable
+// equals the brute force to 1e-12, the other is zero, and the forces are bitwise those of a
+// forces-only request.
+TEST(GpuEngineRequests, EnergyOnlyAndVirialOnly) {
+  CF_SKIP_WITHOUT_DEVICE();
+  const Scene s = make_scene("multitype3d_lb");
+  const auto view = s.config.view();
+  ForceResult ref, bare, energy_only, virial_only;
+  cellforce::brute_force(view, s.ff, Request{true, true}, ref);
+  GpuEngine e;
+  e.evaluate(view, s.ff, Request{false, false}, bare);
+  e.evaluate(view, s.ff, Request{true, false}, energy_only);
+  e.evaluate(view, s.ff, Request{false, true}, virial_only);
+  EXPECT_TRUE(total_energy_matches(ref, energy_only, 1e-12));
+  EXPECT_TRUE(energies_match(ref, energy_only, 1e-12));
+  EXPECT_TRUE(virial_matches(ref, virial_only, 1e-12));
+  EXPECT_EQ(virial_only.energy, 0.0);
+  EXPECT_TRUE(virial_only.energies.empty());
+  for (const auto& row : energy_only.virial)
+    for (double v : row) EXPECT_EQ(v, 0.0);
+  EXPECT_EQ(bare.forces, energy_only.forces);
+  EXPECT_EQ(bare.forces, virial_only.forces);
 }
 
 // An empty system gives empty forces and zero energy, not a launch error.

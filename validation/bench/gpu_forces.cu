@@ -77,7 +77,8 @@ int main(int argc, char** argv) {
     std::size_t pairs = 0, candidates = 0;
     {
       GpuEngine counter;
-      pairs = counter.visited_pairs(sys, ff).size();
+      counter.count_pairs(sys, ff);
+      pairs = counter.stats().interacting_pairs;
       candidates = counter.stats().candidate_pairs;
     }
     for (const Variant& v : variants) {
