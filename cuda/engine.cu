@@ -59,8 +59,10 @@ void download(std::vector<T>& h, const T* d, std::size_t count, cudaStream_t str
 double distance2(const SystemView& s, uint32_t i, uint32_t j) {
   double r2 = 0;
   for (int a = 0; a < s.box.dim; ++a) {
-    double d = s.positions[std::size_t(i) * s.box.dim + a] - s.positions[std::size_t(j) * s.box.dim + a];
-    if (s.box.periodic[a]) d -= s.box.length[a] * std::rint(d / s.box.length[a]);
+    const double inv_length = s.box.periodic[a] ? 1.0 / s.box.length[a] : 0.0;
+    const double d = minimum_image(s.positions[std::size_t(i) * s.box.dim + a] -
+                                       s.positions[std::size_t(j) * s.box.dim + a],
+                                   s.box.length[a], inv_length);
     r2 += d * d;
   }
   return r2;
@@ -101,6 +103,7 @@ struct GpuEngine::Impl {
   DeviceBuffer<cuda::DeviceFlags> flags;
   DeviceBuffer<uint2> pairs;
   std::size_t valid = 0, num_cells = 0;
+  int multiprocessors = 1;  // of the engine's device, read once
   bool has_types = false;
 
   ~Impl() {
@@ -205,6 +208,7 @@ struct GpuEngine::Impl {
     args.staged = as<cuda::StagedEntry<Real>>(staged);
     args.sorted_ids = sorted_ids.data();
     args.n = sys.n;
+    args.multiprocessors = multiprocessors;
     args.table = as<LJParams<Real>>(table);
     args.num_types = uint32_t(ff.num_types());
     args.rc2 = Real(ff.cutoff) * Real(ff.cutoff);
@@ -281,6 +285,8 @@ GpuEngine::GpuEngine(GpuOptions options)
                 std::to_string(count) + " device(s))");
   const DeviceScope scope(options_.device);
   CF_CUDA_CHECK(cudaStreamCreateWithFlags(&impl_->stream, cudaStreamNonBlocking));
+  CF_CUDA_CHECK(cudaDeviceGetAttribute(&impl_->multiprocessors, cudaDevAttrMultiProcessorCount,
+                                       options_.device));
   for (cudaEvent_t& e : impl_->events) CF_CUDA_CHECK(cudaEventCreate(&e));
 }
 
@@ -329,17 +335,8 @@ void GpuEngine::evaluate(const SystemView& system, const ForceField& ff, const R
   CF_CUDA_CHECK(cudaStreamSynchronize(s.stream));
 
   result.energy = request.energy ? totals[0] : 0.0;
-  for (auto& row : result.virial)
-    for (double& v : row) v = 0;
-  if (request.virial) {
-    static constexpr int kRow[6] = {0, 1, 2, 0, 0, 1};
-    static constexpr int kCol[6] = {0, 1, 2, 1, 2, 2};
-    for (int k = 0; k < 6; ++k) {
-      if (kRow[k] >= g.dim || kCol[k] >= g.dim) continue;
-      result.virial[kRow[k]][kCol[k]] = totals[1 + k];
-      result.virial[kCol[k]][kRow[k]] = totals[1 + k];
-    }
-  }
+  const double no_virial[6] = {};
+  set_virial(result, g.dim, request.virial ? totals + 1 : no_virial);
 
   // Pair counts come from count_pairs()/visited_pairs(), not from the force kernels.
   stats_.candidate_pairs = stats_.interacting_pairs = stats_.max_occupancy = 0;

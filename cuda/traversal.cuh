@@ -74,6 +74,7 @@ struct TraversalArgs {
   DeviceFlags* flags = nullptr;
   uint2* pairs = nullptr;                // record mode: (i, j) of each pair with r < rc
   std::size_t pair_capacity = 0;
+  int multiprocessors = 1;               // launch shape only: the device's SM count
 };
 
 // The run-time choices that pick one kernel instantiation.

@@ -301,10 +301,8 @@ void launch(TraversalForm form, const TraversalArgs<Real, Accum>& args, cudaStre
     // Few cells (a small system): one warp per block spreads them over every multiprocessor;
     // many cells: kWarpsPerBlock per block, for more resident warps than the per-SM block limit
     // allows with one.
-    int device = 0, sms = 0;
-    CF_CUDA_CHECK(cudaGetDevice(&device));
-    CF_CUDA_CHECK(cudaDeviceGetAttribute(&sms, cudaDevAttrMultiProcessorCount, device));
-    const unsigned warps = args.num_cells <= 32u * unsigned(sms) ? 1u : unsigned(kWarpsPerBlock);
+    const unsigned warps =
+        args.num_cells <= 32u * unsigned(args.multiprocessors) ? 1u : unsigned(kWarpsPerBlock);
     const unsigned blocks = (args.num_cells + warps - 1) / warps;
     warp_per_cell<T, Real, Accum, Record>
         <<<blocks, warps * 32, warps * sizeof(ColumnTile<T, Real, Accum>), stream>>>(args);

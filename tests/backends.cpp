@@ -7,9 +7,12 @@
 namespace cftest {
 namespace {
 
-class CpuUnderTest final : public EngineUnderTest {
+// Any engine with evaluate() and visited_pairs(), built from its own options.
+template <class Engine>
+class UnderTest final : public EngineUnderTest {
  public:
-  explicit CpuUnderTest(const EngineSpec& spec) : engine_(options(spec)) {}
+  template <class Options>
+  explicit UnderTest(const Options& options) : engine_(options) {}
 
   void evaluate(const cellforce::SystemView& system, const cellforce::ForceField& ff,
                 const cellforce::Request& request, cellforce::ForceResult& result) override {
@@ -21,49 +24,27 @@ class CpuUnderTest final : public EngineUnderTest {
   }
 
  private:
-  static cellforce::CpuOptions options(const EngineSpec& spec) {
-    cellforce::CpuOptions o;
-    o.precision = spec.precision;
-    o.accumulation = spec.accumulation;
-    o.grid_override = spec.grid_override;
-    return o;
-  }
-  cellforce::CpuEngine engine_;
+  Engine engine_;
 };
+
+// The options every engine shares, taken from the spec.
+template <class Options>
+Options options_from(const EngineSpec& spec) {
+  Options o;
+  o.precision = spec.precision;
+  o.accumulation = spec.accumulation;
+  o.grid_override = spec.grid_override;
+  return o;
+}
 
 #ifdef CELLFORCE_HAVE_CUDA
-class GpuUnderTest final : public EngineUnderTest {
- public:
-  GpuUnderTest(const EngineSpec& spec, cellforce::TraversalForm form, cellforce::SortMethod sort)
-      : engine_(options(spec, form, sort)) {}
-
-  void evaluate(const cellforce::SystemView& system, const cellforce::ForceField& ff,
-                const cellforce::Request& request, cellforce::ForceResult& result) override {
-    engine_.evaluate(system, ff, request, result);
-  }
-  std::vector<Pair> visited_pairs(const cellforce::SystemView& system,
-                                  const cellforce::ForceField& ff) override {
-    return engine_.visited_pairs(system, ff);
-  }
-
- private:
-  static cellforce::GpuOptions options(const EngineSpec& spec, cellforce::TraversalForm form,
-                                       cellforce::SortMethod sort) {
-    cellforce::GpuOptions o;
-    o.precision = spec.precision;
-    o.accumulation = spec.accumulation;
-    o.grid_override = spec.grid_override;
-    o.traversal = form;
-    o.sort = sort;
-    return o;
-  }
-  cellforce::GpuEngine engine_;
-};
-
 Backend gpu_backend(std::string name, cellforce::TraversalForm form, cellforce::SortMethod sort) {
   return Backend{std::move(name), [] { return cellforce::GpuEngine::unavailable(); },
                  [form, sort](const EngineSpec& spec) -> std::unique_ptr<EngineUnderTest> {
-                   return std::make_unique<GpuUnderTest>(spec, form, sort);
+                   auto o = options_from<cellforce::GpuOptions>(spec);
+                   o.traversal = form;
+                   o.sort = sort;
+                   return std::make_unique<UnderTest<cellforce::GpuEngine>>(o);
                  }};
 }
 #endif
@@ -74,7 +55,8 @@ const std::vector<Backend>& backends() {
   static const std::vector<Backend> list = {
       Backend{"cpu", [] { return std::string(); },
               [](const EngineSpec& spec) -> std::unique_ptr<EngineUnderTest> {
-                return std::make_unique<CpuUnderTest>(spec);
+                return std::make_unique<UnderTest<cellforce::CpuEngine>>(
+                    options_from<cellforce::CpuOptions>(spec));
               }},
 #ifdef CELLFORCE_HAVE_CUDA
       // The CUDA engine in both traversal forms and with the chapter's sort; they skip where no

@@ -35,6 +35,20 @@ struct ForceResult {
                                          // dim x dim block is used; 0 unless requested
 };
 
+// Stores the six virial components w = (xx, yy, zz, xy, xz, yz) as the symmetric dim x dim block
+// of result.virial, zero elsewhere (2D uses xx, yy, xy). Shared by the engines' accumulation.
+inline void set_virial(ForceResult& result, int dim, const double w[6]) {
+  static constexpr int kRow[6] = {0, 1, 2, 0, 0, 1};
+  static constexpr int kCol[6] = {0, 1, 2, 1, 2, 2};
+  for (auto& row : result.virial)
+    for (double& v : row) v = 0;
+  for (int k = 0; k < 6; ++k) {
+    if (kRow[k] >= dim || kCol[k] >= dim) continue;
+    result.virial[kRow[k]][kCol[k]] = w[k];
+    result.virial[kCol[k]][kRow[k]] = w[k];
+  }
+}
+
 // Rejects bad input before any kernel runs; throws cellforce::Error naming the particle (index),
 // axis or parameter: non-finite coordinates, non-positive or non-finite box edges, cutoff not
 // positive or beyond half a periodic edge, type index out of range, bad force-field values.

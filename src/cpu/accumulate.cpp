@@ -34,21 +34,15 @@ void accumulate(const Accumulators<Accum>& acc, Accumulation mode, int dim, std:
     for (const Accum v : acc.cell_energy) e += v;
     result.energy = double(e);
   }
-  for (auto& row : result.virial)
-    for (double& v : row) v = 0;
+  double w[kVirialComponents] = {};
   if (request.virial) {
-    Accum w[kVirialComponents] = {};
+    Accum sum[kVirialComponents] = {};
     const std::size_t cells = acc.cell_virial.size() / kVirialComponents;
     for (std::size_t ci = 0; ci < cells; ++ci)
-      for (int k = 0; k < kVirialComponents; ++k) w[k] += acc.cell_virial[ci * kVirialComponents + k];
-    static constexpr int kRow[kVirialComponents] = {0, 1, 2, 0, 0, 1};
-    static constexpr int kCol[kVirialComponents] = {0, 1, 2, 1, 2, 2};
-    for (int k = 0; k < kVirialComponents; ++k) {
-      if (kRow[k] >= dim || kCol[k] >= dim) continue;
-      result.virial[kRow[k]][kCol[k]] = double(w[k]);
-      result.virial[kCol[k]][kRow[k]] = double(w[k]);
-    }
+      for (int k = 0; k < kVirialComponents; ++k) sum[k] += acc.cell_virial[ci * kVirialComponents + k];
+    for (int k = 0; k < kVirialComponents; ++k) w[k] = double(sum[k]);
   }
+  set_virial(result, dim, w);
 }
 
 template void accumulate<float>(const Accumulators<float>&, Accumulation, int, std::size_t,
