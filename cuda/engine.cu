@@ -403,6 +403,12 @@ void GpuEngine::count_pairs(const SystemView& system, const ForceField& ff) {
   (void)record(system, ff, false);
 }
 
+std::string GpuEngine::device_name() const {
+  cudaDeviceProp prop{};
+  CF_CUDA_CHECK(cudaGetDeviceProperties(&prop, options_.device));
+  return prop.name;
+}
+
 std::string GpuEngine::unavailable() {
   int count = 0;
   const cudaError_t err = cudaGetDeviceCount(&count);

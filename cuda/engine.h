@@ -72,6 +72,8 @@ class GpuEngine {
   // visited_pairs(); each call zeroes what it does not compute.
   const PipelineStats& stats() const { return stats_; }
   const GpuOptions& options() const { return options_; }
+  // The device's name as the driver reports it (e.g. "NVIDIA H100 80GB HBM3").
+  std::string device_name() const;
 
   // Empty when a CUDA device can be used here; otherwise why not.
   static std::string unavailable();

@@ -1,9 +1,8 @@
-// The cellforce command line. `cellforce evaluate` builds a lattice scene (by default the LAMMPS
+// The cellforce command line. `cellforce forces` reads one configuration (extended XYZ or H5MD)
+// and writes its forces, energies and virial to HDF5 (see cli/forces.h). `cellforce evaluate` builds a lattice scene (by default the LAMMPS
 // in.lj fluid's starting state: fcc, density 0.8442, 32,000 particles, rc 2.5), evaluates forces,
 // energy and virial once per repeat with the CPU or the CUDA pipeline, and reports the physics, the
 // pipeline's counts and its stage times, optionally next to the O(n^2) brute force.
-#include <omp.h>
-
 #include <CLI/CLI.hpp>
 #include <algorithm>
 #include <chrono>
@@ -13,15 +12,12 @@
 #include <nlohmann/json.hpp>
 #include <vector>
 
+#include "cli/backend.h"
+#include "cli/forces.h"
 #include "cli/options.h"
 #include "core/error.h"
-#include "cpu/engine.h"
 #include "reference/brute_force.h"
 #include "scene/lattice.h"
-
-#ifdef CELLFORCE_HAVE_CUDA
-#include "engine.h"  // cuda/engine.h
-#endif
 
 namespace {
 
@@ -55,62 +51,22 @@ int evaluate(const EvaluateArgs& args) {
   ForceField ff;
   ff.cutoff = args.cutoff;
   ff.mode = args.mode;
-  CpuOptions options;
-  options.precision = args.precision;
-  options.accumulation = args.accumulation;
-  options.grid.rule = args.rule;
+  BackendChoice choice;
+  choice.backend = args.backend;
+  choice.precision = args.precision;
+  choice.accumulation = args.accumulation;
+  choice.rule = args.rule;
+  choice.traversal = args.traversal;
+  choice.sort = args.sort;
+  ForceBackend engine(choice);
+  const std::string& backend = engine.name();
+  const std::string& engine_name = engine.description();
   const Request request{true, true};
   ForceResult result;
-
-  // The backend: "auto" takes the GPU when one can be used.
-  std::string backend = args.backend;
-#ifdef CELLFORCE_HAVE_CUDA
-  if (backend == "auto") backend = GpuEngine::unavailable().empty() ? "cuda" : "cpu";
-  std::unique_ptr<GpuEngine> gpu;
-  if (backend == "cuda") {
-    GpuOptions g;
-    g.precision = args.precision;
-    g.accumulation = args.accumulation;
-    g.grid.rule = args.rule;
-    g.traversal = args.traversal == "thread" ? TraversalForm::kThreadPerCell : TraversalForm::kWarpPerCell;
-    g.sort = args.sort == "chapter" ? SortMethod::kChapter : SortMethod::kCub;
-    gpu = std::make_unique<GpuEngine>(g);
-  }
-#else
-  if (backend == "auto") backend = "cpu";
-  if (backend == "cuda") throw Error("--backend cuda: this cellforce was built without CUDA");
-#endif
-  CpuEngine cpu(options);
-  std::string engine_name = "CPU, " + std::to_string(omp_get_max_threads()) + " threads";
   auto evaluate_once = [&](bool counts) {
-#ifdef CELLFORCE_HAVE_CUDA
-    if (gpu) {
-      gpu->evaluate(sys, ff, request, result);
-      if (counts) {
-        const PipelineStats timing = gpu->stats();
-        gpu->count_pairs(sys, ff);  // candidate and interacting counts
-        PipelineStats merged = gpu->stats();
-        merged.t_cell_ids = timing.t_cell_ids;
-        merged.t_count = timing.t_count;
-        merged.t_sort = timing.t_sort;
-        merged.t_collision_cells = timing.t_collision_cells;
-        merged.t_traversal = timing.t_traversal;
-        merged.t_accumulate = timing.t_accumulate;
-        merged.t_transfer = timing.t_transfer;
-        merged.t_total = timing.t_total;
-        return merged;
-      }
-      return gpu->stats();
-    }
-#endif
-    (void)counts;
-    cpu.evaluate(sys, ff, request, result);
-    return cpu.stats();
+    engine.evaluate(sys, ff, request, result);
+    return engine.stats(sys, ff, counts);
   };
-#ifdef CELLFORCE_HAVE_CUDA
-  if (gpu) engine_name = std::string("CUDA, ") + to_string(gpu->options().traversal) + ", " +
-                         to_string(gpu->options().sort) + " sort";
-#endif
 
   std::printf("cellforce evaluate: %zu particles (%s lattice, %d cells per axis, density %g, jitter %g)\n",
               sys.n, dim == 3 ? "3D" : "2D", args.cells, args.density, args.jitter);
@@ -206,7 +162,7 @@ int evaluate(const EvaluateArgs& args) {
 
 int main(int argc, char** argv) {
   CLI::App app{"cellforce: spatial-subdivision cutoff search and Lennard-Jones forces"};
-  app.set_version_flag("--version", "cellforce 0.1.0");
+  app.set_version_flag("--version", "cellforce " CELLFORCE_VERSION);
   app.require_subcommand(1);
 
   EvaluateArgs ev;
@@ -239,8 +195,47 @@ int main(int argc, char** argv) {
   evaluate_cmd->add_flag("--brute-force", ev.brute, "Also run the O(n^2) double brute force and compare");
   evaluate_cmd->add_option("--json", ev.json, "Write a JSON summary here");
 
+  ForcesArgs fa;
+  CLI::App* forces_cmd = app.add_subcommand(
+      "forces", "Forces, per-particle energies, energy and virial of one configuration (extended XYZ "
+                "or H5MD) with the CPU or CUDA pipeline, written to HDF5 (/forces, /energies, "
+                "/energy, /virial, and attributes saying how)");
+  forces_cmd->add_option("input", fa.input, "Configuration: extended XYZ (ASE convention) or H5MD")
+      ->required()->check(CLI::ExistingFile);
+  forces_cmd->add_option("--out,-o", fa.out, "HDF5 file to write")->required();
+  forces_cmd->add_option("--cutoff", fa.cutoff, "Cutoff radius rc")->capture_default_str();
+  forces_cmd->add_option("--cutoff-mode", fa.mode, "truncate, shift or force-shift")
+      ->transform(CLI::CheckedTransformer(cli::kCutoffModes, CLI::ignore_case));
+  forces_cmd->add_option("--type", fa.types,
+                         "NAME:SIGMA:EPSILON for each species (repeat); without it a file of one "
+                         "species gets sigma = epsilon = 1");
+  forces_cmd->add_option("--pair", fa.pairs, "A:B:SIGMA:EPSILON, an explicit pair value (repeat)");
+  forces_cmd->add_option("--mixing", fa.mixing, "lorentz-berthelot or geometric")
+      ->transform(CLI::CheckedTransformer(cli::kMixings, CLI::ignore_case));
+  forces_cmd->add_option("--backend", fa.backend.backend, "cpu, cuda, or auto (the GPU when one can be used)")
+      ->check(CLI::IsMember({"cpu", "cuda", "auto"}))->capture_default_str();
+  forces_cmd->add_option("--precision", fa.backend.precision, "single, mixed or double (default double)")
+      ->transform(CLI::CheckedTransformer(cli::kPrecisions, CLI::ignore_case));
+  forces_cmd->add_option("--accumulation", fa.backend.accumulation, "jacobi or gauss-seidel")
+      ->transform(CLI::CheckedTransformer(cli::kAccumulations, CLI::ignore_case));
+  forces_cmd->add_option("--cell-rule", fa.backend.rule, "tight (c >= rc + h) or chapter (c >= 3h)")
+      ->transform(CLI::CheckedTransformer(cli::kCellRules, CLI::ignore_case));
+  forces_cmd->add_option("--traversal", fa.backend.traversal, "CUDA traversal: warp or thread")
+      ->check(CLI::IsMember({"warp", "thread"}));
+  forces_cmd->add_option("--sort", fa.backend.sort, "CUDA sort: cub or chapter")
+      ->check(CLI::IsMember({"cub", "chapter"}));
+  forces_cmd->add_option("--dim", fa.read.dim, "2 or 3 (XYZ: default 3, a 2D file has z = 0; H5MD: from the file)")
+      ->check(CLI::IsMember({2, 3}));
+  forces_cmd->add_option("--frame", fa.read.frame, "Frame to read; negative counts from the end")
+      ->capture_default_str();
+  forces_cmd->add_option("--group", fa.read.group, "H5MD particles group (default: the only one)");
+  forces_cmd->add_option("--repeats", fa.repeats, "Evaluations to time (the file records their median)")
+      ->check(CLI::PositiveNumber)->capture_default_str();
+  forces_cmd->add_flag("--quiet,-q", fa.quiet, "No summary on stdout");
+
   CLI11_PARSE(app, argc, argv);
   try {
+    if (forces_cmd->parsed()) return run_forces(fa);
     if (evaluate_cmd->parsed()) return evaluate(ev);
   } catch (const std::exception& e) {
     std::fprintf(stderr, "%s\n", e.what());

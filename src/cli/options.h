@@ -16,6 +16,8 @@ inline const std::map<std::string, CutoffMode> kCutoffModes = {
     {"truncate", CutoffMode::kTruncate},
     {"shift", CutoffMode::kShift},
     {"force-shift", CutoffMode::kForceShift}};
+inline const std::map<std::string, Mixing> kMixings = {
+    {"lorentz-berthelot", Mixing::kLorentzBerthelot}, {"geometric", Mixing::kGeometric}};
 inline const std::map<std::string, Precision> kPrecisions = {
     {"single", Precision::kSingle}, {"mixed", Precision::kMixed}, {"double", Precision::kDouble}};
 inline const std::map<std::string, Accumulation> kAccumulations = {

@@ -1,0 +1,176 @@
+#include "cli/forces.h"
+
+#include <chrono>
+#include <charconv>
+#include <cmath>
+#include <cstdio>
+#include <map>
+#include <sstream>
+
+#include "cli/options.h"
+#include "core/error.h"
+#include "io/forces_file.h"
+
+#ifndef CELLFORCE_VERSION
+#define CELLFORCE_VERSION "unknown"
+#endif
+
+namespace cellforce {
+namespace {
+
+using cli::median;
+
+std::vector<std::string> split(const std::string& s, char sep) {
+  std::vector<std::string> out;
+  std::stringstream in(s);
+  for (std::string part; std::getline(in, part, sep);) out.push_back(part);
+  if (!s.empty() && s.back() == sep) out.emplace_back();
+  return out;
+}
+
+double parse_number(const std::string& text, const std::string& option, const std::string& spec) {
+  double v = 0;
+  const char* end = text.data() + text.size();
+  auto [ptr, ec] = std::from_chars(text.data(), end, v);
+  if (text.empty() || ec != std::errc() || ptr != end)
+    throw Error(option + " " + spec + ": '" + text + "' is not a number");
+  return v;
+}
+
+}  // namespace
+
+ForceField make_force_field(const ForcesArgs& args, const ConfigurationFile& input,
+                            std::vector<uint32_t>& type_of_species) {
+  ForceField ff;
+  ff.cutoff = args.cutoff;
+  ff.mode = args.mode;
+  ff.mixing = args.mixing;
+  ff.types.clear();
+  std::map<std::string, std::size_t> index;
+  for (const std::string& spec : args.types) {
+    const std::vector<std::string> p = split(spec, ':');
+    if (p.size() != 3 || p[0].empty())
+      throw Error("--type " + spec + ": expected NAME:SIGMA:EPSILON, e.g. A:1.0:1.0");
+    if (!index.emplace(p[0], ff.types.size()).second)
+      throw Error("--type " + spec + ": type '" + p[0] + "' is given twice");
+    ff.types.push_back(ParticleType{p[0], parse_number(p[1], "--type", spec), parse_number(p[2], "--type", spec)});
+  }
+  if (ff.types.empty()) {
+    if (input.species.size() > 1) {
+      std::string list;
+      for (const auto& s : input.species) list += (list.empty() ? "" : ", ") + s;
+      throw Error(input.source + " holds species " + list + ": give --type NAME:SIGMA:EPSILON for each");
+    }
+    const std::string name = input.species.empty() ? "A" : input.species[0];
+    ff.types.push_back(ParticleType{name, 1.0, 1.0});
+    index.emplace(name, 0);
+  }
+  for (const std::string& spec : args.pairs) {
+    const std::vector<std::string> p = split(spec, ':');
+    if (p.size() != 4) throw Error("--pair " + spec + ": expected A:B:SIGMA:EPSILON, e.g. A:B:0.8:1.5");
+    for (int k = 0; k < 2; ++k)
+      if (!index.count(p[std::size_t(k)]))
+        throw Error("--pair " + spec + ": type '" + p[std::size_t(k)] + "' is not given by --type");
+    ff.overrides.push_back(PairOverride{index[p[0]], index[p[1]], parse_number(p[2], "--pair", spec),
+                                        parse_number(p[3], "--pair", spec)});
+  }
+  type_of_species.assign(input.species.size(), 0);
+  for (std::size_t s = 0; s < input.species.size(); ++s) {
+    const auto it = index.find(input.species[s]);
+    if (it == index.end()) {
+      std::size_t first = 0;
+      while (input.config.types[first] != s) ++first;
+      throw Error(input.source + ": particle " + std::to_string(first) + " has species '" +
+                  input.species[s] + "', which no --type names");
+    }
+    type_of_species[s] = uint32_t(it->second);
+  }
+  ff.validate();
+  return ff;
+}
+
+int run_forces(const ForcesArgs& args) {
+  if (args.out.empty()) throw Error("forces: --out is required");
+  if (args.repeats < 1) throw Error("--repeats must be at least 1, got " + std::to_string(args.repeats));
+  ConfigurationFile input = read_configuration(args.input, args.read);
+  std::vector<uint32_t> type_of_species;
+  const ForceField ff = make_force_field(args, input, type_of_species);
+  Configuration& config = input.config;
+  for (uint32_t& t : config.types) t = type_of_species[t];
+  const SystemView sys = config.view();
+  validate_system(sys, ff);  // before any engine is built: bad input names the particle
+
+  ForceBackend backend(args.backend);
+  const Request request{true, true};
+  ForceResult result;
+  std::vector<double> wall, pipeline;
+  for (int r = 0; r < args.repeats; ++r) {
+    const auto t0 = std::chrono::steady_clock::now();
+    backend.evaluate(sys, ff, request, result);
+    wall.push_back(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
+    const PipelineStats s = backend.stats(sys, ff, false);
+    pipeline.push_back(s.t_total - s.t_transfer);
+  }
+  const PipelineStats counts = backend.stats(sys, ff, true);
+
+  std::string types;
+  for (const ParticleType& t : ff.types) {
+    char buf[128];
+    std::snprintf(buf, sizeof buf, "%s%s:%.17g:%.17g", types.empty() ? "" : " ", t.name.c_str(), t.sigma, t.epsilon);
+    types += buf;
+  }
+  for (const PairOverride& o : ff.overrides) {
+    char buf[160];
+    std::snprintf(buf, sizeof buf, " %s-%s:%.17g:%.17g", ff.types[o.a].name.c_str(), ff.types[o.b].name.c_str(),
+                  o.sigma, o.epsilon);
+    types += buf;
+  }
+  std::vector<double> periodic;
+  for (int a = 0; a < sys.box.dim; ++a) periodic.push_back(sys.box.periodic[a] ? 1.0 : 0.0);
+  const Attributes attrs = {
+      {"backend", backend.name()},
+      {"engine", backend.description()},
+      {"precision", std::string(to_string(args.backend.precision))},
+      {"accumulation", std::string(to_string(args.backend.accumulation))},
+      {"traversal", backend.traversal()},
+      {"sort", backend.sort()},
+      {"cutoff", ff.cutoff},
+      {"cutoff_mode", std::string(to_string(ff.mode))},
+      {"mixing", std::string(to_string(ff.mixing))},
+      {"types", types},
+      {"dimension", int64_t(sys.box.dim)},
+      {"n_particles", int64_t(sys.n)},
+      {"periodic", periodic},
+      {"repeats", int64_t(args.repeats)},
+      {"evaluation_time", median(wall)},
+      {"evaluation_times", wall},
+      {"pipeline_time", median(pipeline)},
+      {"pairs_tested", int64_t(counts.candidate_pairs)},
+      {"pairs_within_cutoff", int64_t(counts.interacting_pairs)},
+      {"input", input.source},
+      {"cellforce_version", std::string(CELLFORCE_VERSION)},
+  };
+  write_forces_file(args.out, result, sys.n, attrs);
+
+  if (!args.quiet) {
+    double fmax = 0;
+    const int dim = sys.box.dim;
+    for (std::size_t i = 0; i < sys.n; ++i) {
+      double f2 = 0;
+      for (int a = 0; a < dim; ++a) f2 += result.forces[i * dim + a] * result.forces[i * dim + a];
+      fmax = std::max(fmax, std::sqrt(f2));
+    }
+    std::printf("cellforce forces: %zu particles, %dD, from %s\n", sys.n, dim, input.source.c_str());
+    std::printf("  %s; precision %s; cutoff %g (%s); %zu pairs within the cutoff\n",
+                backend.description().c_str(), to_string(args.backend.precision), ff.cutoff,
+                to_string(ff.mode), counts.interacting_pairs);
+    std::printf("  energy %.12g (%.9f per particle), max |F| %.6g\n", result.energy,
+                sys.n ? result.energy / double(sys.n) : 0.0, fmax);
+    std::printf("  time per evaluation, median of %d: %.3f ms (engine pipeline %.3f ms)\n", args.repeats,
+                1e3 * median(wall), 1e3 * median(pipeline));
+    std::printf("  wrote %s\n", args.out.c_str());
+  }
+  return 0;
+}
+
+}  // namespace cellforce

@@ -1,0 +1,152 @@
+// Reading one frame of an H5MD file (H5MD 1.x, particles group): positions, box and species.
+#include <cmath>
+#include <map>
+
+#include "core/error.h"
+#include "io/configuration_file.h"
+#include "io/hdf5.h"
+
+namespace cellforce {
+namespace {
+
+// A time-dependent H5MD element is a group holding value (frames x ...), step and time; a fixed
+// one is a plain dataset. Returns the values of one frame and that frame's shape.
+h5::Array<double> element_frame(hid_t group, const std::string& name, long frame,
+                                std::size_t frames_expected, const std::string& where) {
+  if (!h5::exists(group, name)) throw Error(where + ": no '" + name + "'");
+  H5O_info_t info;
+#if H5_VERSION_GE(1, 12, 0)
+  H5Oget_info_by_name3(group, name.c_str(), &info, H5O_INFO_BASIC, H5P_DEFAULT);
+#else
+  H5Oget_info_by_name2(group, name.c_str(), &info, H5O_INFO_BASIC, H5P_DEFAULT);
+#endif
+  if (info.type == H5O_TYPE_DATASET) return h5::read_doubles(group, name, where);
+  h5::Array<double> all = h5::read_doubles(group, name + "/value", where);
+  if (all.shape.empty()) throw Error(where + ": '" + name + "/value' has no frame axis");
+  const std::size_t frames = std::size_t(all.shape[0]);
+  if (frames_expected && frames != frames_expected)
+    throw Error(where + ": '" + name + "/value' holds " + std::to_string(frames) +
+                " frames, the positions " + std::to_string(frames_expected));
+  h5::Array<double> one;
+  one.shape.assign(all.shape.begin() + 1, all.shape.end());
+  const std::size_t per = frames ? all.values.size() / frames : 0;
+  one.values.assign(all.values.begin() + long(per) * frame, all.values.begin() + long(per) * (frame + 1));
+  return one;
+}
+
+}  // namespace
+
+ConfigurationFile read_h5md(const std::string& path, const ReadOptions& options) {
+  h5::File file = h5::File::open_read(path);
+  const hid_t root = file.id();
+  if (!h5::exists(root, "particles")) throw Error(path + ": no /particles group (not an H5MD file?)");
+  h5::Handle particles = h5::open_group(root, "particles", path);
+  const std::vector<std::string> groups = h5::child_names(particles.get(), path);
+  std::string name = options.group;
+  if (name.empty()) {
+    if (groups.size() != 1) {
+      std::string list;
+      for (const auto& g : groups) list += (list.empty() ? "" : ", ") + g;
+      throw Error(path + ": /particles holds " + std::to_string(groups.size()) +
+                  " groups (" + list + "); name one");
+    }
+    name = groups[0];
+  }
+  const std::string where = path + ": /particles/" + name;
+  if (!h5::exists(particles.get(), name)) throw Error(where + ": no such group");
+  h5::Handle group = h5::open_group(particles.get(), name, path);
+
+  // Positions: frames x n x dim.
+  h5::Array<double> pos = h5::read_doubles(group.get(), "position/value", where);
+  if (pos.shape.size() != 3) throw Error(where + "/position/value must be frames x particles x dimension");
+  const long frames = long(pos.shape[0]);
+  const long frame = options.frame < 0 ? frames + options.frame : options.frame;
+  if (frame < 0 || frame >= frames)
+    throw Error(where + ": frame " + std::to_string(options.frame) + " requested, the file holds " +
+                std::to_string(frames));
+  const std::size_t n = std::size_t(pos.shape[1]);
+  const int dim = int(pos.shape[2]);
+
+  h5::Handle box = h5::open_group(group.get(), "box", path);
+  const int64_t box_dim = h5::read_int_attribute(box.get(), "dimension", where + "/box");
+  if (box_dim != dim)
+    throw Error(where + "/box: dimension " + std::to_string(box_dim) + " but positions have " +
+                std::to_string(dim) + " components");
+  if (dim != 2 && dim != 3) throw Error(where + ": dimension must be 2 or 3, found " + std::to_string(dim));
+  if (options.dim != 0 && options.dim != dim)
+    throw Error(where + ": the file is " + std::to_string(dim) + "D, " + std::to_string(options.dim) + "D was asked for");
+  const std::vector<std::string> boundary = h5::read_string_attribute(box.get(), "boundary", where + "/box");
+  if (boundary.size() != std::size_t(dim))
+    throw Error(where + "/box: boundary names " + std::to_string(boundary.size()) + " axes, dimension is " +
+                std::to_string(dim));
+
+  ConfigurationFile out;
+  out.source = path + " (/particles/" + name + ", frame " + std::to_string(frame) + ")";
+  Box& b = out.config.box;
+  b.dim = dim;
+  bool any_periodic = false;
+  for (int a = 0; a < dim; ++a) {
+    if (boundary[std::size_t(a)] == "periodic") b.periodic[a] = any_periodic = true;
+    else if (boundary[std::size_t(a)] == "none") b.periodic[a] = false;
+    else throw Error(where + "/box: boundary '" + boundary[std::size_t(a)] + "' is neither 'periodic' nor 'none'");
+  }
+  for (int a = dim; a < kMaxDim; ++a) {
+    b.periodic[a] = false;
+    b.length[a] = 0.0;
+  }
+  if (h5::exists(box.get(), "edges")) {
+    const h5::Array<double> edges = element_frame(box.get(), "edges", frame, std::size_t(frames), where + "/box");
+    if (edges.shape.size() != 1 || edges.shape[0] != hsize_t(dim))
+      throw Error(where + "/box/edges: one length per axis expected (triclinic boxes are not supported)");
+    for (int a = 0; a < dim; ++a) {
+      b.length[a] = edges.values[std::size_t(a)];
+      if (b.periodic[a] && !(b.length[a] > 0 && std::isfinite(b.length[a])))
+        throw Error(where + "/box/edges: the periodic axis " + std::string(1, "xyz"[a]) + " has length " +
+                    std::to_string(b.length[a]));
+    }
+  } else if (any_periodic) {
+    throw Error(where + "/box: periodic axes but no edges");
+  }
+
+  out.config.positions.assign(pos.values.begin() + long(n) * dim * frame,
+                              pos.values.begin() + long(n) * dim * (frame + 1));
+  // An open axis without an edge: its length only informs (the particles' extent).
+  for (int a = 0; a < dim; ++a) {
+    if (b.periodic[a] || b.length[a] > 0) continue;
+    double lo = INFINITY, hi = -INFINITY;
+    for (std::size_t i = 0; i < n; ++i) {
+      lo = std::min(lo, out.config.positions[i * std::size_t(dim) + std::size_t(a)]);
+      hi = std::max(hi, out.config.positions[i * std::size_t(dim) + std::size_t(a)]);
+    }
+    b.length[a] = std::max(1.0, n ? hi - lo : 1.0);
+  }
+
+  // Species: integers, fixed or per frame; named by their decimal value in order of appearance.
+  out.config.types.assign(n, 0);
+  if (h5::exists(group.get(), "species")) {
+    const h5::Array<double> s = element_frame(group.get(), "species", frame, std::size_t(frames), where);
+    if (s.values.size() != n)
+      throw Error(where + "/species: " + std::to_string(s.values.size()) + " values for " + std::to_string(n) +
+                  " particles");
+    std::map<long long, uint32_t> index;
+    for (std::size_t i = 0; i < n; ++i) {
+      const double v = s.values[i];
+      if (v != std::floor(v))
+        throw Error(where + "/species: particle " + std::to_string(i) + " has species " + std::to_string(v) +
+                    ", not an integer");
+      auto [it, added] = index.try_emplace((long long)v, uint32_t(out.species.size()));
+      if (added) out.species.push_back(std::to_string((long long)v));
+      out.config.types[i] = it->second;
+    }
+  } else {
+    out.species = {"0"};
+  }
+  if (n == 0) out.species.clear();
+  return out;
+}
+
+ConfigurationFile read_configuration(const std::string& path, const ReadOptions& options) {
+  return h5::File::is_hdf5(path) ? read_h5md(path, options) : read_extxyz(path, options);
+}
+
+}  // namespace cellforce

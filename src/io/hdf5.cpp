@@ -1,0 +1,303 @@
+#include "io/hdf5.h"
+
+#include <algorithm>
+#include <filesystem>
+#include <fstream>
+#include <functional>
+#include <numeric>
+
+#include "core/error.h"
+
+namespace cellforce::h5 {
+namespace {
+
+// HDF5 prints its error stack to stderr by default; cellforce reports errors itself.
+void quiet() {
+  static const bool done = [] {
+    H5Eset_auto2(H5E_DEFAULT, nullptr, nullptr);
+    return true;
+  }();
+  (void)done;
+}
+
+[[noreturn]] void fail(const std::string& where, const std::string& what) {
+  throw Error(where + ": " + what);
+}
+
+hid_t check(hid_t id, const std::string& where, const std::string& what) {
+  if (id < 0) fail(where, what);
+  return id;
+}
+
+void check_status(herr_t status, const std::string& where, const std::string& what) {
+  if (status < 0) fail(where, what);
+}
+
+hsize_t element_count(const std::vector<hsize_t>& shape) {
+  return std::accumulate(shape.begin(), shape.end(), hsize_t{1}, std::multiplies<>());
+}
+
+Handle make_space(const std::vector<hsize_t>& shape, const std::string& where) {
+  if (shape.empty()) return Handle(check(H5Screate(H5S_SCALAR), where, "cannot create a dataspace"));
+  return Handle(check(H5Screate_simple(int(shape.size()), shape.data(), nullptr), where,
+                      "cannot create a dataspace"));
+}
+
+template <class T>
+void write_dataset(hid_t loc, const std::string& name, hid_t file_type, hid_t mem_type,
+                   const std::vector<T>& values, const std::vector<hsize_t>& shape,
+                   const std::string& where) {
+  quiet();
+  if (values.size() != element_count(shape))
+    fail(where, "dataset '" + name + "': " + std::to_string(values.size()) +
+                    " values do not fill its shape");
+  Handle space = make_space(shape, where);
+  Handle set(check(H5Dcreate2(loc, name.c_str(), file_type, space.get(), H5P_DEFAULT, H5P_DEFAULT,
+                              H5P_DEFAULT),
+                   where, "cannot create dataset '" + name + "'"));
+  if (!values.empty())
+    check_status(H5Dwrite(set.get(), mem_type, H5S_ALL, H5S_ALL, H5P_DEFAULT, values.data()), where,
+                 "cannot write dataset '" + name + "'");
+}
+
+template <class T>
+Array<T> read_dataset(hid_t loc, const std::string& name, hid_t mem_type, H5T_class_t want,
+                      const std::string& where) {
+  quiet();
+  if (!exists(loc, name)) fail(where, "no dataset '" + name + "'");
+  Handle set(check(H5Dopen2(loc, name.c_str(), H5P_DEFAULT), where,
+                   "'" + name + "' is not a dataset"));
+  Handle type(check(H5Dget_type(set.get()), where, "cannot read the type of '" + name + "'"));
+  const H5T_class_t cls = H5Tget_class(type.get());
+  if (cls != want && !(want == H5T_FLOAT && cls == H5T_INTEGER))
+    fail(where, "dataset '" + name + "' holds " + (cls == H5T_STRING ? "strings" : "another type") +
+                    ", expected " + (want == H5T_FLOAT ? "numbers" : "integers"));
+  Handle space(check(H5Dget_space(set.get()), where, "cannot read the shape of '" + name + "'"));
+  const int rank = H5Sget_simple_extent_ndims(space.get());
+  if (rank < 0) fail(where, "cannot read the shape of '" + name + "'");
+  Array<T> out;
+  out.shape.resize(std::size_t(rank));
+  if (rank > 0) H5Sget_simple_extent_dims(space.get(), out.shape.data(), nullptr);
+  out.values.resize(std::size_t(element_count(out.shape)));
+  if (!out.values.empty())
+    check_status(H5Dread(set.get(), mem_type, H5S_ALL, H5S_ALL, H5P_DEFAULT, out.values.data()),
+                 where, "cannot read dataset '" + name + "'");
+  return out;
+}
+
+Handle utf8_string_type(const std::string& where) {
+  Handle t(check(H5Tcopy(H5T_C_S1), where, "cannot create a string type"));
+  check_status(H5Tset_size(t.get(), H5T_VARIABLE), where, "cannot create a string type");
+  check_status(H5Tset_cset(t.get(), H5T_CSET_UTF8), where, "cannot create a string type");
+  return t;
+}
+
+void write_attribute_raw(hid_t obj, const std::string& name, hid_t type, hid_t space,
+                         const void* data, const std::string& where) {
+  quiet();
+  if (H5Aexists(obj, name.c_str()) > 0) H5Adelete(obj, name.c_str());
+  Handle attr(check(H5Acreate2(obj, name.c_str(), type, space, H5P_DEFAULT, H5P_DEFAULT), where,
+                    "cannot create attribute '" + name + "'"));
+  check_status(H5Awrite(attr.get(), type, data), where, "cannot write attribute '" + name + "'");
+}
+
+}  // namespace
+
+void Handle::reset() {
+  if (id_ < 0) return;
+  switch (H5Iget_type(id_)) {
+    case H5I_FILE: H5Fclose(id_); break;
+    case H5I_GROUP: H5Gclose(id_); break;
+    case H5I_DATASET: H5Dclose(id_); break;
+    case H5I_DATASPACE: H5Sclose(id_); break;
+    case H5I_DATATYPE: H5Tclose(id_); break;
+    case H5I_ATTR: H5Aclose(id_); break;
+    case H5I_GENPROP_LST: H5Pclose(id_); break;
+    default: break;
+  }
+  id_ = H5I_INVALID_HID;
+}
+
+File File::create(const std::string& path) {
+  quiet();
+  const hid_t id = H5Fcreate(path.c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, H5P_DEFAULT);
+  if (id < 0) fail(path, "cannot create the HDF5 file (does its folder exist and is it writable?)");
+  return File(Handle(id), path);
+}
+
+File File::open_read(const std::string& path) {
+  quiet();
+  if (!std::filesystem::exists(path)) fail(path, "no such file");
+  if (!is_hdf5(path)) fail(path, "not an HDF5 file");
+  const hid_t id = H5Fopen(path.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
+  if (id < 0) fail(path, "cannot open the HDF5 file");
+  return File(Handle(id), path);
+}
+
+bool File::is_hdf5(const std::string& path) {
+  static constexpr char kSignature[8] = {'\x89', 'H', 'D', 'F', '\r', '\n', '\x1a', '\n'};
+  std::ifstream in(path, std::ios::binary);
+  char head[8] = {};
+  if (!in.read(head, 8)) return false;
+  return std::equal(head, head + 8, kSignature);
+}
+
+void File::close() {
+  if (!handle_.valid()) return;
+  const hid_t id = handle_.get();
+  const herr_t flushed = H5Fflush(id, H5F_SCOPE_GLOBAL);
+  const herr_t closed = H5Fclose(id);
+  handle_ = Handle();  // already closed above
+  if (flushed < 0 || closed < 0) fail(path_, "cannot flush and close the HDF5 file");
+}
+
+bool exists(hid_t loc, const std::string& path) {
+  quiet();
+  // H5Lexists fails rather than answering for a path whose parent is missing: walk it.
+  std::string prefix;
+  std::size_t start = 0;
+  while (start <= path.size()) {
+    const std::size_t slash = path.find('/', start);
+    const std::string part = path.substr(start, slash == std::string::npos ? std::string::npos : slash - start);
+    if (!part.empty()) {
+      if (!prefix.empty() || path[0] == '/') prefix.push_back('/');
+      prefix.append(part);
+      if (H5Lexists(loc, prefix.c_str(), H5P_DEFAULT) <= 0) return false;
+    }
+    if (slash == std::string::npos) break;
+    start = slash + 1;
+  }
+  return true;
+}
+
+Handle open_group(hid_t loc, const std::string& path, const std::string& where) {
+  quiet();
+  if (!exists(loc, path)) fail(where, "no group '" + path + "'");
+  return Handle(check(H5Gopen2(loc, path.c_str(), H5P_DEFAULT), where, "'" + path + "' is not a group"));
+}
+
+Handle create_group(hid_t loc, const std::string& path, const std::string& where) {
+  quiet();
+  Handle lcpl(check(H5Pcreate(H5P_LINK_CREATE), where, "cannot create a property list"));
+  H5Pset_create_intermediate_group(lcpl.get(), 1);
+  return Handle(check(H5Gcreate2(loc, path.c_str(), lcpl.get(), H5P_DEFAULT, H5P_DEFAULT), where,
+                      "cannot create group '" + path + "'"));
+}
+
+std::vector<std::string> child_names(hid_t group, const std::string& where) {
+  quiet();
+  H5G_info_t info;
+  check_status(H5Gget_info(group, &info), where, "cannot list a group");
+  std::vector<std::string> names;
+  for (hsize_t k = 0; k < info.nlinks; ++k) {
+    const ssize_t len = H5Lget_name_by_idx(group, ".", H5_INDEX_NAME, H5_ITER_INC, k, nullptr, 0, H5P_DEFAULT);
+    if (len < 0) fail(where, "cannot list a group");
+    std::string name(std::size_t(len) + 1, '\0');
+    H5Lget_name_by_idx(group, ".", H5_INDEX_NAME, H5_ITER_INC, k, name.data(), name.size(), H5P_DEFAULT);
+    name.resize(std::size_t(len));
+    names.push_back(name);
+  }
+  return names;
+}
+
+void write_doubles(hid_t loc, const std::string& name, const std::vector<double>& values,
+                   const std::vector<hsize_t>& shape, const std::string& where) {
+  write_dataset(loc, name, H5T_IEEE_F64LE, H5T_NATIVE_DOUBLE, values, shape, where);
+}
+
+void write_ints(hid_t loc, const std::string& name, const std::vector<int64_t>& values,
+                const std::vector<hsize_t>& shape, const std::string& where) {
+  write_dataset(loc, name, H5T_STD_I64LE, H5T_NATIVE_INT64, values, shape, where);
+}
+
+Array<double> read_doubles(hid_t loc, const std::string& name, const std::string& where) {
+  return read_dataset<double>(loc, name, H5T_NATIVE_DOUBLE, H5T_FLOAT, where);
+}
+
+Array<int64_t> read_ints(hid_t loc, const std::string& name, const std::string& where) {
+  return read_dataset<int64_t>(loc, name, H5T_NATIVE_INT64, H5T_INTEGER, where);
+}
+
+void write_attribute(hid_t obj, const std::string& name, const std::string& value,
+                     const std::string& where) {
+  Handle type = utf8_string_type(where);
+  Handle space = make_space({}, where);
+  const char* p = value.c_str();
+  write_attribute_raw(obj, name, type.get(), space.get(), &p, where);
+}
+
+void write_attribute(hid_t obj, const std::string& name, double value, const std::string& where) {
+  Handle space = make_space({}, where);
+  write_attribute_raw(obj, name, H5T_NATIVE_DOUBLE, space.get(), &value, where);
+}
+
+void write_attribute(hid_t obj, const std::string& name, int64_t value, const std::string& where) {
+  Handle space = make_space({}, where);
+  write_attribute_raw(obj, name, H5T_NATIVE_INT64, space.get(), &value, where);
+}
+
+void write_attribute(hid_t obj, const std::string& name, const std::vector<double>& value,
+                     const std::string& where) {
+  Handle space = make_space({hsize_t(value.size())}, where);
+  write_attribute_raw(obj, name, H5T_NATIVE_DOUBLE, space.get(), value.data(), where);
+}
+
+void write_attribute(hid_t obj, const std::string& name, const std::vector<std::string>& value,
+                     const std::string& where) {
+  Handle type = utf8_string_type(where);
+  Handle space = make_space({hsize_t(value.size())}, where);
+  std::vector<const char*> p;
+  for (const std::string& s : value) p.push_back(s.c_str());
+  write_attribute_raw(obj, name, type.get(), space.get(), p.data(), where);
+}
+
+bool has_attribute(hid_t obj, const std::string& name) {
+  quiet();
+  return H5Aexists(obj, name.c_str()) > 0;
+}
+
+std::vector<std::string> read_string_attribute(hid_t obj, const std::string& name,
+                                               const std::string& where) {
+  quiet();
+  if (!has_attribute(obj, name)) fail(where, "no attribute '" + name + "'");
+  Handle attr(check(H5Aopen(obj, name.c_str(), H5P_DEFAULT), where, "cannot open attribute '" + name + "'"));
+  Handle type(check(H5Aget_type(attr.get()), where, "cannot read attribute '" + name + "'"));
+  if (H5Tget_class(type.get()) != H5T_STRING) fail(where, "attribute '" + name + "' is not a string");
+  Handle space(check(H5Aget_space(attr.get()), where, "cannot read attribute '" + name + "'"));
+  const hssize_t count = H5Sget_simple_extent_npoints(space.get());
+  if (count < 0) fail(where, "cannot read attribute '" + name + "'");
+  std::vector<std::string> out;
+  Handle mem(check(H5Tcopy(type.get()), where, "cannot read attribute '" + name + "'"));
+  if (H5Tis_variable_str(type.get()) > 0) {
+    std::vector<char*> p(std::size_t(count), nullptr);
+    check_status(H5Aread(attr.get(), mem.get(), p.data()), where, "cannot read attribute '" + name + "'");
+    for (char* s : p) out.emplace_back(s ? s : "");
+    H5Dvlen_reclaim(mem.get(), space.get(), H5P_DEFAULT, p.data());
+  } else {
+    const std::size_t size = H5Tget_size(type.get());
+    std::vector<char> buf(std::size_t(count) * size);
+    check_status(H5Aread(attr.get(), mem.get(), buf.data()), where, "cannot read attribute '" + name + "'");
+    for (hssize_t k = 0; k < count; ++k) {
+      std::string s(buf.data() + std::size_t(k) * size, size);
+      s.resize(std::min(s.find('\0'), s.size()));
+      while (!s.empty() && s.back() == ' ') s.pop_back();  // space-padded strings
+      out.push_back(s);
+    }
+  }
+  return out;
+}
+
+int64_t read_int_attribute(hid_t obj, const std::string& name, const std::string& where) {
+  quiet();
+  if (!has_attribute(obj, name)) fail(where, "no attribute '" + name + "'");
+  Handle attr(check(H5Aopen(obj, name.c_str(), H5P_DEFAULT), where, "cannot open attribute '" + name + "'"));
+  Handle type(check(H5Aget_type(attr.get()), where, "cannot read attribute '" + name + "'"));
+  Handle space(check(H5Aget_space(attr.get()), where, "cannot read attribute '" + name + "'"));
+  if (H5Tget_class(type.get()) != H5T_INTEGER || H5Sget_simple_extent_npoints(space.get()) != 1)
+    fail(where, "attribute '" + name + "' is not one integer");
+  int64_t value = 0;
+  check_status(H5Aread(attr.get(), H5T_NATIVE_INT64, &value), where, "cannot read attribute '" + name + "'");
+  return value;
+}
+
+}  // namespace cellforce::h5
