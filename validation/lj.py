@@ -124,6 +124,29 @@ def write_extxyz(path, positions, species, lengths, pbc, digits=17):
             f.write(f"{name} {fmt % x} {fmt % y} {fmt % z}\n")
 
 
+def write_h5md(path, positions, type_index, lengths, pbc, dim):
+    """Write one frame as H5MD 1.1 (h5py): /particles/all/position/value (1 x N x dim) with step
+    and time, box (dimension, boundary as fixed-length strings, edges) and integer species."""
+    positions = np.asarray(positions, dtype=float)[:, :dim]
+    with h5py.File(path, "w") as f:
+        h5md = f.create_group("h5md")
+        h5md.attrs["version"] = np.array([1, 1], dtype=np.int32)
+        h5md.create_group("author").attrs["name"] = "cellforce validation"
+        creator = h5md.create_group("creator")
+        creator.attrs["name"], creator.attrs["version"] = "validation/lj.py", "1"
+        group = f.create_group("particles/all")
+        box = group.create_group("box")
+        box.attrs["dimension"] = np.int32(dim)
+        box.attrs["boundary"] = np.array([b"periodic" if p else b"none" for p in pbc[:dim]],
+                                         dtype="S8")
+        box.create_dataset("edges", data=np.asarray(lengths, dtype=float)[:dim])
+        position = group.create_group("position")
+        position.create_dataset("value", data=positions[None, :, :])
+        position.create_dataset("step", data=np.array([0], dtype=np.int64))
+        position.create_dataset("time", data=np.array([0.0]))
+        group.create_dataset("species", data=np.asarray(type_index, dtype=np.int32))
+
+
 # ---------------------------------------------------------------------------------------------
 # Force field
 

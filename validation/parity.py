@@ -16,6 +16,7 @@ Exit status: 0 all rows within tolerance (unavailable backends skipped), 1 some 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import datetime
 import json
 import os
@@ -50,6 +51,7 @@ METRIC_NAMES = {
     "energy_rel": "energy rel.",
     "energies_rel": "e_i max/mean|e|",
     "virial_rel": "virial rel.",
+    "max_abs_diff": "max abs. difference",
 }
 UNAVAILABLE = ("no cuda device", "built without cuda")
 
@@ -105,6 +107,28 @@ def cellforce_row(args, case, backend, precision, workdir, omm_forces, omm_energ
     return judge(row, TOLERANCES[precision])
 
 
+def h5md_row(args, case, workdir, positions, species, lengths, pbc) -> dict:
+    """The same configuration as H5MD (species as integers, named "0", "1", ... by cellforce):
+    cellforce cpu double must give bitwise the results it gives for the extended XYZ file."""
+    row = {"comparison": "H5MD input = XYZ input", "backend": "cpu", "precision": "double",
+           "metrics": {}}
+    h5md = Path(workdir) / f"{case.name}.h5md"
+    lj.write_h5md(h5md, positions, lj.type_indices(case, species), lengths, pbc, case.dim)
+    names = {name: str(k) for k, (name, _, _) in enumerate(case.types)}
+    as_h5md = dataclasses.replace(
+        case, xyz=str(h5md), types=[(names[n], s, e) for n, s, e in case.types],
+        pairs=[(names[a], names[b], s, e) for a, b, s, e in case.pairs])
+    try:
+        a = lj.run_cellforce(args.cellforce, case, "cpu", "double", Path(workdir) / "xyz.h5")
+        b = lj.run_cellforce(args.cellforce, as_h5md, "cpu", "double", Path(workdir) / "h5md.h5")
+    except lj.CellforceError as err:
+        row.update(status="error", message=str(err))
+        return row
+    row["metrics"]["max_abs_diff"] = max(float(np.max(np.abs(a[k] - b[k]), initial=0.0))
+                                         for k in ("forces", "energies", "energy", "virial"))
+    return judge(row, {"max_abs_diff": 0.0})
+
+
 def run_case(args, case, workdir) -> dict:
     """Every row of one case."""
     positions, species, lengths, pbc = lj.read_extxyz(case.path)
@@ -123,6 +147,9 @@ def run_case(args, case, workdir) -> dict:
                 rows.append(cellforce_row(args, case, backend, precision, workdir, omm_forces,
                                           omm_energy, brute))
                 print_row(case.name, rows[-1])
+        if "cpu" in args.backend:
+            rows.append(h5md_row(args, case, workdir, positions, species, lengths, pbc))
+            print_row(case.name, rows[-1])
     return {"name": case.name, "xyz": case.xyz, "description": case.description,
             "n_particles": len(positions), "dim": case.dim, "cutoff": case.cutoff,
             "mode": case.mode, "mixing": case.mixing, "types": case.types, "pairs": case.pairs,
@@ -173,7 +200,9 @@ def markdown(results, command, date, revision) -> str:
              "numpy\"). |dF|/|F|: per particle, |F_cellforce - F_OpenMM| / |F_OpenMM|. OpenMM "
              "metric: 2 |dF| / (|F1| + |F2|). F_rms: root mean square of |F_OpenMM|. e_i: "
              "max |e_i - e_i,ref| / mean |e_i,ref|. Virial: max component difference / max "
-             "|W_ref|. Units: sigma = 1 nm, epsilon = 1 kJ/mol.", "",
+             "|W_ref|. Row \"H5MD input = XYZ input\": the configuration written as H5MD (species as "
+             "integers) gives bitwise the XYZ file's results (cpu, double; max abs. difference "
+             "0 over forces, e_i, energy and virial). Units: sigma = 1 nm, epsilon = 1 kJ/mol.", "",
              "## Tolerances (largest allowed value)", "",
              "| row | " + " | ".join(cell(METRIC_NAMES[k]) for k in TOLERANCES["double"]) + " |",
              "|---" * (len(TOLERANCES["double"]) + 1) + "|"]
