@@ -8,6 +8,7 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 
 #include "cli/forces.h"
 #include "core/error.h"
@@ -113,6 +114,21 @@ TEST_F(ExtXyz, ReadsAseHeadersExtraColumnsAndOpenAxes) {
   EXPECT_EQ(r.config.positions[3 * 2 + 0], -0.25);  // periodic axis: any image
 }
 
+TEST_F(ExtXyz, ReadsAseQuotingAndBracketsAndSignedNumbers) {
+  const std::string p = write("q.xyz",
+                              "2\n"
+                              "Lattice='4 0 0 0 5 0 0 0 6' pbc=[T, F, T] name=\"a \\\"quoted\\\" word\"\n"
+                              "Ar +1.5 1e0 -2\n"
+                              "Ar 1 2 3\n");
+  const ConfigurationFile r = read_extxyz(p);
+  EXPECT_EQ(r.config.box.length[2], 6.0);
+  EXPECT_TRUE(r.config.box.periodic[0]);
+  EXPECT_FALSE(r.config.box.periodic[1]);
+  EXPECT_TRUE(r.config.box.periodic[2]);
+  EXPECT_EQ(r.config.positions[0], 1.5);
+  EXPECT_EQ(r.config.positions[2], -2.0);
+}
+
 TEST_F(ExtXyz, WithoutLatticeEveryAxisIsOpen) {
   const std::string p = write("open.xyz", "2\ncomment without keys\nAr 0 0 0\nAr 1.5 0 0\n");
   const ConfigurationFile r = read_extxyz(p);
@@ -147,6 +163,9 @@ TEST_F(ExtXyz, MalformedFilesNameTheLineAndParticle) {
       {"count", "two\n" + lat + "\nA 0 0 0\n", 3, {"bad.xyz:1:", "expected a particle count"}},
       {"short", "5\n" + lat + "\nA 0 0 0\nA 1 1 1\n", 3, {"declares 5 particles", "ends after 2"}},
       {"number", "2\n" + lat + "\nA 0 0 0\nA 1 abc 1\n", 3, {"bad.xyz:4: particle 1", "'abc' is not a number"}},
+      {"nan", "2\n" + lat + "\nA 0 0 0\nA 1 nan 1\n", 3, {"bad.xyz:4: particle 1", "coordinate y is nan", "finite"}},
+      {"inf", "2\n" + lat + "\nA 0 0 0\nA 1 1 -inf\n", 3, {"bad.xyz:4: particle 1", "coordinate z is -inf"}},
+      {"bracket", "1\nLattice=[5 0 0 0 5 0 0 0 5\nA 0 0 0\n", 3, {"unterminated '['"}},
       {"columns", "2\n" + lat + "\nA 0 0 0\nA 1 1\n", 3, {"bad.xyz:4: particle 1", "3 columns, Properties describes 4"}},
       {"triclinic", "1\nLattice=\"5 0 0 1 5 0 0 0 5\"\nA 0 0 0\n", 3, {"bad.xyz:2:", "not orthorhombic", "vector 2"}},
       {"lattice count", "1\nLattice=\"5 5 5\"\nA 0 0 0\n", 3, {"Lattice needs 9 numbers"}},
@@ -156,7 +175,7 @@ TEST_F(ExtXyz, MalformedFilesNameTheLineAndParticle) {
       {"zero length", "1\nLattice=\"0 0 0 0 5 0 0 0 5\" pbc=\"T T T\"\nA 0 0 0\n", 3, {"periodic axis x", "must be > 0"}},
       {"no pos", "1\nProperties=species:S:1:mass:R:1\nA 1\n", 3, {"needs species:S:1 and pos:R:3"}},
       {"pos width", "1\nProperties=species:S:1:pos:R:2\nA 1 1\n", 3, {"pos must be pos:R:3"}},
-      {"quote", "1\nLattice=\"5 0 0 0 5 0 0 0 5\nA 0 0 0\n", 3, {"unterminated quote"}},
+      {"quote", "1\nLattice=\"5 0 0 0 5 0 0 0 5\nA 0 0 0\n", 3, {"unterminated \" quote"}},
       {"2D z", "3\n" + lat + "\nA 0 0 0\nA 1 1 0\nA 2 2 0.5\n", 2, {"bad.xyz:5: particle 2", "z = 0.5", "2D"}},
       {"empty", "", 3, {"no frame"}},
   };
@@ -267,6 +286,111 @@ TEST_F(H5md, ErrorsNameTheFileAndTheObject) {
   EXPECT_THAT(error_of([&] { read_h5md(empty); }), HasSubstr("no /particles group"));
   const std::string text = write("text.h5", "not hdf5");
   EXPECT_THAT(error_of([&] { read_h5md(text); }), HasSubstr("not an HDF5 file"));
+}
+
+
+// A minimal H5MD file for one malformation at a time: 2 particles, 2 frames at steps 100 and 200,
+// box edges as given (a dataset or, with edge_steps, a time-dependent group).
+struct MiniH5md {
+  int dim = 3;
+  std::vector<std::string> boundary = {"periodic", "periodic", "periodic"};
+  std::vector<double> edges = {5, 5, 5};
+  std::vector<hsize_t> edges_shape = {3};
+  std::vector<double> edge_steps;  // non-empty: edges is a group with value (frames x shape) and step
+  std::vector<double> positions = {1, 1, 1, 2.2, 1, 1, 1.5, 1, 1, 2.7, 1, 1};
+  std::vector<hsize_t> position_shape = {2, 2, 3};
+  std::vector<double> species;  // empty: none written
+  bool write_edges = true;
+
+  void write(const std::string& p) const {
+    h5::File f = h5::File::create(p);
+    h5::Handle grp = h5::create_group(f.id(), "particles/all", p);
+    h5::Handle box = h5::create_group(grp.get(), "box", p);
+    h5::write_attribute(box.get(), "dimension", int64_t(dim), p);
+    h5::write_attribute(box.get(), "boundary", boundary, p);
+    if (write_edges && edge_steps.empty()) h5::write_doubles(box.get(), "edges", edges, edges_shape, p);
+    if (write_edges && !edge_steps.empty()) {
+      h5::Handle e = h5::create_group(box.get(), "edges", p);
+      std::vector<hsize_t> shape = {hsize_t(edge_steps.size())};
+      shape.insert(shape.end(), edges_shape.begin(), edges_shape.end());
+      h5::write_doubles(e.get(), "value", edges, shape, p);
+      h5::write_doubles(e.get(), "step", edge_steps, {hsize_t(edge_steps.size())}, p);
+    }
+    h5::Handle pos = h5::create_group(grp.get(), "position", p);
+    h5::write_doubles(pos.get(), "value", positions, position_shape, p);
+    if (position_shape.size() == 3) h5::write_doubles(pos.get(), "step", {100, 200}, {2}, p);
+    if (!species.empty()) h5::write_doubles(grp.get(), "species", species, {hsize_t(species.size())}, p);
+    f.close();
+  }
+};
+
+TEST_F(H5md, TimeDependentEdgesAreMatchedByStep) {
+  MiniH5md m;
+  m.edges = {4, 4, 4, 5, 5, 5, 6, 6, 6};  // steps 0, 100, 200
+  m.edges_shape = {3};
+  m.edge_steps = {0, 100, 200};
+  const std::string p = path("steps.h5");
+  m.write(p);
+  ReadOptions o;
+  o.frame = 0;  // step 100
+  EXPECT_EQ(read_h5md(p, o).config.box.length[0], 5.0);
+  o.frame = 1;  // step 200
+  EXPECT_EQ(read_h5md(p, o).config.box.length[0], 6.0);
+  m.edge_steps = {0, 50, 100};
+  m.write(p);
+  EXPECT_THAT(error_of([&] { read_h5md(p, o); }), HasSubstr("'edges' has no value at step 200"));
+}
+
+TEST_F(H5md, DiagonalBoxMatrixAndInformativeOpenEdges) {
+  MiniH5md m;
+  m.edges = {5, 0, 0, 0, 6, 0, 0, 0, 7};
+  m.edges_shape = {3, 3};
+  const std::string p = path("matrix.h5");
+  m.write(p);
+  const ConfigurationFile r = read_h5md(p);
+  EXPECT_EQ(r.config.box.length[1], 6.0);
+  EXPECT_EQ(r.config.box.length[2], 7.0);
+  m.edges = {5, 0, 0, 0.5, 6, 0, 0, 0, 7};
+  m.write(p);
+  EXPECT_THAT(error_of([&] { read_h5md(p); }), HasSubstr("box vector 2 is not along its axis"));
+  // An open axis's edge only informs: an infinite one is ignored, not an error.
+  m.boundary = {"periodic", "periodic", "none"};
+  m.edges = {5, 6, INFINITY};
+  m.edges_shape = {3};
+  m.write(p);
+  const ConfigurationFile open = read_h5md(p);
+  EXPECT_FALSE(open.config.box.periodic[2]);
+  EXPECT_TRUE(std::isfinite(open.config.box.length[2]));
+}
+
+TEST_F(H5md, MalformedFilesNameTheObject) {
+  struct Case {
+    const char* name;
+    std::function<void(MiniH5md&)> change;
+    std::string expected;
+  };
+  const std::vector<Case> cases = {
+      {"boundary word", [](MiniH5md& m) { m.boundary[1] = "wrapped"; }, "boundary 'wrapped' is neither"},
+      {"boundary count", [](MiniH5md& m) { m.boundary.pop_back(); }, "boundary names 2 axes, dimension is 3"},
+      {"dimension", [](MiniH5md& m) { m.dim = 2; }, "dimension 2 but positions have 3 components"},
+      {"no edges", [](MiniH5md& m) { m.write_edges = false; }, "periodic axes but no edges"},
+      {"periodic zero edge", [](MiniH5md& m) { m.edges = {5, 0, 5}; }, "the periodic axis y has length"},
+      {"edges shape", [](MiniH5md& m) { m.edges = {5, 5}; m.edges_shape = {2}; }, "expected 3 lengths or a 3 x 3 matrix"},
+      {"position rank", [](MiniH5md& m) { m.position_shape = {4, 3}; m.positions.resize(12); }, "frames x particles x dimension"},
+      {"species count", [](MiniH5md& m) { m.species = {0, 1, 1}; }, "3 values for 2 particles"},
+      {"species value", [](MiniH5md& m) { m.species = {0, 1.5}; }, "particle 1 has species 1.5"},
+      {"species range", [](MiniH5md& m) { m.species = {0, 1e30}; }, "particle 1 has species"},
+  };
+  for (const Case& c : cases) {
+    SCOPED_TRACE(c.name);
+    MiniH5md m;
+    c.change(m);
+    const std::string p = path("bad.h5");
+    m.write(p);
+    const std::string msg = error_of([&] { read_h5md(p); });
+    EXPECT_THAT(msg, HasSubstr(p));
+    EXPECT_THAT(msg, HasSubstr(c.expected));
+  }
 }
 
 // ---- cellforce forces ---------------------------------------------------------------------------
@@ -394,9 +518,11 @@ TEST_F(ForcesCommand, BadInputNamesTheCauseAndWritesNothing) {
       {"duplicate type", two, {"A:1:1", "A:1:2"}, {}, 2.5, {"type 'A' is given twice"}},
       {"negative sigma", two, {"A:-1:1", "B:1:1", "C:1:1"}, {}, 2.5, {"A", "sigma"}},
       {"pair type", two, {"A:1:1", "B:1:1", "C:1:1"}, {"A:D:1:1"}, 2.5, {"--pair A:D:1:1", "type 'D'"}},
+      {"pair twice", two, {"A:1:1", "B:1:1", "C:1:1"}, {"A:B:1:1", "B:A:2:1"}, 2.5,
+       {"--pair B:A:2:1", "already given by --pair A:B:1:1"}},
       {"pair shape", two, {"A:1:1", "B:1:1", "C:1:1"}, {"A:B:1"}, 2.5, {"A:B:SIGMA:EPSILON"}},
-      {"coincident", coincident, {}, {}, 2.5, {"1", "2"}},
-      {"cutoff beyond half the box", small_box, {}, {}, 2.5, {"cutoff"}},
+      {"coincident", coincident, {}, {}, 2.5, {"co.xyz: particles 1 and 2 are at the same position"}},
+      {"cutoff beyond half the box", small_box, {}, {}, 2.5, {"small.xyz", "cutoff 2.5 exceeds half the periodic box edge x"}},
   };
   for (const Case& c : cases) {
     SCOPED_TRACE(c.name);
@@ -420,6 +546,58 @@ TEST_F(ForcesCommand, BadInputNamesTheCauseAndWritesNothing) {
   args.backend.backend = "cpu";
   const std::string msg = error_of([&] { run_forces(args); });
   EXPECT_TRUE(cftest::contains_number(msg, 1) && cftest::contains_number(msg, 2)) << msg;
+}
+
+// A failed run leaves an existing output file as it was; --out is checked before any work.
+TEST_F(ForcesCommand, ExistingOutputSurvivesAndBadOutputPathsAreRefusedFirst) {
+  const std::string coincident = write("co.xyz", "2\nLattice=\"6 0 0 0 6 0 0 0 6\"\nA 1 1 1\nA 1 1 1\n");
+  const std::string precious = write("old.h5", "results of an earlier run");
+  ForcesArgs args;
+  args.input = coincident;
+  args.out = precious;
+  args.backend.backend = "cpu";
+  args.quiet = true;
+  EXPECT_THAT(error_of([&] { run_forces(args); }), HasSubstr("same position"));
+  std::ifstream in(precious);
+  const std::string kept((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  EXPECT_EQ(kept, "results of an earlier run");
+  for (const auto& entry : fs::directory_iterator(dir_))  // no temporary left behind
+    EXPECT_EQ(entry.path().string().find(".partial"), std::string::npos) << entry.path();
+
+  args.out = dir_.string();
+  EXPECT_THAT(error_of([&] { run_forces(args); }), HasSubstr("is a folder"));
+  args.out = coincident;
+  EXPECT_THAT(error_of([&] { run_forces(args); }), HasSubstr("--out names the input file"));
+  EXPECT_TRUE(fs::is_regular_file(coincident));
+  EXPECT_FALSE(h5::File::is_hdf5(coincident));
+}
+
+// Attributes and timing series as the parity scripts read them, at full precision.
+TEST_F(ForcesCommand, RecordsHowTheResultsWereComputed) {
+  const std::string p = write("one.xyz", "2\nLattice=\"6 0 0 0 6 0 0 0 6\" pbc=\"T T F\"\n"
+                                         "Argon_with_a_long_name 1 1 1\nArgon_with_a_long_name 2.2 1 1\n");
+  ForcesArgs args;
+  args.input = p;
+  args.out = path("o.h5");
+  args.types = {"Argon_with_a_long_name:0.123456789012345678:1.5"};
+  args.backend.backend = "cpu";
+  args.backend.precision = Precision::kMixed;
+  args.mode = CutoffMode::kShift;
+  args.repeats = 3;
+  args.quiet = true;
+  ASSERT_EQ(run_forces(args), 0);
+  h5::File f = h5::File::open_read(args.out);
+  const auto attr = [&](const char* name) { return h5::read_string_attribute(f.id(), name, args.out).at(0); };
+  EXPECT_EQ(attr("backend"), "cpu");
+  EXPECT_EQ(attr("precision"), "mixed");
+  EXPECT_EQ(attr("cutoff_mode"), "shift");
+  EXPECT_EQ(attr("periodic"), "T T F");
+  EXPECT_EQ(attr("types"), "Argon_with_a_long_name:0.12345678901234568:1.5");
+  EXPECT_EQ(h5::read_int_attribute(f.id(), "repeats", args.out), 3);
+  EXPECT_EQ(h5::read_int_attribute(f.id(), "pairs_within_cutoff", args.out), 1);
+  const h5::Array<double> times = h5::read_doubles(f.id(), "evaluation_times", args.out);
+  ASSERT_EQ(times.values.size(), 3u);
+  for (double t : times.values) EXPECT_GT(t, 0.0);
 }
 
 TEST_F(ForcesCommand, UnwritableOutputIsAnErrorNamingThePath) {

@@ -9,6 +9,7 @@
 
 #include "cli/options.h"
 #include "core/error.h"
+#include "io/configuration_file.h"
 #include "io/forces_file.h"
 
 #ifndef CELLFORCE_VERSION
@@ -30,11 +31,21 @@ std::vector<std::string> split(const std::string& s, char sep) {
 
 double parse_number(const std::string& text, const std::string& option, const std::string& spec) {
   double v = 0;
-  const char* end = text.data() + text.size();
-  auto [ptr, ec] = std::from_chars(text.data(), end, v);
-  if (text.empty() || ec != std::errc() || ptr != end)
-    throw Error(option + " " + spec + ": '" + text + "' is not a number");
+  if (!parse_real(text, v)) throw Error(option + " " + spec + ": '" + text + "' is not a number");
   return v;
+}
+
+// Errors from the engines name particles by index; say which file they are in.
+template <class F>
+auto in_context(const std::string& source, F&& f) {
+  try {
+    return f();
+  } catch (const Error& e) {
+    std::string what = e.what();
+    const std::string prefix = "cellforce: ";
+    if (what.rfind(prefix, 0) == 0) what.erase(0, prefix.size());
+    throw Error(source + ": " + what);
+  }
 }
 
 }  // namespace
@@ -65,12 +76,16 @@ ForceField make_force_field(const ForcesArgs& args, const ConfigurationFile& inp
     ff.types.push_back(ParticleType{name, 1.0, 1.0});
     index.emplace(name, 0);
   }
+  std::map<std::pair<std::size_t, std::size_t>, std::string> pair_given;
   for (const std::string& spec : args.pairs) {
     const std::vector<std::string> p = split(spec, ':');
     if (p.size() != 4) throw Error("--pair " + spec + ": expected A:B:SIGMA:EPSILON, e.g. A:B:0.8:1.5");
     for (int k = 0; k < 2; ++k)
       if (!index.count(p[std::size_t(k)]))
         throw Error("--pair " + spec + ": type '" + p[std::size_t(k)] + "' is not given by --type");
+    const auto key = std::minmax(index[p[0]], index[p[1]]);
+    if (auto [it, added] = pair_given.emplace(key, spec); !added)
+      throw Error("--pair " + spec + ": the pair " + p[0] + "-" + p[1] + " is already given by --pair " + it->second);
     ff.overrides.push_back(PairOverride{index[p[0]], index[p[1]], parse_number(p[2], "--pair", spec),
                                         parse_number(p[3], "--pair", spec)});
   }
@@ -92,13 +107,15 @@ ForceField make_force_field(const ForcesArgs& args, const ConfigurationFile& inp
 int run_forces(const ForcesArgs& args) {
   if (args.out.empty()) throw Error("forces: --out is required");
   if (args.repeats < 1) throw Error("--repeats must be at least 1, got " + std::to_string(args.repeats));
+  check_output_path(args.out, args.input);
   ConfigurationFile input = read_configuration(args.input, args.read);
   std::vector<uint32_t> type_of_species;
   const ForceField ff = make_force_field(args, input, type_of_species);
   Configuration& config = input.config;
   for (uint32_t& t : config.types) t = type_of_species[t];
   const SystemView sys = config.view();
-  validate_system(sys, ff);  // before any engine is built: bad input names the particle
+  // Before any engine is built: bad input names the particle (and the file).
+  in_context(input.source, [&] { validate_system(sys, ff); });
 
   ForceBackend backend(args.backend);
   const Request request{true, true};
@@ -106,27 +123,21 @@ int run_forces(const ForcesArgs& args) {
   std::vector<double> wall, pipeline;
   for (int r = 0; r < args.repeats; ++r) {
     const auto t0 = std::chrono::steady_clock::now();
-    backend.evaluate(sys, ff, request, result);
+    in_context(input.source, [&] { backend.evaluate(sys, ff, request, result); });
     wall.push_back(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
     const PipelineStats s = backend.stats(sys, ff, false);
     pipeline.push_back(s.t_total - s.t_transfer);
   }
   const PipelineStats counts = backend.stats(sys, ff, true);
 
-  std::string types;
-  for (const ParticleType& t : ff.types) {
-    char buf[128];
-    std::snprintf(buf, sizeof buf, "%s%s:%.17g:%.17g", types.empty() ? "" : " ", t.name.c_str(), t.sigma, t.epsilon);
-    types += buf;
-  }
-  for (const PairOverride& o : ff.overrides) {
-    char buf[160];
-    std::snprintf(buf, sizeof buf, " %s-%s:%.17g:%.17g", ff.types[o.a].name.c_str(), ff.types[o.b].name.c_str(),
-                  o.sigma, o.epsilon);
-    types += buf;
-  }
-  std::vector<double> periodic;
-  for (int a = 0; a < sys.box.dim; ++a) periodic.push_back(sys.box.periodic[a] ? 1.0 : 0.0);
+  std::ostringstream types;  // "A:1:1 B:0.88:0.5 A-B:0.8:1.5", full precision
+  types.precision(17);
+  for (const ParticleType& t : ff.types)
+    types << (&t == ff.types.data() ? "" : " ") << t.name << ':' << t.sigma << ':' << t.epsilon;
+  for (const PairOverride& o : ff.overrides)
+    types << ' ' << ff.types[o.a].name << '-' << ff.types[o.b].name << ':' << o.sigma << ':' << o.epsilon;
+  std::string periodic;  // "T T F", as extended XYZ's pbc
+  for (int a = 0; a < sys.box.dim; ++a) periodic += std::string(a ? " " : "") + (sys.box.periodic[a] ? "T" : "F");
   const Attributes attrs = {
       {"backend", backend.name()},
       {"engine", backend.description()},
@@ -137,20 +148,19 @@ int run_forces(const ForcesArgs& args) {
       {"cutoff", ff.cutoff},
       {"cutoff_mode", std::string(to_string(ff.mode))},
       {"mixing", std::string(to_string(ff.mixing))},
-      {"types", types},
+      {"types", types.str()},
       {"dimension", int64_t(sys.box.dim)},
       {"n_particles", int64_t(sys.n)},
       {"periodic", periodic},
       {"repeats", int64_t(args.repeats)},
       {"evaluation_time", median(wall)},
-      {"evaluation_times", wall},
       {"pipeline_time", median(pipeline)},
       {"pairs_tested", int64_t(counts.candidate_pairs)},
       {"pairs_within_cutoff", int64_t(counts.interacting_pairs)},
       {"input", input.source},
       {"cellforce_version", std::string(CELLFORCE_VERSION)},
   };
-  write_forces_file(args.out, result, sys.n, attrs);
+  write_forces_file(args.out, result, sys.n, attrs, {{"evaluation_times", wall}});
 
   if (!args.quiet) {
     double fmax = 0;

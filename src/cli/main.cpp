@@ -226,7 +226,7 @@ int main(int argc, char** argv) {
       ->check(CLI::IsMember({"cub", "chapter"}));
   forces_cmd->add_option("--dim", fa.read.dim, "2 or 3 (XYZ: default 3, a 2D file has z = 0; H5MD: from the file)")
       ->check(CLI::IsMember({2, 3}));
-  forces_cmd->add_option("--frame", fa.read.frame, "Frame to read; negative counts from the end")
+  forces_cmd->add_option("--frame", fa.read.frame, "Frame to read, 0-based; negative counts from the end (-1: the last)")
       ->capture_default_str();
   forces_cmd->add_option("--group", fa.read.group, "H5MD particles group (default: the only one)");
   forces_cmd->add_option("--repeats", fa.repeats, "Evaluations to time (the file records their median)")

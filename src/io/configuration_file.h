@@ -36,6 +36,10 @@ ConfigurationFile read_h5md(const std::string& path, const ReadOptions& options 
 // Either of the above, chosen by the file's contents (HDF5 signature or not).
 ConfigurationFile read_configuration(const std::string& path, const ReadOptions& options = {});
 
+// Parses a whole string as a real number as C++ and Python read it (a leading '+' allowed,
+// "nan" and "inf" included); false when any of it is not part of the number.
+bool parse_real(const std::string& text, double& value);
+
 // Writes one extended XYZ frame (17 significant digits, so that reading it back is exact).
 void write_extxyz(const std::string& path, const Configuration& config,
                   const std::vector<std::string>& species);

@@ -28,13 +28,9 @@ std::vector<std::string> split_ws(const std::string& line) {
   return out;
 }
 
-bool parse_double(const std::string& s, double& value) {
-  const char* end = s.data() + s.size();
-  auto [ptr, ec] = std::from_chars(s.data(), end, value);
-  return ec == std::errc() && ptr == end;
-}
-
-// The key=value pairs of the comment line; keys lower-cased, a bare key reads as "T".
+// The key=value pairs of the comment line, as ASE writes and reads them: values bare, in double
+// or single quotes (a backslash escapes the next character), or in [] or {} brackets (commas
+// read as spaces); keys lower-cased; a bare key reads as "T".
 std::map<std::string, std::string> parse_header(const std::string& line, const std::string& where) {
   std::map<std::string, std::string> kv;
   std::size_t k = 0;
@@ -42,11 +38,24 @@ std::map<std::string, std::string> parse_header(const std::string& line, const s
   auto skip_ws = [&] { while (k < n && std::isspace(static_cast<unsigned char>(line[k]))) ++k; };
   auto token = [&](bool stop_at_equals) {
     std::string t;
-    if (k < n && line[k] == '"') {
-      const std::size_t close = line.find('"', k + 1);
-      if (close == std::string::npos) throw Error(where + ": unterminated quote in the comment line");
-      t = line.substr(k + 1, close - k - 1);
-      k = close + 1;
+    if (k < n && (line[k] == '"' || line[k] == '\'')) {
+      const char quote = line[k++];
+      for (; k < n && line[k] != quote; ++k) {
+        if (line[k] == '\\' && k + 1 < n) ++k;
+        t += line[k];
+      }
+      if (k >= n) throw Error(where + ": unterminated " + std::string(1, quote) + " quote in the comment line");
+      ++k;
+      return t;
+    }
+    if (!stop_at_equals && k < n && (line[k] == '[' || line[k] == '{')) {
+      const char close = line[k] == '[' ? ']' : '}';
+      const std::size_t end = line.find(close, k + 1);
+      if (end == std::string::npos)
+        throw Error(where + ": unterminated '" + std::string(1, line[k]) + "' in the comment line");
+      t = line.substr(k + 1, end - k - 1);
+      std::replace(t.begin(), t.end(), ',', ' ');
+      k = end + 1;
       return t;
     }
     while (k < n && !std::isspace(static_cast<unsigned char>(line[k])) && !(stop_at_equals && line[k] == '='))
@@ -61,7 +70,7 @@ std::map<std::string, std::string> parse_header(const std::string& line, const s
       skip_ws();
       kv[lower(key)] = token(false);
     } else {
-      kv[lower(key)] = "T";
+      kv.insert_or_assign(lower(key), std::string(1, 'T'));  // (= "T" trips GCC 12's -Wrestrict)
     }
   }
   return kv;
@@ -137,6 +146,14 @@ std::vector<std::size_t> frame_starts(const std::vector<std::string>& lines, con
 
 }  // namespace
 
+bool parse_real(const std::string& text, double& value) {
+  const char* begin = text.data();
+  const char* end = text.data() + text.size();
+  if (begin != end && *begin == '+' && end - begin > 1 && begin[1] != '-') ++begin;
+  auto [ptr, ec] = std::from_chars(begin, end, value);
+  return begin != end && ec == std::errc() && ptr == end;
+}
+
 ConfigurationFile read_extxyz(const std::string& path, const ReadOptions& options) {
   std::ifstream in(path);
   if (!in) throw Error(path + ": cannot open the file");
@@ -173,7 +190,7 @@ ConfigurationFile read_extxyz(const std::string& path, const ReadOptions& option
     const std::vector<std::string> t = split_ws(it->second);
     if (t.size() != 9) throw Error(where2 + ": Lattice needs 9 numbers, found " + std::to_string(t.size()));
     for (int k = 0; k < 9; ++k)
-      if (!parse_double(t[std::size_t(k)], lattice[k]) || !std::isfinite(lattice[k]))
+      if (!parse_real(t[std::size_t(k)], lattice[k]) || !std::isfinite(lattice[k]))
         throw Error(where2 + ": Lattice: '" + t[std::size_t(k)] + "' is not a finite number");
     for (int r = 0; r < 3; ++r)
       for (int c = 0; c < 3; ++c)
@@ -213,9 +230,13 @@ ConfigurationFile read_extxyz(const std::string& path, const ReadOptions& option
       throw Error(where + ": " + std::to_string(t.size()) + " columns, Properties describes " +
                   std::to_string(cols.total));
     double x[3];
-    for (int a = 0; a < 3; ++a)
-      if (!parse_double(t[cols.pos + std::size_t(a)], x[a]))
+    for (int a = 0; a < 3; ++a) {
+      if (!parse_real(t[cols.pos + std::size_t(a)], x[a]))
         throw Error(where + ": '" + t[cols.pos + std::size_t(a)] + "' is not a number");
+      if (!std::isfinite(x[a]))
+        throw Error(where + ": coordinate " + std::string(1, "xyz"[a]) + " is " + t[cols.pos + std::size_t(a)] +
+                    "; coordinates must be finite");
+    }
     if (dim == 2 && x[2] != 0.0)
       throw Error(where + ": z = " + t[cols.pos + 2] + ", but a 2D configuration needs z = 0 exactly");
     for (int a = 0; a < dim; ++a) {

@@ -1,24 +1,42 @@
 #include "io/forces_file.h"
 
+#include <unistd.h>
+
 #include <cstdio>
-#include <type_traits>
+#include <filesystem>
+#include <random>
 
 #include "core/error.h"
 #include "io/hdf5.h"
 
 namespace cellforce {
 
+namespace fs = std::filesystem;
+
+void check_output_path(const std::string& path, const std::string& input) {
+  std::error_code ec;
+  if (fs::is_directory(path, ec)) throw Error(path + ": is a folder; --out needs a file name");
+  const fs::path folder = fs::path(path).parent_path();
+  if (!folder.empty() && !fs::is_directory(folder, ec))
+    throw Error(path + ": its folder '" + folder.string() + "' does not exist");
+  if (fs::exists(path, ec) && fs::exists(input, ec) && fs::equivalent(path, input, ec))
+    throw Error(path + ": --out names the input file; it would be overwritten");
+}
+
 void write_forces_file(const std::string& path, const ForceResult& result, std::size_t n,
-                       const Attributes& attributes) {
+                       const Attributes& attributes, const Series& series) {
   const int dim = result.dim;
   if (result.forces.size() != n * std::size_t(dim))
     throw Error(path + ": internal error: " + std::to_string(result.forces.size()) +
                 " force components for " + std::to_string(n) + " particles");
   if (result.energies.size() != n)
     throw Error(path + ": internal error: per-particle energies were not computed");
-  const std::string tmp = path + ".partial";
+  // A name no other run uses, created exclusively, so that concurrent runs and a user's own
+  // files beside `path` are never overwritten.
+  const std::string tmp = path + ".partial-" + std::to_string(::getpid()) + "-" +
+                          std::to_string(std::random_device{}());
   try {
-    h5::File file = h5::File::create(tmp);
+    h5::File file = h5::File::create(tmp, /*exclusive=*/true, path);
     const hid_t root = file.id();
     const hsize_t hn = n, hd = hsize_t(dim);
     h5::write_doubles(root, "forces", result.forces, {hn, hd}, path);
@@ -28,6 +46,8 @@ void write_forces_file(const std::string& path, const ForceResult& result, std::
     for (int a = 0; a < dim; ++a)
       for (int b = 0; b < dim; ++b) w.push_back(result.virial[a][b]);
     h5::write_doubles(root, "virial", w, {hd, hd}, path);
+    for (const auto& [name, values] : series)
+      h5::write_doubles(root, name, values, {hsize_t(values.size())}, path);
     for (const auto& [name, value] : attributes)
       std::visit([&, &key = name](const auto& v) { h5::write_attribute(root, key, v, path); }, value);
     file.close();

@@ -1,4 +1,5 @@
 // Reading one frame of an H5MD file (H5MD 1.x, particles group): positions, box and species.
+#include <algorithm>
 #include <cmath>
 #include <map>
 
@@ -9,28 +10,42 @@
 namespace cellforce {
 namespace {
 
-// A time-dependent H5MD element is a group holding value (frames x ...), step and time; a fixed
-// one is a plain dataset. Returns the values of one frame and that frame's shape.
+// A time-dependent H5MD element is a group holding value (frames x ...) and step (frames); a fixed
+// one is a plain dataset. Returns the values and shape of the element at the positions' frame:
+// the row whose step equals the positions' step (or, without steps, the same row).
 h5::Array<double> element_frame(hid_t group, const std::string& name, long frame,
-                                std::size_t frames_expected, const std::string& where) {
+                                const std::vector<double>& position_steps, std::size_t frames,
+                                const std::string& where) {
   if (!h5::exists(group, name)) throw Error(where + ": no '" + name + "'");
   H5O_info_t info;
 #if H5_VERSION_GE(1, 12, 0)
-  H5Oget_info_by_name3(group, name.c_str(), &info, H5O_INFO_BASIC, H5P_DEFAULT);
+  const herr_t status = H5Oget_info_by_name3(group, name.c_str(), &info, H5O_INFO_BASIC, H5P_DEFAULT);
 #else
-  H5Oget_info_by_name2(group, name.c_str(), &info, H5O_INFO_BASIC, H5P_DEFAULT);
+  const herr_t status = H5Oget_info_by_name2(group, name.c_str(), &info, H5O_INFO_BASIC, H5P_DEFAULT);
 #endif
+  if (status < 0) throw Error(where + ": cannot inspect '" + name + "'");
   if (info.type == H5O_TYPE_DATASET) return h5::read_doubles(group, name, where);
   h5::Array<double> all = h5::read_doubles(group, name + "/value", where);
   if (all.shape.empty()) throw Error(where + ": '" + name + "/value' has no frame axis");
-  const std::size_t frames = std::size_t(all.shape[0]);
-  if (frames_expected && frames != frames_expected)
-    throw Error(where + ": '" + name + "/value' holds " + std::to_string(frames) +
-                " frames, the positions " + std::to_string(frames_expected));
+  const std::size_t rows = std::size_t(all.shape[0]);
+  std::size_t row = std::size_t(frame);
+  if (!position_steps.empty() && h5::exists(group, name + "/step")) {
+    const h5::Array<double> steps = h5::read_doubles(group, name + "/step", where);
+    const double want = position_steps[std::size_t(frame)];
+    const auto it = std::find(steps.values.begin(), steps.values.end(), want);
+    if (it == steps.values.end())
+      throw Error(where + ": '" + name + "' has no value at step " + std::to_string((long long)want) +
+                  " (the positions' frame " + std::to_string(frame) + ")");
+    row = std::size_t(it - steps.values.begin());
+  } else if (rows != frames) {
+    throw Error(where + ": '" + name + "/value' holds " + std::to_string(rows) + " frames, the positions " +
+                std::to_string(frames) + ", and no steps say which belong together");
+  }
+  if (row >= rows) throw Error(where + ": '" + name + "/step' and '" + name + "/value' disagree in length");
   h5::Array<double> one;
   one.shape.assign(all.shape.begin() + 1, all.shape.end());
-  const std::size_t per = frames ? all.values.size() / frames : 0;
-  one.values.assign(all.values.begin() + long(per) * frame, all.values.begin() + long(per) * (frame + 1));
+  const std::size_t per = all.values.size() / rows;
+  one.values.assign(all.values.begin() + long(per * row), all.values.begin() + long(per * (row + 1)));
   return one;
 }
 
@@ -66,6 +81,13 @@ ConfigurationFile read_h5md(const std::string& path, const ReadOptions& options)
                 std::to_string(frames));
   const std::size_t n = std::size_t(pos.shape[1]);
   const int dim = int(pos.shape[2]);
+  std::vector<double> steps;
+  if (h5::exists(group.get(), "position/step")) {
+    steps = h5::read_doubles(group.get(), "position/step", where).values;
+    if (steps.size() != std::size_t(frames))
+      throw Error(where + "/position: step holds " + std::to_string(steps.size()) + " values for " +
+                  std::to_string(frames) + " frames");
+  }
 
   h5::Handle box = h5::open_group(group.get(), "box", path);
   const int64_t box_dim = h5::read_int_attribute(box.get(), "dimension", where + "/box");
@@ -95,14 +117,25 @@ ConfigurationFile read_h5md(const std::string& path, const ReadOptions& options)
     b.length[a] = 0.0;
   }
   if (h5::exists(box.get(), "edges")) {
-    const h5::Array<double> edges = element_frame(box.get(), "edges", frame, std::size_t(frames), where + "/box");
-    if (edges.shape.size() != 1 || edges.shape[0] != hsize_t(dim))
-      throw Error(where + "/box/edges: one length per axis expected (triclinic boxes are not supported)");
+    // A vector of edge lengths, or a dim x dim matrix of box vectors that must be diagonal.
+    const h5::Array<double> edges = element_frame(box.get(), "edges", frame, steps, std::size_t(frames), where + "/box");
+    const bool vector = edges.shape.size() == 1 && edges.shape[0] == hsize_t(dim);
+    const bool matrix = edges.shape.size() == 2 && edges.shape[0] == hsize_t(dim) && edges.shape[1] == hsize_t(dim);
+    if (!vector && !matrix)
+      throw Error(where + "/box/edges: expected " + std::to_string(dim) + " lengths or a " + std::to_string(dim) +
+                  " x " + std::to_string(dim) + " matrix");
+    for (int a = 0; a < dim; ++a)
+      for (int c = 0; matrix && c < dim; ++c)
+        if (a != c && edges.values[std::size_t(a * dim + c)] != 0.0)
+          throw Error(where + "/box/edges: box vector " + std::to_string(a + 1) +
+                      " is not along its axis; cellforce supports rectangular boxes only");
     for (int a = 0; a < dim; ++a) {
-      b.length[a] = edges.values[std::size_t(a)];
-      if (b.periodic[a] && !(b.length[a] > 0 && std::isfinite(b.length[a])))
+      const double length = edges.values[std::size_t(matrix ? a * dim + a : a)];
+      if (b.periodic[a] && !(length > 0 && std::isfinite(length)))
         throw Error(where + "/box/edges: the periodic axis " + std::string(1, "xyz"[a]) + " has length " +
-                    std::to_string(b.length[a]));
+                    std::to_string(length));
+      // On an open axis the edge only informs; a missing or meaningless one is replaced below.
+      b.length[a] = length > 0 && std::isfinite(length) ? length : 0.0;
     }
   } else if (any_periodic) {
     throw Error(where + "/box: periodic axes but no edges");
@@ -124,16 +157,16 @@ ConfigurationFile read_h5md(const std::string& path, const ReadOptions& options)
   // Species: integers, fixed or per frame; named by their decimal value in order of appearance.
   out.config.types.assign(n, 0);
   if (h5::exists(group.get(), "species")) {
-    const h5::Array<double> s = element_frame(group.get(), "species", frame, std::size_t(frames), where);
+    const h5::Array<double> s = element_frame(group.get(), "species", frame, steps, std::size_t(frames), where);
     if (s.values.size() != n)
       throw Error(where + "/species: " + std::to_string(s.values.size()) + " values for " + std::to_string(n) +
                   " particles");
     std::map<long long, uint32_t> index;
     for (std::size_t i = 0; i < n; ++i) {
       const double v = s.values[i];
-      if (v != std::floor(v))
+      if (!(v == std::floor(v) && std::abs(v) < 9.0e15))
         throw Error(where + "/species: particle " + std::to_string(i) + " has species " + std::to_string(v) +
-                    ", not an integer");
+                    ", not an integer species index");
       auto [it, added] = index.try_emplace((long long)v, uint32_t(out.species.size()));
       if (added) out.species.push_back(std::to_string((long long)v));
       out.config.types[i] = it->second;

@@ -2,7 +2,6 @@
 
 #include <algorithm>
 #include <filesystem>
-#include <fstream>
 #include <functional>
 #include <numeric>
 
@@ -118,11 +117,12 @@ void Handle::reset() {
   id_ = H5I_INVALID_HID;
 }
 
-File File::create(const std::string& path) {
+File File::create(const std::string& path, bool exclusive, const std::string& where) {
   quiet();
-  const hid_t id = H5Fcreate(path.c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, H5P_DEFAULT);
-  if (id < 0) fail(path, "cannot create the HDF5 file (does its folder exist and is it writable?)");
-  return File(Handle(id), path);
+  const hid_t id = H5Fcreate(path.c_str(), exclusive ? H5F_ACC_EXCL : H5F_ACC_TRUNC, H5P_DEFAULT, H5P_DEFAULT);
+  if (id < 0)
+    fail(where.empty() ? path : where, "cannot create the HDF5 file (does its folder exist and is it writable?)");
+  return File(Handle(id), where.empty() ? path : where);
 }
 
 File File::open_read(const std::string& path) {
@@ -135,11 +135,9 @@ File File::open_read(const std::string& path) {
 }
 
 bool File::is_hdf5(const std::string& path) {
-  static constexpr char kSignature[8] = {'\x89', 'H', 'D', 'F', '\r', '\n', '\x1a', '\n'};
-  std::ifstream in(path, std::ios::binary);
-  char head[8] = {};
-  if (!in.read(head, 8)) return false;
-  return std::equal(head, head + 8, kSignature);
+  quiet();
+  if (!std::filesystem::is_regular_file(path)) return false;
+  return H5Fis_hdf5(path.c_str()) > 0;
 }
 
 void File::close() {
@@ -272,7 +270,11 @@ std::vector<std::string> read_string_attribute(hid_t obj, const std::string& nam
     std::vector<char*> p(std::size_t(count), nullptr);
     check_status(H5Aread(attr.get(), mem.get(), p.data()), where, "cannot read attribute '" + name + "'");
     for (char* s : p) out.emplace_back(s ? s : "");
+#if H5_VERSION_GE(1, 12, 0)
+    H5Treclaim(mem.get(), space.get(), H5P_DEFAULT, p.data());
+#else
     H5Dvlen_reclaim(mem.get(), space.get(), H5P_DEFAULT, p.data());
+#endif
   } else {
     const std::size_t size = H5Tget_size(type.get());
     std::vector<char> buf(std::size_t(count) * size);

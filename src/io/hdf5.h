@@ -48,9 +48,11 @@ struct Array {
 
 class File {
  public:
-  static File create(const std::string& path);  // truncates an existing file
+  // Truncates an existing file; with `exclusive`, fails if the file exists. `where` names the
+  // file in errors (the user's path when this one is a temporary).
+  static File create(const std::string& path, bool exclusive = false, const std::string& where = {});
   static File open_read(const std::string& path);
-  // True when the file starts with HDF5's signature (at offset 0; cellforce writes no user block).
+  // True when HDF5 recognises the file (its signature, at offset 0 or after a user block).
   static bool is_hdf5(const std::string& path);
 
   hid_t id() const { return handle_.get(); }
