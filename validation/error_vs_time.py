@@ -2,11 +2,16 @@
 
 Each row's error is against OpenMM Reference (double precision): median and max over particles
 of |dF_i|/|F_i|, and the total energy's relative error. Time is the median wall time of one force
-evaluation: for cellforce the output's `evaluation_time` (one engine evaluate call on host
-arrays, host<->device copies included; `pipeline_time` is stored too), for OpenMM
-setPositions + getState(forces, energy) + conversion to numpy, once with the neighbour list kept
-(the same positions every time) and once with it rebuilt at every evaluation (positions
-alternating with a translated copy), since every cellforce evaluation runs the whole search.
+evaluation: for cellforce the output's `evaluation_time` (measured in C++ around one engine
+evaluate call on host arrays, host<->device copies included, which also computes per-particle
+energies and the virial; median over all --repeats calls, the first included; `pipeline_time`
+is stored too), for OpenMM setPositions + getState(forces, energy) + conversion to numpy in
+Python (after one untimed warm-up), once with the neighbour list kept (the same positions every
+time) and once with it rebuilt at every evaluation (positions alternating with a translated
+copy), since every cellforce evaluation runs the whole search. For every OpenMM platform but
+Reference, one more row times the round trip alone (setPositions + getState(positions) +
+conversion to numpy, no forces): the part of OpenMM's time that is not force work. It has no
+error (its error fields are null).
 
     python validation/error_vs_time.py --cellforce build/cellforce \\
         --xyz systems/validation/lj_liquid_32k.xyz --cutoff 2.5 --mode truncate --out data.json \\
@@ -34,7 +39,6 @@ import numpy as np
 import lj
 
 PRECISIONS = ("single", "mixed", "double")
-UNAVAILABLE = ("no cuda device", "built without cuda")
 
 
 def cellforce_choices(backends):
@@ -83,6 +87,9 @@ def machine_info() -> dict:
     return {"cpu": _cpu_model(), "cores": os.cpu_count(), "gpus": _gpus(),
             "os": platform.platform(), "python": sys.version.split()[0],
             "numpy": np.__version__, "openmm": openmm.__version__}
+
+
+NO_ERRORS = {"median_rel_err": None, "max_rel_err": None, "energy_rel_err": None}
 
 
 def errors(forces, energy, ref_forces, ref_energy, dim) -> dict:
@@ -137,22 +144,26 @@ def main() -> int:
     def add(row):
         rows.append(row)
         print(f"{row['label']:52s} {1e3 * row['time_s']:10.3f} ms  "
-              f"median rel {row['median_rel_err']:.1e}  max rel {row['max_rel_err']:.1e}  "
-              f"energy {row['energy_rel_err']:.1e}", flush=True)
+              f"median rel {lj.fmt_err(row['median_rel_err'])}  "
+              f"max rel {lj.fmt_err(row['max_rel_err'])}  "
+              f"energy {lj.fmt_err(row['energy_rel_err'])}", flush=True)
 
     add({"label": "OpenMM Reference double", "engine": "openmm", "platform": "Reference",
          "precision": "double", "options": {}, "time_s": ref_time, "pipeline_time_s": None,
          "repeats": args.reference_repeats, "device": host, "host": host,
          **errors(ref_forces, ref_energy, ref_forces, ref_energy, case.dim)})
 
+    devices = {}  # OpenMM platform name: what it runs on
     for name, precision in openmm_choices(p for p in args.openmm_platforms if p != "Reference"):
         label = f"OpenMM {name} {precision or 'single'}"
         if name not in available:
             skipped.append(f"{label}: platform not available")
             print(f"skipped: {skipped[-1]}", flush=True)
             continue
-        device = lj.openmm_device(system, name)
-        device = f"{host}, {device}" if name == "CPU" else device or host
+        if name not in devices:
+            device = lj.openmm_device(system, name)
+            devices[name] = f"{host}, {device}" if name == "CPU" else device or host
+        device = devices[name]
         # Twice: neighbour list kept (same positions), and rebuilt at every evaluation.
         for list_use in ("reused", "rebuilt"):
             forces, energy, seconds = lj.openmm_forces(
@@ -163,6 +174,15 @@ def main() -> int:
                  "time_s": seconds, "pipeline_time_s": None, "repeats": args.repeats,
                  "device": device, "host": host,
                  **errors(forces, energy, ref_forces, ref_energy, case.dim)})
+
+    # The round trip alone, once per platform that ran (its default precision).
+    for name, device in devices.items():
+        seconds = lj.openmm_round_trip(system, positions, name, repeats=args.repeats)
+        add({"label": f"OpenMM {name} round trip only (no forces)", "engine": "openmm",
+             "platform": name, "precision": "-",
+             "options": {"neighbour_list": "-", "what": "round trip"}, "time_s": seconds,
+             "pipeline_time_s": None, "repeats": args.repeats, "device": device, "host": host,
+             **NO_ERRORS})
 
     unavailable = set()  # backends found missing: their other rows are not tried
     with tempfile.TemporaryDirectory(prefix="cellforce-evt-") as workdir:
@@ -175,7 +195,7 @@ def main() -> int:
                 result = lj.run_cellforce(args.cellforce, case, backend, precision,
                                           Path(workdir) / f"{k}.h5", extra, args.repeats)
             except lj.CellforceError as err:
-                if any(s in str(err).lower() for s in UNAVAILABLE):
+                if any(s in str(err).lower() for s in lj.UNAVAILABLE):
                     unavailable.add(backend)
                     skipped.append(f"cellforce {backend} (every row): {err}")
                 else:

@@ -23,6 +23,9 @@ MODES = ("truncate", "shift", "force-shift")
 MIXINGS = ("lorentz-berthelot", "geometric")
 # Pair elements per brute-force chunk (rows x all particles); each element costs ~50 bytes.
 _CHUNK_ELEMENTS = 2_000_000
+# Lower-case pieces of cellforce's error message when a backend cannot run on this machine:
+# such rows are skipped (or, where asked, failed), not counted as wrong results.
+UNAVAILABLE = ("no cuda device", "built without cuda")
 
 
 @dataclass
@@ -81,7 +84,11 @@ def _columns(properties: str) -> dict[str, tuple[int, int]]:
 
 
 def read_extxyz(path):
-    """Read the first frame of an extended XYZ file with an orthorhombic Lattice.
+    """Read an extended XYZ file of exactly one frame with an orthorhombic Lattice.
+
+    A file of several frames is refused (ValueError): cellforce is always run on frame 0 (see
+    cellforce_command), and one frame per file keeps the oracle and cellforce on the same
+    configuration beyond doubt. Blank lines after the frame are allowed.
 
     Returns positions (N x 3 float64), species (list of str), lengths (3,) and pbc (3 bools).
     """
@@ -89,6 +96,9 @@ def read_extxyz(path):
         n = int(f.readline())
         header = _header_fields(f.readline())
         lines = [f.readline() for _ in range(n)]
+        if any(line.strip() for line in f):
+            raise ValueError(f"{path}: more than one frame (or text after the first frame's "
+                             f"{n} particle lines); the validation reads one-frame files only")
     if "Lattice" not in header:
         raise ValueError(f"{path}: no Lattice in the header")
     lattice = np.array(header["Lattice"].split(), dtype=float).reshape(3, 3)
@@ -112,16 +122,26 @@ def read_extxyz(path):
 
 
 def write_extxyz(path, positions, species, lengths, pbc, digits=17):
-    """Write one extended XYZ frame; 17 significant digits read back to the same doubles."""
+    """Write one extended XYZ frame; 17 significant digits read back to the same doubles.
+
+    The frame goes to a temporary file in the same folder, renamed over path when complete, so
+    an interrupted run leaves either the old file or none, never a truncated one.
+    """
+    path = Path(path)
     positions = np.asarray(positions, dtype=float)
     lx, ly, lz = (f"{v:.17g}" for v in lengths)
     header = (f'Lattice="{lx} 0 0 0 {ly} 0 0 0 {lz}" Properties=species:S:1:pos:R:3 '
               f'pbc="{" ".join("T" if p else "F" for p in pbc)}"')
     fmt = f"%.{digits}g"
-    with open(path, "w") as f:
-        f.write(f"{len(positions)}\n{header}\n")
-        for name, (x, y, z) in zip(species, positions):
-            f.write(f"{name} {fmt % x} {fmt % y} {fmt % z}\n")
+    partial = path.with_name(f".{path.name}.{os.getpid()}.partial")
+    try:
+        with open(partial, "w") as f:
+            f.write(f"{len(positions)}\n{header}\n")
+            for name, (x, y, z) in zip(species, positions):
+                f.write(f"{name} {fmt % x} {fmt % y} {fmt % z}\n")
+        os.replace(partial, path)
+    finally:
+        partial.unlink(missing_ok=True)
 
 
 def write_h5md(path, positions, type_index, lengths, pbc, dim):
@@ -303,6 +323,19 @@ def openmm_system(case: Case, positions, species, lengths, pbc):
     return system
 
 
+def _context(system, platform, precision):
+    """An openmm.Context of system on the named platform ('Precision' set where given)."""
+    import openmm as mm
+
+    chosen = mm.Platform.getPlatformByName(platform)
+    properties = {}
+    if precision is not None:
+        if "Precision" not in chosen.getPropertyNames():
+            raise ValueError(f"OpenMM platform {platform} has no Precision property")
+        properties["Precision"] = precision
+    return mm.Context(system, mm.VerletIntegrator(0.001), chosen, properties)
+
+
 def openmm_forces(system, positions, platform="Reference", precision=None, repeats=1,
                   rebuild=False, shift=0.0):
     """Forces (N x 3, kJ/mol/nm), potential energy (kJ/mol) and median seconds per evaluation.
@@ -317,16 +350,9 @@ def openmm_forces(system, positions, platform="Reference", precision=None, repea
     (a translation leaves the forces unchanged; shift must exceed the padding, e.g. the cutoff),
     so that every evaluation rebuilds the list, as every cellforce evaluation runs its search.
     """
-    import openmm as mm
     from openmm import unit
 
-    chosen = mm.Platform.getPlatformByName(platform)
-    properties = {}
-    if precision is not None:
-        if "Precision" not in chosen.getPropertyNames():
-            raise ValueError(f"OpenMM platform {platform} has no Precision property")
-        properties["Precision"] = precision
-    context = mm.Context(system, mm.VerletIntegrator(0.001), chosen, properties)
+    context = _context(system, platform, precision)
     positions = np.asarray(positions, dtype=float)
     moved = positions.copy()
     if rebuild:
@@ -348,6 +374,30 @@ def openmm_forces(system, positions, platform="Reference", precision=None, repea
         evaluate(moved if rebuild and k % 2 == 0 else positions)
         times.append(time.perf_counter() - t0)
     return forces, energy, statistics.median(times)
+
+
+def openmm_round_trip(system, positions, platform, precision=None, repeats=1) -> float:
+    """Median seconds of OpenMM's round trip alone, no forces: setPositions +
+    getState(getPositions=True) + conversion to numpy, after one untimed warm-up, as in
+    openmm_forces. It is the part of an OpenMM evaluation's time that is not force work."""
+    from openmm import unit
+
+    context = _context(system, platform, precision)
+    positions = np.asarray(positions, dtype=float)
+
+    def round_trip():
+        context.setPositions(positions)
+        state = context.getState(getPositions=True)
+        return np.asarray(state.getPositions(asNumpy=True).value_in_unit(unit.nanometer),
+                          dtype=float)
+
+    round_trip()
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        round_trip()
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times)
 
 
 def openmm_device(system, platform) -> str:
@@ -386,8 +436,9 @@ class CellforceError(RuntimeError):
 
 
 def cellforce_command(exe, case: Case, backend, precision, out_h5, extra_args=(), repeats=1):
-    """Argument list of `cellforce forces` for a case."""
-    args = [str(exe), "forces", str(case.path), "--out", str(out_h5),
+    """Argument list of `cellforce forces` for a case. --frame 0: read_extxyz reads the first
+    frame, and cellforce's default is the last one."""
+    args = [str(exe), "forces", str(case.path), "--frame", "0", "--out", str(out_h5),
             "--cutoff", repr(float(case.cutoff)), "--cutoff-mode", case.mode,
             "--mixing", case.mixing, "--backend", backend, "--precision", precision,
             "--dim", str(case.dim), "--repeats", str(repeats)]
@@ -477,3 +528,19 @@ def force_metrics(forces, ref) -> dict:
     return {"median_rel": float(np.median(rel)), "max_rel": float(rel.max()),
             "median_openmm": float(np.median(omm)), "max_openmm": float(omm.max()),
             "max_dF_over_Frms": max_error_over_rms(forces, ref)}
+
+
+# ---------------------------------------------------------------------------------------------
+# Formatting of report numbers
+
+
+def fmt_err(value) -> str:
+    """An error or tolerance for a table: '-' for none, '0' for exactly 0, else 1.2e-05."""
+    if value is None:
+        return "-"
+    return "0" if value == 0 else f"{value:.1e}"
+
+
+def fmt_ms(seconds) -> str:
+    """A time in seconds as milliseconds for a table, 4 significant digits ('-' for none)."""
+    return "-" if seconds is None else f"{1e3 * seconds:.4g}"

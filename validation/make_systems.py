@@ -1,7 +1,8 @@
 """Generate the validation configurations (extended XYZ) in systems/validation/.
 
 The files are committed; this script documents how they were made. It writes only missing
-files unless --force is given. Equilibration runs OpenMM's CPU platform (truncated LJ, rc 2.5,
+files unless --force is given; every file is written under a temporary name and renamed when
+complete (lj.write_extxyz), so an interrupted run leaves no truncated file to be kept later. Equilibration runs OpenMM's CPU platform (truncated LJ, rc 2.5,
 velocity Verlet with velocity rescaling every 50 steps, deterministic forces, numpy seeds), so
 a rerun with the same OpenMM build and thread count reproduces the files.
 

@@ -1,5 +1,7 @@
 """Merge error_vs_time.py outputs (e.g. one per machine) into a markdown table and a plot.
 
+Rows without an error (OpenMM's round trip alone, no forces) are in the table, not the plot.
+
     python validation/plot_error_vs_time.py data1.json [data2.json ...] \\
         --md validation/reports/error-vs-time.md --png validation/reports/error-vs-time.png
 """
@@ -18,6 +20,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 from matplotlib.lines import Line2D  # noqa: E402
 from matplotlib.ticker import FuncFormatter, NullFormatter  # noqa: E402
 
+from lj import fmt_err, fmt_ms  # noqa: E402
+
 ERROR_FLOOR = 1e-17  # errors below this (exact agreement gives 0) are drawn at the floor
 PRECISION_ORDER = {"single": 0, "mixed": 1, "double": 2}
 PRECISION_COLOUR = {"single": "tab:blue", "mixed": "tab:orange", "double": "tab:green"}
@@ -26,7 +30,7 @@ OPTION_ORDER = {"warp": 0, "thread": 1, "cub": 0, "chapter": 1, "jacobi": 0, "ga
 # One marker per method: filled for cellforce, large and hollow for OpenMM.
 CELLFORCE_MARKERS = ["o", "s", "D", "^", "v", "P", "h", "<", ">", "d", "p", "8"]
 OPENMM_MARKERS = ["*", "H", "p", "X", "8", "d"]
-SAME_SYSTEM = ("xyz", "n_particles", "cutoff", "mode")
+SAME_SYSTEM = ("xyz", "n_particles", "dim", "cutoff", "mode", "types")
 
 
 def engine_name(row) -> str:
@@ -34,8 +38,15 @@ def engine_name(row) -> str:
         else f"OpenMM {row['platform']}"
 
 
+def round_trip(row) -> bool:
+    """An OpenMM row timing setPositions + getState(positions) alone: no forces, no error."""
+    return row["options"].get("what") == "round trip"
+
+
 def algorithm(row) -> str:
     options = row["options"]
+    if round_trip(row):
+        return "round trip only (no forces)"
     if row["engine"] == "openmm":
         return f"neighbour list {options['neighbour_list']}" if "neighbour_list" in options else "-"
     if row["platform"] == "cuda":
@@ -87,14 +98,6 @@ def device_name(row) -> str:
     return row["device"]
 
 
-def fmt_ms(seconds) -> str:
-    return "-" if seconds is None else f"{1e3 * seconds:.4g}"
-
-
-def fmt_err(value) -> str:
-    return "0" if value == 0 else f"{value:.1e}"
-
-
 def markdown(data, paths) -> str:
     s = data[0]["system"]
     lines = ["# Error against run time", "",
@@ -103,16 +106,28 @@ def markdown(data, paths) -> str:
              + f", rc = {s['cutoff']}, {s['mode']}; types "
              + ", ".join(f"{n} {sg}/{e}" for n, sg, e in s["types"]) + ".", "",
              "Error: against OpenMM Reference (double precision) on the same machine's run; "
-             "median and max over particles of |dF_i|/|F_i|, and |dE|/|E| of the total energy. "
-             "Time: median wall time of one force evaluation. cellforce: `evaluation_time`, one "
-             "engine evaluate call on host arrays including host<->device copies; pipeline: "
-             "`pipeline_time`, the engine's own stages without host copies. OpenMM: "
-             "setPositions + getState(forces, energy) + conversion to numpy, after one warm-up; "
-             "'list reused': the same positions every time, so OpenMM keeps its neighbour list "
-             "and most of its search is left out; 'list rebuilt': positions alternate with a "
-             "copy translated by rc (same forces), so every evaluation rebuilds the list, as "
-             "every cellforce evaluation runs its whole search. "
-             "OpenMM CPU has one precision (single-precision forces).", "",
+             "median and max over particles of |dF_i|/|F_i|, and |dE|/|E| of the total energy.",
+             "",
+             "Time: median wall time of one force evaluation; the two engines' times are taken "
+             "differently. cellforce: `evaluation_time`, measured inside the C++ program around "
+             "one engine evaluate call on host arrays: host<->device copies are included, "
+             "process start and file input and output are not; every evaluation also computes "
+             "the per-particle energies and the virial. Its median is over all the repeats with "
+             "no warm-up: the first, cold evaluation (which also allocates the engine's working "
+             "buffers, on the device for CUDA) is one of them. Pipeline: `pipeline_time`, the "
+             "engine's own stages without the host copies. OpenMM: setPositions + "
+             "getState(forces, energy) + conversion of the forces to numpy, timed in Python, so "
+             "its time includes building the State object and the unit conversion in Python; "
+             "one untimed warm-up evaluation comes before the timed ones, so its median leaves "
+             "the first evaluation out. 'list reused': the same positions every time, so OpenMM "
+             "keeps its neighbour list and most of its search is left out; 'list rebuilt': "
+             "positions alternate with a copy translated by rc (same forces), so every "
+             "evaluation rebuilds the list, as every cellforce evaluation runs its whole search. "
+             "'round trip only (no forces)': for each OpenMM platform but Reference, "
+             "setPositions + getState(positions) + conversion to numpy alone, with the same "
+             "warm-up and repeats and the platform's default precision: the part of an OpenMM "
+             "time that is not force work. It has no error, so it is in this table and not in "
+             "the plot. OpenMM CPU has one precision (single-precision forces).", "",
              "## Runs", ""]
     for path, d in zip(paths, data):
         m = d["machine"]
@@ -137,7 +152,7 @@ def markdown(data, paths) -> str:
 
 def plot(data, png):
     s = data[0]["system"]
-    rows = sorted_rows(data)
+    rows = [r for r in sorted_rows(data) if r["median_rel_err"] is not None]
     hosts = {r["host"] for r in rows}
     methods = list(dict.fromkeys(method(r, hosts) for r in rows))
     cellforce = [m for m in methods if m.startswith("cellforce")]
