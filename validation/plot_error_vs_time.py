@@ -29,7 +29,7 @@ OPTION_ORDER = {"warp": 0, "thread": 1, "cub": 0, "chapter": 1, "jacobi": 0, "ga
                 "reused": 0, "rebuilt": 1}
 # One marker per method: filled for cellforce, large and hollow for OpenMM.
 CELLFORCE_MARKERS = ["o", "s", "D", "^", "v", "P", "h", "<", ">", "d", "p", "8"]
-OPENMM_MARKERS = ["*", "H", "p", "X", "8", "d"]
+OPENMM_MARKERS = ["*", "H", "p", "X", "8", "d", "^", "v", "<", ">", "s", "o"]
 SAME_SYSTEM = ("xyz", "n_particles", "dim", "cutoff", "mode", "types")
 
 
