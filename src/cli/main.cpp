@@ -32,12 +32,7 @@ struct EvaluateArgs {
   uint64_t seed = 1;
   double cutoff = 2.5;
   CutoffMode mode = CutoffMode::kTruncate;
-  Precision precision = Precision::kDouble;
-  Accumulation accumulation = Accumulation::kJacobi;
-  CellRule rule = CellRule::kTight;
-  std::string backend = "auto";
-  std::string traversal = "warp";
-  std::string sort = "cub";
+  BackendChoice engine;  // backend, precision, accumulation, cell rule, traversal, sort
   int repeats = 5;
   bool brute = false;
   std::string json;
@@ -51,14 +46,7 @@ int evaluate(const EvaluateArgs& args) {
   ForceField ff;
   ff.cutoff = args.cutoff;
   ff.mode = args.mode;
-  BackendChoice choice;
-  choice.backend = args.backend;
-  choice.precision = args.precision;
-  choice.accumulation = args.accumulation;
-  choice.rule = args.rule;
-  choice.traversal = args.traversal;
-  choice.sort = args.sort;
-  ForceBackend engine(choice);
+  ForceBackend engine(args.engine);
   const std::string& backend = engine.name();
   const std::string& engine_name = engine.description();
   const Request request{true, true};
@@ -71,8 +59,8 @@ int evaluate(const EvaluateArgs& args) {
   std::printf("cellforce evaluate: %zu particles (%s lattice, %d cells per axis, density %g, jitter %g)\n",
               sys.n, dim == 3 ? "3D" : "2D", args.cells, args.density, args.jitter);
   std::printf("  box %.6g per edge, periodic; cutoff %g (%s); precision %s; %s; %s\n",
-              sys.box.length[0], ff.cutoff, to_string(ff.mode), to_string(args.precision),
-              to_string(args.accumulation), engine_name.c_str());
+              sys.box.length[0], ff.cutoff, to_string(ff.mode), to_string(args.engine.precision),
+              to_string(args.engine.accumulation), engine_name.c_str());
 
   std::vector<double> total, t_ids, t_sort, t_cells, t_trav, t_acc;
   PipelineStats s;
@@ -88,8 +76,8 @@ int evaluate(const EvaluateArgs& args) {
   const Grid& g = s.grid;
   std::printf("grid: %u x %u x %u cells, edge %.6g, half-width h %.6g (rule %s: edge >= %.6g)\n",
               g.n[0], g.n[1], g.n[2], g.cell[0], g.half_width,
-              args.rule == CellRule::kTight ? "rc + h" : "3h",
-              min_cell_edge(args.rule, ff.cutoff, g.half_width));
+              args.engine.rule == CellRule::kTight ? "rc + h" : "3h",
+              min_cell_edge(args.engine.rule, ff.cutoff, g.half_width));
   std::printf("entries: %zu (%zu valid), collision cells %zu, max occupancy %zu\n", s.entries,
               s.valid_entries, s.collision_cells, s.max_occupancy);
   std::printf("pairs: %zu tested, %zu within the cutoff (%.1f%%)\n", s.candidate_pairs,
@@ -113,8 +101,8 @@ int evaluate(const EvaluateArgs& args) {
   nlohmann::json out = {{"n", sys.n},
                         {"cutoff", ff.cutoff},
                         {"cutoff_mode", to_string(ff.mode)},
-                        {"precision", to_string(args.precision)},
-                        {"accumulation", to_string(args.accumulation)},
+                        {"precision", to_string(args.engine.precision)},
+                        {"accumulation", to_string(args.engine.accumulation)},
                         {"backend", backend},
                         {"engine", engine_name},
                         {"energy_per_particle", result.energy / double(sys.n)},
@@ -158,6 +146,22 @@ int evaluate(const EvaluateArgs& args) {
   return 0;
 }
 
+// The options that choose and configure the engine, shared by every command that evaluates.
+void add_backend_options(CLI::App* cmd, BackendChoice& b) {
+  cmd->add_option("--backend", b.backend, "cpu, cuda, or auto (the GPU when one can be used)")
+      ->check(CLI::IsMember({"cpu", "cuda", "auto"}))->capture_default_str();
+  cmd->add_option("--precision", b.precision, "single, mixed or double (default double)")
+      ->transform(CLI::CheckedTransformer(cli::kPrecisions, CLI::ignore_case));
+  cmd->add_option("--accumulation", b.accumulation, "jacobi or gauss-seidel")
+      ->transform(CLI::CheckedTransformer(cli::kAccumulations, CLI::ignore_case));
+  cmd->add_option("--cell-rule", b.rule, "tight (c >= rc + h) or chapter (c >= 3h)")
+      ->transform(CLI::CheckedTransformer(cli::kCellRules, CLI::ignore_case));
+  cmd->add_option("--traversal", b.traversal, "CUDA traversal: warp (a warp per cell) or thread (a thread per cell)")
+      ->check(CLI::IsMember({"warp", "thread"}));
+  cmd->add_option("--sort", b.sort, "CUDA sort: cub or chapter (the chapter's radix sort)")
+      ->check(CLI::IsMember({"cub", "chapter"}));
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -179,18 +183,7 @@ int main(int argc, char** argv) {
   evaluate_cmd->add_option("--cutoff", ev.cutoff, "Cutoff radius rc")->check(CLI::PositiveNumber);
   evaluate_cmd->add_option("--cutoff-mode", ev.mode, "truncate, shift or force-shift")
       ->transform(CLI::CheckedTransformer(cli::kCutoffModes, CLI::ignore_case));
-  evaluate_cmd->add_option("--precision", ev.precision, "single, mixed or double")
-      ->transform(CLI::CheckedTransformer(cli::kPrecisions, CLI::ignore_case));
-  evaluate_cmd->add_option("--accumulation", ev.accumulation, "jacobi or gauss-seidel")
-      ->transform(CLI::CheckedTransformer(cli::kAccumulations, CLI::ignore_case));
-  evaluate_cmd->add_option("--cell-rule", ev.rule, "tight (c >= rc + h) or chapter (c >= 3h)")
-      ->transform(CLI::CheckedTransformer(cli::kCellRules, CLI::ignore_case));
-  evaluate_cmd->add_option("--backend", ev.backend, "cpu, cuda, or auto (the GPU when one can be used)")
-      ->check(CLI::IsMember({"cpu", "cuda", "auto"}));
-  evaluate_cmd->add_option("--traversal", ev.traversal, "CUDA traversal: warp (a warp per cell) or thread (a thread per cell)")
-      ->check(CLI::IsMember({"warp", "thread"}));
-  evaluate_cmd->add_option("--sort", ev.sort, "CUDA sort: cub or chapter (the chapter's radix sort)")
-      ->check(CLI::IsMember({"cub", "chapter"}));
+  add_backend_options(evaluate_cmd, ev.engine);
   evaluate_cmd->add_option("--repeats", ev.repeats, "Evaluations to time")->check(CLI::PositiveNumber);
   evaluate_cmd->add_flag("--brute-force", ev.brute, "Also run the O(n^2) double brute force and compare");
   evaluate_cmd->add_option("--json", ev.json, "Write a JSON summary here");
@@ -212,18 +205,7 @@ int main(int argc, char** argv) {
   forces_cmd->add_option("--pair", fa.pairs, "A:B:SIGMA:EPSILON, an explicit pair value (repeat)");
   forces_cmd->add_option("--mixing", fa.mixing, "lorentz-berthelot or geometric")
       ->transform(CLI::CheckedTransformer(cli::kMixings, CLI::ignore_case));
-  forces_cmd->add_option("--backend", fa.backend.backend, "cpu, cuda, or auto (the GPU when one can be used)")
-      ->check(CLI::IsMember({"cpu", "cuda", "auto"}))->capture_default_str();
-  forces_cmd->add_option("--precision", fa.backend.precision, "single, mixed or double (default double)")
-      ->transform(CLI::CheckedTransformer(cli::kPrecisions, CLI::ignore_case));
-  forces_cmd->add_option("--accumulation", fa.backend.accumulation, "jacobi or gauss-seidel")
-      ->transform(CLI::CheckedTransformer(cli::kAccumulations, CLI::ignore_case));
-  forces_cmd->add_option("--cell-rule", fa.backend.rule, "tight (c >= rc + h) or chapter (c >= 3h)")
-      ->transform(CLI::CheckedTransformer(cli::kCellRules, CLI::ignore_case));
-  forces_cmd->add_option("--traversal", fa.backend.traversal, "CUDA traversal: warp or thread")
-      ->check(CLI::IsMember({"warp", "thread"}));
-  forces_cmd->add_option("--sort", fa.backend.sort, "CUDA sort: cub or chapter")
-      ->check(CLI::IsMember({"cub", "chapter"}));
+  add_backend_options(forces_cmd, fa.backend);
   forces_cmd->add_option("--dim", fa.read.dim, "2 or 3 (XYZ: default 3, a 2D file has z = 0; H5MD: from the file)")
       ->check(CLI::IsMember({2, 3}));
   forces_cmd->add_option("--frame", fa.read.frame, "Frame to read, 0-based; negative counts from the end (-1: the last)")
