@@ -146,16 +146,34 @@ int evaluate(const EvaluateArgs& args) {
   return 0;
 }
 
+// A name from `names` (case-insensitive), shown in --help as {a,b,c}; the option receives the
+// named enum value (CLI11 reads an enum from its integer).
+template <class T>
+CLI::Validator one_of(const std::map<std::string, T>& names) {
+  std::string keys;
+  for (const auto& entry : names) keys += (keys.empty() ? "" : ", ") + entry.first;
+  return CLI::Validator(
+      [names, keys](std::string& value) -> std::string {
+        for (const auto& [name, v] : names)
+          if (cli::lowercase(value) == name) {
+            value = std::to_string(static_cast<int>(v));
+            return {};
+          }
+        return "'" + value + "' is not one of " + keys;
+      },
+      "{" + keys + "}");
+}
+
 // The options that choose and configure the engine, shared by every command that evaluates.
 void add_backend_options(CLI::App* cmd, BackendChoice& b) {
   cmd->add_option("--backend", b.backend, "cpu, cuda, or auto (the GPU when one can be used)")
       ->check(CLI::IsMember({"cpu", "cuda", "auto"}))->capture_default_str();
   cmd->add_option("--precision", b.precision, "single, mixed or double (default double)")
-      ->transform(CLI::CheckedTransformer(cli::kPrecisions, CLI::ignore_case));
+      ->transform(one_of(cli::kPrecisions));
   cmd->add_option("--accumulation", b.accumulation, "jacobi or gauss-seidel")
-      ->transform(CLI::CheckedTransformer(cli::kAccumulations, CLI::ignore_case));
+      ->transform(one_of(cli::kAccumulations));
   cmd->add_option("--cell-rule", b.rule, "tight (c >= rc + h) or chapter (c >= 3h)")
-      ->transform(CLI::CheckedTransformer(cli::kCellRules, CLI::ignore_case));
+      ->transform(one_of(cli::kCellRules));
   cmd->add_option("--traversal", b.traversal, "CUDA traversal: warp (a warp per cell) or thread (a thread per cell)")
       ->check(CLI::IsMember({"warp", "thread"}));
   cmd->add_option("--sort", b.sort, "CUDA sort: cub or chapter (the chapter's radix sort)")
@@ -174,7 +192,7 @@ int main(int argc, char** argv) {
       "evaluate", "Evaluate forces, energy and virial of a lattice scene with the CPU or CUDA pipeline "
                   "(default: the LAMMPS in.lj fluid, fcc at density 0.8442, 32,000 particles, rc 2.5)");
   evaluate_cmd->add_option("--lattice", ev.lattice, "Lattice")
-      ->transform(CLI::CheckedTransformer(cli::kLattices, CLI::ignore_case));
+      ->transform(one_of(cli::kLattices));
   evaluate_cmd->add_option("--cells", ev.cells, "Unit cells per axis")->check(CLI::PositiveNumber);
   evaluate_cmd->add_option("--density", ev.density, "Number density")->check(CLI::PositiveNumber);
   evaluate_cmd->add_option("--jitter", ev.jitter, "Uniform random displacement amplitude per axis")
@@ -182,7 +200,7 @@ int main(int argc, char** argv) {
   evaluate_cmd->add_option("--seed", ev.seed, "Seed of the jitter");
   evaluate_cmd->add_option("--cutoff", ev.cutoff, "Cutoff radius rc")->check(CLI::PositiveNumber);
   evaluate_cmd->add_option("--cutoff-mode", ev.mode, "truncate, shift or force-shift")
-      ->transform(CLI::CheckedTransformer(cli::kCutoffModes, CLI::ignore_case));
+      ->transform(one_of(cli::kCutoffModes));
   add_backend_options(evaluate_cmd, ev.engine);
   evaluate_cmd->add_option("--repeats", ev.repeats, "Evaluations to time")->check(CLI::PositiveNumber);
   evaluate_cmd->add_flag("--brute-force", ev.brute, "Also run the O(n^2) double brute force and compare");
@@ -198,13 +216,13 @@ int main(int argc, char** argv) {
   forces_cmd->add_option("--out,-o", fa.out, "HDF5 file to write")->required();
   forces_cmd->add_option("--cutoff", fa.cutoff, "Cutoff radius rc")->capture_default_str();
   forces_cmd->add_option("--cutoff-mode", fa.mode, "truncate, shift or force-shift")
-      ->transform(CLI::CheckedTransformer(cli::kCutoffModes, CLI::ignore_case));
+      ->transform(one_of(cli::kCutoffModes));
   forces_cmd->add_option("--type", fa.types,
                          "NAME:SIGMA:EPSILON for each species (repeat); without it a file of one "
                          "species gets sigma = epsilon = 1");
   forces_cmd->add_option("--pair", fa.pairs, "A:B:SIGMA:EPSILON, an explicit pair value (repeat)");
   forces_cmd->add_option("--mixing", fa.mixing, "lorentz-berthelot or geometric")
-      ->transform(CLI::CheckedTransformer(cli::kMixings, CLI::ignore_case));
+      ->transform(one_of(cli::kMixings));
   add_backend_options(forces_cmd, fa.backend);
   forces_cmd->add_option("--dim", fa.read.dim, "2 or 3 (XYZ: default 3, a 2D file has z = 0; H5MD: from the file)")
       ->check(CLI::IsMember({2, 3}));

@@ -2,6 +2,7 @@
 #pragma once
 
 #include <algorithm>
+#include <cctype>
 #include <map>
 #include <string>
 #include <vector>
@@ -28,6 +29,11 @@ inline const std::map<std::string, Lattice> kLattices = {{"sc", Lattice::kSimple
                                                          {"bcc", Lattice::kBcc},
                                                          {"fcc", Lattice::kFcc},
                                                          {"square", Lattice::kSquare}};
+
+inline std::string lowercase(std::string s) {
+  std::transform(s.begin(), s.end(), s.begin(), [](unsigned char c) { return char(std::tolower(c)); });
+  return s;
+}
 
 // Median of a sample (the middle two averaged for an even count); v must not be empty.
 inline double median(std::vector<double> v) {
