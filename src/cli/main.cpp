@@ -15,6 +15,7 @@
 #include "cli/backend.h"
 #include "cli/forces.h"
 #include "cli/options.h"
+#include "cli/run.h"
 #include "core/error.h"
 #include "reference/brute_force.h"
 #include "scene/lattice.h"
@@ -233,8 +234,23 @@ int main(int argc, char** argv) {
       ->check(CLI::PositiveNumber)->capture_default_str();
   forces_cmd->add_flag("--quiet,-q", fa.quiet, "No summary on stdout");
 
+  RunArgs ra;
+  CLI::App* run_cmd = app.add_subcommand(
+      "run", "Molecular dynamics of a scene file (systems/*.toml); without one, the built-in LAMMPS in.lj "
+             "fluid (fcc at density 0.8442, 32,000 particles, rc 2.5, T 1.44, dt 0.005, NVE), on the GPU "
+             "when one can be used");
+  run_cmd->add_option("scene", ra.scene, "Scene file (TOML)")->check(CLI::ExistingFile);
+  run_cmd->add_option("--steps", ra.steps, "Override the scene's number of steps")->check(CLI::NonNegativeNumber);
+  run_cmd->add_option("--backend", ra.backend, "Override the scene's backend: cpu, cuda or auto")
+      ->check(CLI::IsMember({"cpu", "cuda", "auto"}));
+  run_cmd->add_option("--precision", ra.precision, "Override the scene's precision: single, mixed or double")
+      ->check(CLI::IsMember({"single", "mixed", "double"}));
+  run_cmd->add_option("--thermo-file", ra.thermo_file, "Write the thermodynamics to this CSV file");
+  run_cmd->add_flag("--quiet,-q", ra.quiet, "Only the setup and the performance summary on the screen");
+
   CLI11_PARSE(app, argc, argv);
   try {
+    if (run_cmd->parsed()) return run_md(ra);
     if (forces_cmd->parsed()) return run_forces(fa);
     if (evaluate_cmd->parsed()) return evaluate(ev);
   } catch (const std::exception& e) {

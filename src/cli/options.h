@@ -28,7 +28,8 @@ inline const std::map<std::string, CellRule> kCellRules = {{"tight", CellRule::k
 inline const std::map<std::string, Lattice> kLattices = {{"sc", Lattice::kSimpleCubic},
                                                          {"bcc", Lattice::kBcc},
                                                          {"fcc", Lattice::kFcc},
-                                                         {"square", Lattice::kSquare}};
+                                                         {"square", Lattice::kSquare},
+                                                         {"hexagonal", Lattice::kHexagonal}};
 
 inline std::string lowercase(std::string s) {
   std::transform(s.begin(), s.end(), s.begin(), [](unsigned char c) { return char(std::tolower(c)); });

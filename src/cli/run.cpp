@@ -1,0 +1,229 @@
+#include "cli/run.h"
+
+#include <unistd.h>
+
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <fstream>
+#include <memory>
+
+#include "cli/backend.h"
+#include "core/error.h"
+#include "md/md.h"
+#include "scene/scene.h"
+
+namespace cellforce {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+double seconds_since(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
+
+std::string duration_text(double s) {
+  char buf[64];
+  if (!std::isfinite(s) || s < 0) return "?";
+  if (s < 60) std::snprintf(buf, sizeof buf, "%.0f s", s);
+  else if (s < 3600) std::snprintf(buf, sizeof buf, "%d min %02d s", int(s / 60), int(s) % 60);
+  else std::snprintf(buf, sizeof buf, "%d h %02d min", int(s / 3600), int(s / 60) % 60);
+  return buf;
+}
+
+// A progress bar on a terminal (redrawn in place, at most 5 times a second), plain lines every
+// 10% otherwise. Thermo lines go through print() so that they appear above the bar.
+class Progress {
+ public:
+  Progress(int64_t first, int64_t last, bool enabled)
+      : first_(first), last_(last), enabled_(enabled), tty_(::isatty(STDOUT_FILENO) != 0), start_(Clock::now()) {}
+  void print(const std::string& line) {
+    if (tty_ && drawn_) std::printf("\r\033[K");
+    std::printf("%s\n", line.c_str());
+    drawn_ = false;
+    if (enabled_ && tty_) draw(current_);
+    std::fflush(stdout);
+  }
+  void update(int64_t step) {
+    current_ = step;
+    if (!enabled_ || last_ <= first_) return;
+    const double t = seconds_since(start_);
+    if (tty_) {
+      if (t - last_draw_ >= 0.2 || step == last_) draw(step), last_draw_ = t;
+    } else {
+      const int64_t decile = (step - first_) * 10 / (last_ - first_);
+      if (decile > last_decile_) {
+        last_decile_ = decile;
+        std::printf("progress: %s\n", status(step).c_str());
+        std::fflush(stdout);
+      }
+    }
+  }
+  void finish() {
+    if (tty_ && drawn_) std::printf("\n");
+    std::fflush(stdout);
+  }
+
+ private:
+  std::string status(int64_t step) const {
+    const double t = seconds_since(start_);
+    const double done = double(step - first_), total = double(last_ - first_);
+    const double rate = t > 0 ? done / t : 0;
+    char buf[160];
+    std::snprintf(buf, sizeof buf, "%3.0f%%  step %lld of %lld  %.1f steps/s  %s left", 100.0 * done / total,
+                  (long long)step, (long long)last_, rate, duration_text(rate > 0 ? (total - done) / rate : NAN).c_str());
+    return buf;
+  }
+  void draw(int64_t step) {
+    const int width = 30;
+    const int filled = int(double(step - first_) / double(last_ - first_) * width);
+    std::string bar(std::size_t(width), ' ');
+    for (int k = 0; k < filled; ++k) bar[std::size_t(k)] = '#';
+    std::printf("\r\033[K[%s] %s", bar.c_str(), status(step).c_str());
+    std::fflush(stdout);
+    drawn_ = true;
+  }
+  int64_t first_, last_;
+  bool enabled_, tty_;
+  Clock::time_point start_;
+  double last_draw_ = -1;
+  int64_t last_decile_ = 0;
+  int64_t current_ = 0;
+  bool drawn_ = false;
+};
+
+struct StageTotals {
+  double cell_ids = 0, sort = 0, collision_cells = 0, traversal = 0, accumulate = 0, transfer = 0, total = 0;
+  void add(const PipelineStats& s) {
+    cell_ids += s.t_cell_ids + s.t_count;
+    sort += s.t_sort;
+    collision_cells += s.t_collision_cells;
+    traversal += s.t_traversal;
+    accumulate += s.t_accumulate;
+    transfer += s.t_transfer;
+    total += s.t_total;
+  }
+};
+
+}  // namespace
+
+int run_md(const RunArgs& args) {
+  const auto t_setup = Clock::now();
+  Scene scene = args.scene.empty() ? default_scene() : read_scene(args.scene);
+  if (args.steps >= 0) scene.steps = args.steps;
+  if (!args.backend.empty()) scene.backend.backend = args.backend;
+  if (!args.precision.empty()) {
+    if (args.precision == "single") scene.backend.precision = Precision::kSingle;
+    else if (args.precision == "mixed") scene.backend.precision = Precision::kMixed;
+    else if (args.precision == "double") scene.backend.precision = Precision::kDouble;
+    else throw Error("--precision '" + args.precision + "': expected single, mixed or double");
+  }
+  if (!args.thermo_file.empty()) scene.output.thermo_file = args.thermo_file;
+
+  MdState state;
+  state.config = build_configuration(scene);
+  const std::size_t n = state.config.size();
+  const int dim = scene.dim;
+  std::vector<double> masses(n);
+  for (std::size_t i = 0; i < n; ++i) masses[i] = scene.masses[state.config.types[i]];
+  const ForceField& ff = scene.force_field;
+  const SystemView view = state.config.view();  // positions are updated in place
+  validate_system(view, ff);
+
+  ForceBackend engine(scene.backend);
+  initialize_velocities(state, masses, scene.initial_temperature, scene.seed);
+  IntegratorSettings integrator;
+  integrator.langevin = scene.integrator.kind == IntegratorKind::kLangevin;
+  integrator.dt = scene.integrator.dt;
+  integrator.kT = scene.integrator.temperature;
+  integrator.friction = scene.integrator.friction;
+  integrator.seed = scene.seed;
+
+  std::unique_ptr<std::ofstream> csv;
+  if (!scene.output.thermo_file.empty()) {
+    csv = std::make_unique<std::ofstream>(scene.output.thermo_file);
+    if (!*csv) throw Error(scene.output.thermo_file + ": cannot write the thermo file");
+    *csv << "step,time,temperature,kinetic_energy,potential_energy,total_energy,pressure\n";
+  }
+
+  const bool screen = !args.quiet;
+  std::printf("cellforce run: %s\n", scene.source.c_str());
+  std::printf("  %zu particles, %dD, box", n, dim);
+  for (int a = 0; a < dim; ++a) std::printf(" %.6g", state.config.box.length[a]);
+  std::printf(" (%s), %zu type(s); cutoff %g (%s)\n",
+              state.config.box.any_periodic() ? "periodic where marked" : "open", ff.types.size(), ff.cutoff,
+              to_string(ff.mode));
+  std::printf("  %s, dt %g, %lld steps; %s, precision %s\n",
+              integrator.langevin ? "Langevin (BAOAB)" : "NVE (velocity Verlet)", integrator.dt,
+              (long long)scene.steps, engine.description().c_str(), to_string(scene.backend.precision));
+
+  ForceResult result;
+  StageTotals stages;
+  int64_t evaluations = 0;
+  double t_output = 0;
+  auto compute = [&](MdState& s, bool observables) {
+    engine.evaluate(view, ff, Request{observables, observables}, result);
+    stages.add(engine.stats(view, ff, false));
+    ++evaluations;
+    s.forces = result.forces;
+  };
+  Progress progress(state.step, state.step + scene.steps, screen);
+  auto report = [&](const MdState& s) {
+    const auto t0 = Clock::now();
+    const Thermo th = thermo(s, masses, result);
+    const double inv_n = n ? 1.0 / double(n) : 0.0;
+    if (screen) {
+      char line[256];
+      std::snprintf(line, sizeof line, "%10lld %10.4f %10.5f %12.6f %12.6f %12.6f %11.5f", (long long)s.step, s.time,
+                    th.temperature, th.kinetic * inv_n, th.potential * inv_n, th.total * inv_n, th.pressure);
+      progress.print(line);
+    }
+    if (csv) {
+      char line[320];
+      std::snprintf(line, sizeof line, "%lld,%.10g,%.12g,%.17g,%.17g,%.17g,%.12g\n", (long long)s.step, s.time,
+                    th.temperature, th.kinetic, th.potential, th.total, th.pressure);
+      *csv << line << std::flush;
+    }
+    t_output += seconds_since(t0);
+  };
+
+  compute(state, true);
+  const double setup_seconds = seconds_since(t_setup);
+  if (screen)
+    progress.print("      step       time       temp      ke/atom      pe/atom    etot/atom       press");
+  report(state);
+
+  const auto t_loop = Clock::now();
+  double t_forces_wall = 0;
+  const int64_t last = state.step + scene.steps;
+  while (state.step < last) {
+    const int64_t next = state.step + 1;
+    const bool observe = next % scene.output.thermo_every == 0 || next == last;
+    advance(state, masses, integrator, [&](MdState& s) {
+      const auto t0 = Clock::now();
+      compute(s, observe);
+      t_forces_wall += seconds_since(t0);
+    });
+    if (observe) report(state);
+    progress.update(state.step);
+  }
+  progress.finish();
+  const double loop_seconds = seconds_since(t_loop);
+
+  const double steps = double(scene.steps);
+  std::printf("\nperformance: %lld steps of %zu particles in %.3f s (setup %.3f s)\n", (long long)scene.steps, n,
+              loop_seconds, setup_seconds);
+  if (scene.steps > 0) {
+    std::printf("  %.2f steps/s, %.4g particle-steps/s, %.4f ms per step\n", steps / loop_seconds,
+                steps * double(n) / loop_seconds, 1e3 * loop_seconds / steps);
+    const double per = 1e3 / double(evaluations);
+    std::printf("  per force evaluation (ms): cell IDs %.4f | sort %.4f | collision cells %.4f | traversal %.4f |"
+                " accumulate %.4f | host copies %.4f | engine total %.4f\n",
+                per * stages.cell_ids, per * stages.sort, per * stages.collision_cells, per * stages.traversal,
+                per * stages.accumulate, per * stages.transfer, per * stages.total);
+    std::printf("  per step (ms): forces %.4f | integration and the rest %.4f | thermo output %.4f\n",
+                1e3 * t_forces_wall / steps, 1e3 * (loop_seconds - t_forces_wall - t_output) / steps,
+                1e3 * t_output / steps);
+  }
+  return 0;
+}
+
+}  // namespace cellforce

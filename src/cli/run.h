@@ -1,0 +1,23 @@
+// `cellforce run [SCENE]`: molecular dynamics of a scene (systems/*.toml, or the built-in LAMMPS
+// in.lj fluid): thermodynamics on the screen and in CSV, a progress bar on a terminal (plain
+// lines otherwise), and a performance summary at the end.
+#pragma once
+
+#include <cstdint>
+#include <string>
+
+namespace cellforce {
+
+struct RunArgs {
+  std::string scene;          // empty: the built-in default scene
+  int64_t steps = -1;         // >= 0: overrides the scene's [run] steps
+  std::string backend;        // non-empty: overrides [run] backend
+  std::string precision;      // non-empty: overrides [run] precision
+  std::string thermo_file;    // non-empty: overrides [output] thermo_file
+  bool quiet = false;         // no thermo lines or progress on the screen (summary only)
+};
+
+// Returns the exit code (0) or throws cellforce::Error.
+int run_md(const RunArgs& args);
+
+}  // namespace cellforce

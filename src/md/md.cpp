@@ -1,0 +1,139 @@
+#include "md/md.h"
+
+#include <cmath>
+#include <limits>
+
+#include "core/box.h"
+
+namespace cellforce {
+namespace {
+
+uint64_t splitmix64(uint64_t x) {
+  x += 0x9E3779B97F4A7C15ull;
+  x = (x ^ (x >> 30)) * 0xBF58476D1CE4E5B9ull;
+  x = (x ^ (x >> 27)) * 0x94D049BB133111EBull;
+  return x ^ (x >> 31);
+}
+
+double unit_open(uint64_t bits) {  // (0, 1), 53 random bits
+  return (double(bits >> 11) + 0.5) * 0x1.0p-53;
+}
+
+void wrap(MdState& s) {
+  const Box& box = s.config.box;
+  const int dim = box.dim;
+  for (int a = 0; a < dim; ++a) {
+    if (!box.periodic[a]) continue;
+    const double length = box.length[a], inv = 1.0 / length;
+    for (std::size_t i = 0; i < s.config.size(); ++i) {
+      double& x = s.config.positions[i * dim + a];
+      x = wrap_coordinate(x, length, inv);
+    }
+  }
+}
+
+}  // namespace
+
+double counter_normal(uint64_t seed, uint64_t stream, uint64_t index) {
+  const uint64_t key = splitmix64(splitmix64(seed ^ 0xC0FFEEull) ^ splitmix64(stream * 0x632BE59BD9B4E019ull));
+  const uint64_t a = splitmix64(key ^ (2 * index));
+  const uint64_t b = splitmix64(key ^ (2 * index + 1));
+  return std::sqrt(-2.0 * std::log(unit_open(a))) * std::cos(2.0 * M_PI * unit_open(b));
+}
+
+double degrees_of_freedom(std::size_t n, int dim) {
+  return std::max(1.0, double(dim) * (double(n) - 1.0));
+}
+
+void remove_com_momentum(MdState& s, const std::vector<double>& masses) {
+  const int dim = s.config.box.dim;
+  const std::size_t n = s.config.size();
+  if (n == 0) return;
+  double p[3] = {0, 0, 0}, mtotal = 0;
+  for (std::size_t i = 0; i < n; ++i) {
+    mtotal += masses[i];
+    for (int a = 0; a < dim; ++a) p[a] += masses[i] * s.velocities[i * dim + a];
+  }
+  for (std::size_t i = 0; i < n; ++i)
+    for (int a = 0; a < dim; ++a) s.velocities[i * dim + a] -= p[a] / mtotal;
+}
+
+double kinetic_energy(const MdState& s, const std::vector<double>& masses) {
+  const int dim = s.config.box.dim;
+  double ke = 0;
+  for (std::size_t i = 0; i < s.config.size(); ++i) {
+    double v2 = 0;
+    for (int a = 0; a < dim; ++a) v2 += s.velocities[i * dim + a] * s.velocities[i * dim + a];
+    ke += 0.5 * masses[i] * v2;
+  }
+  return ke;
+}
+
+void initialize_velocities(MdState& s, const std::vector<double>& masses, double kT, uint64_t seed) {
+  const int dim = s.config.box.dim;
+  const std::size_t n = s.config.size();
+  s.velocities.assign(n * std::size_t(dim), 0.0);
+  for (std::size_t i = 0; i < n; ++i)
+    for (int a = 0; a < dim; ++a)
+      s.velocities[i * dim + a] = std::sqrt(kT / masses[i]) * counter_normal(seed, /*stream=*/0, i * dim + a);
+  remove_com_momentum(s, masses);
+  const double ke = kinetic_energy(s, masses);
+  const double target = 0.5 * degrees_of_freedom(n, dim) * kT;
+  const double scale = ke > 0 ? std::sqrt(target / ke) : 0.0;
+  for (double& v : s.velocities) v *= scale;
+}
+
+Thermo thermo(const MdState& s, const std::vector<double>& masses, const ForceResult& result) {
+  const int dim = s.config.box.dim;
+  Thermo t;
+  t.kinetic = kinetic_energy(s, masses);
+  t.potential = result.energy;
+  t.total = t.kinetic + t.potential;
+  t.temperature = 2.0 * t.kinetic / degrees_of_freedom(s.config.size(), dim);
+  double trace = 0;
+  for (int a = 0; a < dim; ++a) trace += result.virial[a][a];
+  bool closed = true;
+  for (int a = 0; a < dim; ++a) closed = closed && s.config.box.periodic[a];
+  t.pressure = closed ? (2.0 * t.kinetic + trace) / (dim * s.config.box.volume())
+                      : std::numeric_limits<double>::quiet_NaN();
+  return t;
+}
+
+void advance(MdState& s, const std::vector<double>& masses, const IntegratorSettings& settings,
+             const std::function<void(MdState&)>& compute_forces) {
+  const int dim = s.config.box.dim;
+  const std::size_t n = s.config.size();
+  const double dt = settings.dt;
+  auto kick = [&](double h) {
+    for (std::size_t i = 0; i < n; ++i) {
+      const double hm = h / masses[i];
+      for (int a = 0; a < dim; ++a) s.velocities[i * dim + a] += hm * s.forces[i * dim + a];
+    }
+  };
+  auto drift = [&](double h) {
+    for (std::size_t k = 0; k < n * std::size_t(dim); ++k) s.config.positions[k] += h * s.velocities[k];
+  };
+  kick(0.5 * dt);
+  if (settings.langevin) {
+    drift(0.5 * dt);
+    const double c1 = std::exp(-settings.friction * dt);
+    const double c2 = std::sqrt(1.0 - c1 * c1);
+    // stream = step number + 1 (stream 0 draws the initial velocities)
+    const uint64_t stream = uint64_t(s.step) + 1;
+    for (std::size_t i = 0; i < n; ++i) {
+      const double sigma = c2 * std::sqrt(settings.kT / masses[i]);
+      for (int a = 0; a < dim; ++a)
+        s.velocities[i * dim + a] = c1 * s.velocities[i * dim + a] + sigma * counter_normal(settings.seed, stream, i * dim + a);
+    }
+    drift(0.5 * dt);
+  } else {
+    drift(dt);
+  }
+  wrap(s);
+  s.step += 1;
+  s.time = double(s.step) * dt;  // not summed: the same after a restart
+  compute_forces(s);
+  kick(0.5 * dt);
+}
+
+}  // namespace cellforce

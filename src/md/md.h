@@ -1,0 +1,64 @@
+// Molecular dynamics on top of a force backend: the state, initial velocities, the integrators
+// (velocity Verlet for NVE; Langevin BAOAB for NVT) and the thermodynamic observables.
+//
+// Random numbers (initial velocities, Langevin noise) are counter-based: each value is a hash of
+// (seed, step, particle, axis), so a run is reproducible for a seed whatever the thread count,
+// and a restart from step s draws exactly what the uninterrupted run drew after s.
+#pragma once
+
+#include <cstdint>
+#include <functional>
+#include <vector>
+
+#include "core/system.h"
+#include "scene/lattice.h"
+
+namespace cellforce {
+
+struct MdState {
+  Configuration config;             // box, positions (n x dim, wrapped on periodic axes), types
+  std::vector<double> velocities;   // n x dim
+  std::vector<double> forces;       // n x dim, at the current positions
+  int64_t step = 0;
+  double time = 0.0;
+};
+
+// A standard normal value for (seed, stream, index): the same on every machine and thread count.
+double counter_normal(uint64_t seed, uint64_t stream, uint64_t index);
+
+// Degrees of freedom with the centre-of-mass momentum removed: dim (n - 1), at least 1.
+double degrees_of_freedom(std::size_t n, int dim);
+
+// Maxwell-Boltzmann velocities at temperature kT (energy units), centre-of-mass momentum removed,
+// then scaled so that the kinetic temperature is exactly kT. masses: per particle.
+void initialize_velocities(MdState& state, const std::vector<double>& masses, double kT, uint64_t seed);
+
+// Removes the centre-of-mass momentum (mass-weighted).
+void remove_com_momentum(MdState& state, const std::vector<double>& masses);
+
+double kinetic_energy(const MdState& state, const std::vector<double>& masses);
+
+struct Thermo {
+  double kinetic = 0, potential = 0, total = 0;
+  double temperature = 0;  // 2 KE / degrees of freedom
+  double pressure = 0;     // (2 KE + trace W) / (dim V); NaN when an axis is open (no volume)
+};
+Thermo thermo(const MdState& state, const std::vector<double>& masses, const ForceResult& result);
+
+struct IntegratorSettings {
+  bool langevin = false;
+  double dt = 0.005;
+  double kT = 1.0;        // Langevin target temperature
+  double friction = 1.0;  // Langevin gamma
+  uint64_t seed = 1;
+};
+
+// One time step. `compute_forces(state)` must set state.forces at state's positions.
+//   NVE, velocity Verlet:  v += dt/2 F/m; x += dt v; F(x); v += dt/2 F/m
+//   Langevin, BAOAB (Leimkuhler & Matthews): v += dt/2 F/m; x += dt/2 v;
+//     v = c1 v + sqrt((1 - c1^2) kT/m) xi, c1 = exp(-gamma dt); x += dt/2 v; F(x); v += dt/2 F/m
+// Positions are wrapped into the box on periodic axes after the drift.
+void advance(MdState& state, const std::vector<double>& masses, const IntegratorSettings& settings,
+             const std::function<void(MdState&)>& compute_forces);
+
+}  // namespace cellforce

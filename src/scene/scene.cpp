@@ -1,0 +1,485 @@
+#include "scene/scene.h"
+
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <optional>
+#include <random>
+#include <set>
+#include <sstream>
+#include <toml++/toml.h>
+
+#include "core/error.h"
+#include "io/configuration_file.h"
+
+namespace cellforce {
+namespace {
+
+// Reads one table's keys, checks their types, and at the end refuses the keys nobody read.
+class Section {
+ public:
+  Section(const toml::table* table, std::string name, std::string file, int64_t line)
+      : table_(table), name_(std::move(name)), file_(std::move(file)), line_(line) {}
+
+  bool present() const { return table_ != nullptr; }
+
+  // file:line of a key (or of the table when the key is absent).
+  std::string where(const std::string& key) const {
+    int64_t line = line_;
+    if (table_)
+      if (const toml::node* n = table_->get(key)) line = int64_t(n->source().begin.line);
+    return file_ + ":" + std::to_string(line) + ": " + (name_.empty() ? "" : "[" + name_ + "] ") + key;
+  }
+  [[noreturn]] void fail(const std::string& key, const std::string& what) const {
+    throw Error(where(key) + ": " + what);
+  }
+
+  const toml::node* node(const std::string& key) {
+    if (!table_) return nullptr;
+    used_.insert(key);
+    return table_->get(key);
+  }
+
+  double number(const std::string& key, double fallback) {
+    const toml::node* n = node(key);
+    if (!n) return fallback;
+    if (auto v = n->value<double>(); v && (n->is_integer() || n->is_floating_point())) return *v;
+    fail(key, "expected a number");
+  }
+  double positive(const std::string& key, double fallback) {
+    const double v = number(key, fallback);
+    if (!(v > 0) || !std::isfinite(v)) fail(key, "must be a finite number > 0, got " + std::to_string(v));
+    return v;
+  }
+  double non_negative(const std::string& key, double fallback) {
+    const double v = number(key, fallback);
+    if (!(v >= 0) || !std::isfinite(v)) fail(key, "must be a finite number >= 0, got " + std::to_string(v));
+    return v;
+  }
+  int64_t integer(const std::string& key, int64_t fallback, int64_t min) {
+    const toml::node* n = node(key);
+    if (!n) return fallback;
+    if (!n->is_integer()) fail(key, "expected an integer");
+    const int64_t v = *n->value<int64_t>();
+    if (v < min) fail(key, "must be at least " + std::to_string(min) + ", got " + std::to_string(v));
+    return v;
+  }
+  bool boolean(const std::string& key, bool fallback) {
+    const toml::node* n = node(key);
+    if (!n) return fallback;
+    if (!n->is_boolean()) fail(key, "expected true or false");
+    return *n->value<bool>();
+  }
+  std::string string(const std::string& key, const std::string& fallback) {
+    const toml::node* n = node(key);
+    if (!n) return fallback;
+    if (!n->is_string()) fail(key, "expected a string");
+    return *n->value<std::string>();
+  }
+  template <class T>
+  T choice(const std::string& key, T fallback, const std::map<std::string, T>& names) {
+    const toml::node* n = node(key);
+    if (!n) return fallback;
+    const std::string s = string(key, "");
+    const auto it = names.find(s);
+    if (it == names.end()) {
+      std::string list;
+      for (const auto& [k, v] : names) list += (list.empty() ? "" : ", ") + k;
+      fail(key, "'" + s + "' is not one of " + list);
+    }
+    return it->second;
+  }
+  // An array of `count` numbers (count = the dimension; a 3D array is accepted in 2D when its
+  // third entry is 0 or absent).
+  template <class T>
+  std::optional<std::array<T, 3>> vector(const std::string& key, int dim) {
+    const toml::node* n = node(key);
+    if (!n) return std::nullopt;
+    const toml::array* a = n->as_array();
+    if (!a || (a->size() != std::size_t(dim) && !(dim == 2 && a->size() == 3)))
+      fail(key, "expected an array of " + std::to_string(dim) + " values");
+    std::array<T, 3> out{};
+    for (std::size_t k = 0; k < a->size(); ++k) {
+      const toml::node& e = *a->get(k);
+      if constexpr (std::is_same_v<T, bool>) {
+        if (!e.is_boolean()) fail(key, "expected true or false in every entry");
+        out[k] = *e.value<bool>();
+      } else if constexpr (std::is_integral_v<T>) {
+        if (!e.is_integer()) fail(key, "expected integers");
+        out[k] = T(*e.value<int64_t>());
+      } else {
+        if (!(e.is_integer() || e.is_floating_point())) fail(key, "expected numbers");
+        out[k] = T(*e.value<double>());
+      }
+    }
+    if (dim == 2 && a->size() == 3 && out[2] != T{}) fail(key, "a 2D scene has no third component");
+    return out;
+  }
+  const toml::table* table(const std::string& key) {
+    const toml::node* n = node(key);
+    if (!n) return nullptr;
+    if (!n->is_table()) fail(key, "expected a table");
+    return n->as_table();
+  }
+  const toml::array* array(const std::string& key) {
+    const toml::node* n = node(key);
+    if (!n) return nullptr;
+    if (!n->is_array()) fail(key, "expected an array");
+    return n->as_array();
+  }
+
+  // Every key of the table must have been read.
+  void finish() const {
+    if (!table_) return;
+    for (const auto& [key, value] : *table_)
+      if (!used_.count(std::string(key.str())))
+        throw Error(file_ + ":" + std::to_string(value.source().begin.line) + ": unknown key '" +
+                    (name_.empty() ? "" : name_ + ".") + std::string(key.str()) + "'");
+  }
+
+ private:
+  const toml::table* table_;
+  std::string name_, file_;
+  int64_t line_;
+  std::set<std::string> used_;
+};
+
+const std::map<std::string, Lattice> kLatticeNames = {{"sc", Lattice::kSimpleCubic}, {"bcc", Lattice::kBcc},
+                                                      {"fcc", Lattice::kFcc},         {"square", Lattice::kSquare},
+                                                      {"hexagonal", Lattice::kHexagonal}};
+const std::map<std::string, ParticleSource> kSources = {
+    {"lattice", ParticleSource::kLattice}, {"random", ParticleSource::kRandom}, {"file", ParticleSource::kFile}};
+const std::map<std::string, CutoffMode> kModes = {
+    {"truncate", CutoffMode::kTruncate}, {"shift", CutoffMode::kShift}, {"force-shift", CutoffMode::kForceShift}};
+const std::map<std::string, Mixing> kMixings = {{"lorentz-berthelot", Mixing::kLorentzBerthelot},
+                                                {"geometric", Mixing::kGeometric}};
+const std::map<std::string, IntegratorKind> kIntegrators = {{"nve", IntegratorKind::kNve},
+                                                            {"langevin", IntegratorKind::kLangevin}};
+const std::map<std::string, Precision> kPrecisionNames = {
+    {"single", Precision::kSingle}, {"mixed", Precision::kMixed}, {"double", Precision::kDouble}};
+const std::map<std::string, std::string> kBackends = {{"auto", "auto"}, {"cpu", "cpu"}, {"cuda", "cuda"}};
+
+// A section of the root table; absent sections read as empty (every key at its default).
+Section section(const toml::table& root, const std::string& name, const std::string& file) {
+  const toml::node* n = root.get(name);
+  if (n && !n->is_table())
+    throw Error(file + ":" + std::to_string(n->source().begin.line) + ": '" + name + "' must be a table ([" + name + "])");
+  return Section(n ? n->as_table() : nullptr, name, file, n ? int64_t(n->source().begin.line) : 1);
+}
+
+}  // namespace
+
+Scene default_scene() {
+  Scene s;
+  s.source = "built-in default (LAMMPS in.lj)";
+  s.particles.source = ParticleSource::kLattice;
+  s.particles.lattice = Lattice::kFcc;
+  s.particles.cells = {20, 20, 20};
+  s.particles.density = 0.8442;
+  s.masses = {1.0};
+  s.force_field.cutoff = 2.5;
+  s.force_field.mode = CutoffMode::kTruncate;
+  s.initial_temperature = 1.44;
+  s.seed = 87287;  // in.lj's velocity seed
+  s.integrator.kind = IntegratorKind::kNve;
+  s.integrator.dt = 0.005;
+  s.steps = 1000;
+  s.backend.backend = "auto";
+  s.backend.precision = Precision::kMixed;
+  s.output.thermo_every = 100;
+  return s;
+}
+
+Scene parse_scene(const std::string& text, const std::string& name, const std::string& folder) {
+  toml::table root;
+  try {
+    root = toml::parse(text, name);
+  } catch (const toml::parse_error& e) {
+    throw Error(name + ":" + std::to_string(e.source().begin.line) + ": " + std::string(e.description()));
+  }
+  Scene scene;
+  scene.source = name;
+  static const std::set<std::string> kSections = {"system", "particles", "types", "interactions",
+                                                  "initial", "integrator", "run", "output"};
+  for (const auto& [key, value] : root)
+    if (!kSections.count(std::string(key.str())))
+      throw Error(name + ":" + std::to_string(value.source().begin.line) + ": unknown section or key '" +
+                  std::string(key.str()) + "'");
+
+  Section sys = section(root, "system", name);
+  scene.dim = int(sys.integer("dimension", 3, 2));
+  if (scene.dim != 2 && scene.dim != 3) sys.fail("dimension", "must be 2 or 3");
+  if (auto p = sys.vector<bool>("periodic", scene.dim)) scene.periodic = *p;
+  if (scene.dim == 2) scene.periodic[2] = false;
+  sys.finish();
+
+  // Types first: composition and pairs refer to them by name.
+  const toml::node* types_node = root.get("types");
+  if (!types_node) throw Error(name + ":1: no [[types]]: a scene needs at least one particle type");
+  const toml::array* types = types_node->as_array();
+  if (!types || !types->is_array_of_tables())
+    throw Error(name + ":" + std::to_string(types_node->source().begin.line) + ": 'types' must be [[types]] tables");
+  ForceField& ff = scene.force_field;
+  ff.types.clear();
+  std::map<std::string, std::size_t> type_index;
+  for (std::size_t k = 0; k < types->size(); ++k) {
+    const toml::table* t = types->get(k)->as_table();
+    Section ts(t, "types", name, int64_t(t->source().begin.line));
+    const std::string type_name = ts.string("name", "");
+    if (type_name.empty()) ts.fail("name", "every [[types]] needs a name");
+    if (!type_index.emplace(type_name, ff.types.size()).second) ts.fail("name", "type '" + type_name + "' is defined twice");
+    ParticleType pt{type_name, ts.positive("sigma", 1.0), ts.non_negative("epsilon", 1.0)};
+    ff.types.push_back(pt);
+    scene.masses.push_back(ts.positive("mass", 1.0));
+    ts.finish();
+  }
+
+  Section in = section(root, "interactions", name);
+  ff.cutoff = in.positive("cutoff", 2.5);
+  ff.mode = in.choice("mode", CutoffMode::kTruncate, kModes);
+  ff.mixing = in.choice("mixing", Mixing::kLorentzBerthelot, kMixings);
+  if (const toml::array* pairs = in.array("pairs")) {
+    if (!pairs->is_array_of_tables()) in.fail("pairs", "expected [[interactions.pairs]] tables");
+    for (std::size_t k = 0; k < pairs->size(); ++k) {
+      const toml::table* t = pairs->get(k)->as_table();
+      Section ps(t, "interactions.pairs", name, int64_t(t->source().begin.line));
+      const toml::array* names = ps.array("types");
+      if (!names || names->size() != 2 || !names->is_homogeneous(toml::node_type::string))
+        ps.fail("types", "expected two type names, e.g. types = [\"A\", \"B\"]");
+      std::size_t ab[2];
+      for (std::size_t e = 0; e < 2; ++e) {
+        const std::string tn = *names->get(e)->value<std::string>();
+        const auto it = type_index.find(tn);
+        if (it == type_index.end()) ps.fail("types", "type '" + tn + "' is not defined in [[types]]");
+        ab[e] = it->second;
+      }
+      for (const PairOverride& o : ff.overrides)
+        if ((o.a == ab[0] && o.b == ab[1]) || (o.a == ab[1] && o.b == ab[0]))
+          ps.fail("types", "this pair is given twice");
+      if (!ps.node("sigma") || !ps.node("epsilon")) ps.fail("types", "a pair needs sigma and epsilon");
+      ff.overrides.push_back(PairOverride{ab[0], ab[1], ps.positive("sigma", 1.0), ps.non_negative("epsilon", 1.0)});
+      ps.finish();
+    }
+  }
+  in.finish();
+
+  Section pa = section(root, "particles", name);
+  SceneParticles& p = scene.particles;
+  p.source = pa.choice("source", ParticleSource::kLattice, kSources);
+  const int dim = scene.dim;
+  auto composition = [&] {
+    const toml::table* c = pa.table("composition");
+    if (!c) return;
+    double total = 0;
+    for (const auto& [key, value] : *c) {
+      const std::string tn(key.str());
+      if (!type_index.count(tn))
+        throw Error(name + ":" + std::to_string(value.source().begin.line) + ": [particles] composition: type '" +
+                    tn + "' is not defined in [[types]]");
+      const std::optional<double> f = value.value<double>();
+      if (!f || !(*f >= 0) || !std::isfinite(*f))
+        throw Error(name + ":" + std::to_string(value.source().begin.line) + ": [particles] composition." + tn +
+                    ": expected a fraction >= 0");
+      p.composition.emplace_back(tn, *f);
+      total += *f;
+    }
+    if (!(total > 0)) pa.fail("composition", "the fractions must add up to more than 0");
+    for (auto& entry : p.composition) entry.second /= total;
+  };
+  if (p.source == ParticleSource::kLattice) {
+    p.lattice = pa.choice("lattice", dim == 3 ? Lattice::kFcc : Lattice::kHexagonal, kLatticeNames);
+    const bool lattice_2d = p.lattice == Lattice::kSquare || p.lattice == Lattice::kHexagonal;
+    if (lattice_2d != (dim == 2))
+      pa.fail("lattice", std::string("a ") + (dim == 2 ? "2D" : "3D") + " scene needs a " +
+                             (dim == 2 ? "2D lattice (square, hexagonal)" : "3D lattice (sc, bcc, fcc)"));
+    if (auto c = pa.vector<int>("cells", dim)) p.cells = *c;
+    for (int a = 0; a < dim; ++a)
+      if (p.cells[std::size_t(a)] < 1) pa.fail("cells", "needs at least one unit cell per axis");
+    if (dim == 2) p.cells[2] = 1;
+    const bool has_density = pa.node("density") != nullptr, has_constant = pa.node("lattice_constant") != nullptr;
+    if (has_density && has_constant) pa.fail("lattice_constant", "give density or lattice_constant, not both");
+    p.density = pa.positive("density", 0.8442);
+    p.lattice_constant = pa.positive("lattice_constant", 1.0) * (has_constant ? 1.0 : 0.0);
+    if (auto b = pa.vector<double>("box", dim)) p.box = *b;
+    if (auto o = pa.vector<double>("offset", dim)) p.offset = *o;
+    p.sphere_radius = pa.non_negative("sphere_radius", 0.0);
+    composition();
+  } else if (p.source == ParticleSource::kRandom) {
+    p.count = std::size_t(pa.integer("count", 0, 1));
+    if (!pa.node("count")) pa.fail("count", "random placement needs count");
+    auto b = pa.vector<double>("box", dim);
+    if (!b) pa.fail("box", "random placement needs box = [Lx, Ly" + std::string(dim == 3 ? ", Lz]" : "]"));
+    p.box = *b;
+    p.min_distance = pa.non_negative("min_distance", 0.0);
+    composition();
+  } else {
+    const std::string file = pa.string("path", "");
+    if (file.empty()) pa.fail("path", "source = \"file\" needs path");
+    p.path = (std::filesystem::path(file).is_absolute() ? std::filesystem::path(file)
+                                                         : std::filesystem::path(folder) / file).string();
+    p.frame = long(pa.integer("frame", -1, std::numeric_limits<int64_t>::min()));
+  }
+  for (int a = 0; a < dim; ++a)
+    if (p.source != ParticleSource::kFile && p.box[std::size_t(a)] < 0) pa.fail("box", "lengths must be >= 0");
+  pa.finish();
+
+  Section init = section(root, "initial", name);
+  scene.initial_temperature = init.non_negative("temperature", 1.0);
+  scene.seed = uint64_t(init.integer("seed", 1, 0));
+  init.finish();
+
+  Section integ = section(root, "integrator", name);
+  scene.integrator.kind = integ.choice("kind", IntegratorKind::kNve, kIntegrators);
+  scene.integrator.dt = integ.positive("dt", 0.005);
+  if (scene.integrator.kind == IntegratorKind::kLangevin) {
+    if (!integ.node("temperature")) integ.fail("temperature", "a Langevin integrator needs its temperature");
+    scene.integrator.temperature = integ.non_negative("temperature", 1.0);
+    scene.integrator.friction = integ.positive("friction", 1.0);
+  }
+  integ.finish();
+
+  Section run = section(root, "run", name);
+  scene.steps = run.integer("steps", 1000, 0);
+  scene.backend.backend = run.choice("backend", std::string("auto"), kBackends);
+  scene.backend.precision = run.choice("precision", Precision::kMixed, kPrecisionNames);
+  run.finish();
+
+  Section out = section(root, "output", name);
+  scene.output.thermo_every = out.integer("thermo_every", 100, 1);
+  scene.output.thermo_file = out.string("thermo_file", "");
+  scene.output.trajectory = out.string("trajectory", "");
+  scene.output.trajectory_every = out.integer("trajectory_every", 1000, 1);
+  scene.output.velocities = out.boolean("velocities", false);
+  scene.output.forces = out.boolean("forces", false);
+  scene.output.checkpoint = out.string("checkpoint", "");
+  scene.output.checkpoint_every = out.integer("checkpoint_every", 0, 0);
+  out.finish();
+
+  try {
+    ff.validate();
+  } catch (const Error& e) {
+    throw Error(name + ": " + std::string(e.what()).substr(std::string("cellforce: ").size()));
+  }
+  return scene;
+}
+
+Scene read_scene(const std::string& path) {
+  std::ifstream in(path);
+  if (!in) throw Error(path + ": cannot open the scene file");
+  std::stringstream text;
+  text << in.rdbuf();
+  const std::filesystem::path folder = std::filesystem::path(path).parent_path();
+  return parse_scene(text.str(), path, folder.empty() ? "." : folder.string());
+}
+
+namespace {
+
+// Deterministic type assignment: exact counts from the fractions (largest remainders), then a
+// shuffle with the scene's seed.
+std::vector<uint32_t> assign_types(const Scene& scene, std::size_t n) {
+  const auto& comp = scene.particles.composition;
+  std::vector<uint32_t> types(n, 0);
+  if (comp.empty() || n == 0) return types;
+  std::vector<std::size_t> count(comp.size());
+  std::vector<std::pair<double, std::size_t>> remainder;
+  std::size_t assigned = 0;
+  for (std::size_t k = 0; k < comp.size(); ++k) {
+    const double exact = comp[k].second * double(n);
+    count[k] = std::size_t(std::floor(exact));
+    assigned += count[k];
+    remainder.emplace_back(exact - std::floor(exact), k);
+  }
+  std::stable_sort(remainder.begin(), remainder.end(), [](auto& a, auto& b) { return a.first > b.first; });
+  for (std::size_t k = 0; assigned < n; ++k, ++assigned) ++count[remainder[k % remainder.size()].second];
+  std::size_t at = 0;
+  for (std::size_t k = 0; k < comp.size(); ++k) {
+    std::size_t index = 0;
+    while (scene.force_field.types[index].name != comp[k].first) ++index;
+    for (std::size_t c = 0; c < count[k]; ++c) types[at++] = uint32_t(index);
+  }
+  std::mt19937_64 rng(scene.seed ^ 0x7f4a7c159e3779b9ull);
+  std::shuffle(types.begin(), types.end(), rng);
+  return types;
+}
+
+}  // namespace
+
+Configuration build_configuration(const Scene& scene) {
+  const SceneParticles& p = scene.particles;
+  const int dim = scene.dim;
+  Configuration c;
+  if (p.source == ParticleSource::kFile) {
+    ReadOptions o;
+    o.dim = dim;
+    o.frame = p.frame;
+    ConfigurationFile f = read_configuration(p.path, o);
+    std::map<std::string, uint32_t> index;
+    for (std::size_t k = 0; k < scene.force_field.types.size(); ++k) index[scene.force_field.types[k].name] = uint32_t(k);
+    std::vector<uint32_t> type_of_species;
+    for (const std::string& s : f.species) {
+      const auto it = index.find(s);
+      if (it == index.end()) {
+        std::size_t first = 0;
+        while (f.species[f.config.types[first]] != s) ++first;
+        throw Error(scene.source + ": [particles] path: particle " + std::to_string(first) + " of " + f.source +
+                    " has species '" + s + "', which no [[types]] names");
+      }
+      type_of_species.push_back(it->second);
+    }
+    for (uint32_t& t : f.config.types) t = type_of_species[t];
+    for (int a = 0; a < dim; ++a)
+      if (f.config.box.periodic[a] != scene.periodic[std::size_t(a)])
+        throw Error(scene.source + ": [system] periodic: axis " + std::string(1, "xyz"[a]) + " is " +
+                    (scene.periodic[std::size_t(a)] ? "periodic" : "open") + " in the scene but not in " + f.source);
+    return f.config;
+  }
+  if (p.source == ParticleSource::kLattice) {
+    c = make_lattice_cells(p.lattice, {p.cells[0], p.cells[1], p.cells[2]},
+                           p.lattice_constant > 0 ? p.lattice_constant : lattice_constant_for(p.lattice, p.density));
+    // Box: the lattice's extent unless the scene gives a larger one; the lattice sits at offset.
+    for (int a = 0; a < dim; ++a) {
+      if (p.box[std::size_t(a)] > 0) {
+        if (p.box[std::size_t(a)] < c.box.length[a] * (1 - 1e-12))
+          throw Error(scene.source + ": [particles] box: axis " + std::string(1, "xyz"[a]) + " is " +
+                      std::to_string(p.box[std::size_t(a)]) + ", smaller than the lattice's " +
+                      std::to_string(c.box.length[a]));
+        c.box.length[a] = p.box[std::size_t(a)];
+      }
+    }
+    std::vector<double> kept;
+    double centre[3] = {};
+    for (int a = 0; a < dim; ++a) {
+      double lo = INFINITY, hi = -INFINITY;
+      for (std::size_t i = 0; i < c.size(); ++i) {
+        lo = std::min(lo, c.positions[i * dim + a]);
+        hi = std::max(hi, c.positions[i * dim + a]);
+      }
+      centre[a] = 0.5 * (lo + hi);
+    }
+    for (std::size_t i = 0; i < c.size(); ++i) {
+      double r2 = 0;
+      for (int a = 0; a < dim; ++a) r2 += (c.positions[i * dim + a] - centre[a]) * (c.positions[i * dim + a] - centre[a]);
+      if (p.sphere_radius > 0 && r2 > p.sphere_radius * p.sphere_radius) continue;
+      for (int a = 0; a < dim; ++a) kept.push_back(c.positions[i * dim + a] + p.offset[std::size_t(a)]);
+    }
+    c.positions = std::move(kept);
+    c.types.assign(c.positions.size() / std::size_t(dim), 0);
+  } else {
+    Box box;
+    box.dim = dim;
+    for (int a = 0; a < kMaxDim; ++a) {
+      box.length[a] = a < dim ? p.box[std::size_t(a)] : 0.0;
+      box.periodic[a] = a < dim && scene.periodic[std::size_t(a)];
+      if (a < dim && !(box.length[a] > 0))
+        throw Error(scene.source + ": [particles] box: random placement needs every length > 0");
+    }
+    c = make_random_spaced(box, p.count, p.min_distance, scene.seed);
+  }
+  for (int a = 0; a < kMaxDim; ++a) c.box.periodic[a] = a < dim && scene.periodic[std::size_t(a)];
+  c.types = assign_types(scene, c.size());
+  return c;
+}
+
+}  // namespace cellforce

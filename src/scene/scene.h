@@ -1,0 +1,108 @@
+// A scene: everything `cellforce run` needs, read from a TOML file (systems/*.toml) or built in
+// (the LAMMPS in.lj fluid). Unknown keys and impossible values are errors that name the file,
+// the line and the key.
+//
+//   [system]       dimension = 3, periodic = [true, true, true]
+//   [particles]    source = "lattice" | "random" | "file"
+//                    lattice: lattice = "fcc"|"bcc"|"sc"|"square"|"hexagonal", cells = [nx, ny, nz],
+//                             density = rho or lattice_constant = a, box = [Lx, Ly, Lz] (default:
+//                             the lattice's extent), offset = [x, y, z], sphere_radius = r (keep
+//                             only sites within r of the lattice centre)
+//                    random:  count = n, box = [Lx, Ly, Lz], min_distance = d
+//                    file:    path = "x.xyz" (extended XYZ or H5MD, relative to the scene file),
+//                             frame = -1
+//                  composition = { A = 0.8, B = 0.2 } (lattice, random; default: all the first type)
+//   [[types]]      name, mass = 1, sigma = 1, epsilon = 1 (one table per type)
+//   [interactions] cutoff = 2.5, mode = "truncate"|"shift"|"force-shift",
+//                  mixing = "lorentz-berthelot"|"geometric",
+//                  [[interactions.pairs]] types = ["A", "B"], sigma, epsilon
+//   [initial]      temperature = T, seed = 1
+//   [integrator]   kind = "nve"|"langevin", dt = 0.005, temperature = T, friction = 1 (langevin)
+//   [run]          steps = n, backend = "auto"|"cpu"|"cuda", precision = "single"|"mixed"|"double"
+//   [output]       thermo_every = 100, thermo_file = "thermo.csv", trajectory = "traj.h5",
+//                  trajectory_every = 1000, velocities = false, forces = false,
+//                  checkpoint = "checkpoint.h5", checkpoint_every = 0 (0: at the end only)
+#pragma once
+
+#include <array>
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "cli/backend.h"
+#include "core/force_field.h"
+#include "scene/lattice.h"
+
+namespace cellforce {
+
+enum class ParticleSource : uint8_t { kLattice, kRandom, kFile };
+enum class IntegratorKind : uint8_t { kNve, kLangevin };
+
+struct SceneParticles {
+  ParticleSource source = ParticleSource::kLattice;
+  // lattice
+  Lattice lattice = Lattice::kFcc;
+  std::array<int, 3> cells = {20, 20, 20};
+  double density = 0.8442;        // number density (used when lattice_constant is 0)
+  double lattice_constant = 0.0;  // 0: from the density
+  std::array<double, 3> box = {0, 0, 0};     // 0: the lattice's extent (lattice), required (random)
+  std::array<double, 3> offset = {0, 0, 0};  // lattice origin
+  double sphere_radius = 0.0;                // > 0: keep lattice sites within this of the centre
+  // random
+  std::size_t count = 0;
+  double min_distance = 0.0;
+  // file
+  std::string path;  // as resolved against the scene file's folder
+  long frame = -1;
+  // lattice and random: type name -> fraction (normalised); empty: all of the first type
+  std::vector<std::pair<std::string, double>> composition;
+};
+
+struct SceneIntegrator {
+  IntegratorKind kind = IntegratorKind::kNve;
+  double dt = 0.005;
+  double temperature = 1.0;  // Langevin target kT
+  double friction = 1.0;     // Langevin gamma (1 / time)
+};
+
+struct SceneOutput {
+  int64_t thermo_every = 100;
+  std::string thermo_file;   // CSV; empty: screen only
+  std::string trajectory;    // H5MD; empty: none
+  int64_t trajectory_every = 1000;
+  bool velocities = false;
+  bool forces = false;
+  std::string checkpoint;    // empty: none
+  int64_t checkpoint_every = 0;  // 0: at the end of the run only
+};
+
+struct Scene {
+  std::string source = "built-in";  // the file it came from
+  int dim = 3;
+  std::array<bool, 3> periodic = {true, true, true};
+  SceneParticles particles;
+  std::vector<double> masses;  // per type, same order as force_field.types
+  ForceField force_field;
+  double initial_temperature = 1.44;
+  uint64_t seed = 1;
+  SceneIntegrator integrator;
+  int64_t steps = 1000;
+  BackendChoice backend;
+  SceneOutput output;
+};
+
+// The LAMMPS in.lj benchmark fluid: fcc at density 0.8442, 20^3 unit cells (32,000 particles),
+// rc 2.5 (truncated), T = 1.44, dt 0.005, NVE; on the GPU when one can be used.
+Scene default_scene();
+
+// Reads a scene; throws cellforce::Error naming the file, line and key of the first problem.
+Scene read_scene(const std::string& path);
+// The same from text; `name` stands for the file in messages, and relative paths in the scene
+// are resolved against `folder`.
+Scene parse_scene(const std::string& text, const std::string& name, const std::string& folder = ".");
+
+// The scene's starting configuration (box, positions, types) and the names of its types.
+// Lattice and random placements are deterministic for the scene's seed.
+Configuration build_configuration(const Scene& scene);
+
+}  // namespace cellforce
