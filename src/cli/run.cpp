@@ -147,10 +147,9 @@ int run_md(const RunArgs& args) {
   const bool screen = !args.quiet;
   std::printf("cellforce run: %s\n", scene.source.c_str());
   std::printf("  %zu particles, %dD, box", n, dim);
-  for (int a = 0; a < dim; ++a) std::printf(" %.6g", state.config.box.length[a]);
-  std::printf(" (%s), %zu type(s); cutoff %g (%s)\n",
-              state.config.box.any_periodic() ? "periodic where marked" : "open", ff.types.size(), ff.cutoff,
-              to_string(ff.mode));
+  for (int a = 0; a < dim; ++a)
+    std::printf(" %.6g%s", state.config.box.length[a], state.config.box.periodic[a] ? "" : " (open)");
+  std::printf(", %zu type(s); cutoff %g (%s)\n", ff.types.size(), ff.cutoff, to_string(ff.mode));
   std::printf("  %s, dt %g, %lld steps; %s, precision %s\n",
               integrator.langevin ? "Langevin (BAOAB)" : "NVE (velocity Verlet)", integrator.dt,
               (long long)scene.steps, engine.description().c_str(), to_string(scene.backend.precision));
@@ -168,7 +167,7 @@ int run_md(const RunArgs& args) {
   Progress progress(state.step, state.step + scene.steps, screen);
   auto report = [&](const MdState& s) {
     const auto t0 = Clock::now();
-    const Thermo th = thermo(s, masses, result);
+    const Thermo th = thermo(s, masses, result, !integrator.langevin);
     const double inv_n = n ? 1.0 / double(n) : 0.0;
     if (screen) {
       char line[256];

@@ -41,8 +41,8 @@ double counter_normal(uint64_t seed, uint64_t stream, uint64_t index) {
   return std::sqrt(-2.0 * std::log(unit_open(a))) * std::cos(2.0 * M_PI * unit_open(b));
 }
 
-double degrees_of_freedom(std::size_t n, int dim) {
-  return std::max(1.0, double(dim) * (double(n) - 1.0));
+double degrees_of_freedom(std::size_t n, int dim, bool com_conserved) {
+  return std::max(1.0, double(dim) * (double(n) - (com_conserved ? 1.0 : 0.0)));
 }
 
 void remove_com_momentum(MdState& s, const std::vector<double>& masses) {
@@ -83,13 +83,14 @@ void initialize_velocities(MdState& s, const std::vector<double>& masses, double
   for (double& v : s.velocities) v *= scale;
 }
 
-Thermo thermo(const MdState& s, const std::vector<double>& masses, const ForceResult& result) {
+Thermo thermo(const MdState& s, const std::vector<double>& masses, const ForceResult& result,
+              bool com_conserved) {
   const int dim = s.config.box.dim;
   Thermo t;
   t.kinetic = kinetic_energy(s, masses);
   t.potential = result.energy;
   t.total = t.kinetic + t.potential;
-  t.temperature = 2.0 * t.kinetic / degrees_of_freedom(s.config.size(), dim);
+  t.temperature = 2.0 * t.kinetic / degrees_of_freedom(s.config.size(), dim, com_conserved);
   double trace = 0;
   for (int a = 0; a < dim; ++a) trace += result.virial[a][a];
   bool closed = true;

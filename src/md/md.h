@@ -26,8 +26,10 @@ struct MdState {
 // A standard normal value for (seed, stream, index): the same on every machine and thread count.
 double counter_normal(uint64_t seed, uint64_t stream, uint64_t index);
 
-// Degrees of freedom with the centre-of-mass momentum removed: dim (n - 1), at least 1.
-double degrees_of_freedom(std::size_t n, int dim);
+// Degrees of freedom of the kinetic temperature: dim (n - 1) when the centre-of-mass momentum
+// is removed and conserved (NVE), dim n under a Langevin thermostat (which does not conserve
+// it); at least 1.
+double degrees_of_freedom(std::size_t n, int dim, bool com_conserved = true);
 
 // Maxwell-Boltzmann velocities at temperature kT (energy units), centre-of-mass momentum removed,
 // then scaled so that the kinetic temperature is exactly kT. masses: per particle.
@@ -43,7 +45,8 @@ struct Thermo {
   double temperature = 0;  // 2 KE / degrees of freedom
   double pressure = 0;     // (2 KE + trace W) / (dim V); NaN when an axis is open (no volume)
 };
-Thermo thermo(const MdState& state, const std::vector<double>& masses, const ForceResult& result);
+Thermo thermo(const MdState& state, const std::vector<double>& masses, const ForceResult& result,
+              bool com_conserved = true);
 
 struct IntegratorSettings {
   bool langevin = false;
