@@ -10,6 +10,7 @@
 
 #include "cli/backend.h"
 #include "core/error.h"
+#include "md/checkpoint.h"
 #include "md/md.h"
 #include "scene/scene.h"
 
@@ -137,11 +138,32 @@ int run_md(const RunArgs& args) {
   integrator.friction = scene.integrator.friction;
   integrator.seed = scene.seed;
 
+  const CheckpointInfo checkpoint_info{scene.seed, fingerprint(scene.text.empty() ? scene.source : scene.text),
+                                       scene.source};
+  if (!args.restart.empty()) {
+    read_checkpoint(args.restart, state, checkpoint_info);
+    state.time = double(state.step) * integrator.dt;
+    if (state.step > scene.steps)
+      throw Error(args.restart + ": checkpoint at step " + std::to_string(state.step) + ", beyond the run's " +
+                  std::to_string(scene.steps) + " steps");
+  }
+
+  // Thermo CSV. On a restart the rows up to the checkpoint's step are kept and the rest dropped
+  // (they belong to the part of the run being redone).
   std::unique_ptr<std::ofstream> csv;
   if (!scene.output.thermo_file.empty()) {
-    csv = std::make_unique<std::ofstream>(scene.output.thermo_file);
-    if (!*csv) throw Error(scene.output.thermo_file + ": cannot write the thermo file");
-    *csv << "step,time,temperature,kinetic_energy,potential_energy,total_energy,pressure\n";
+    const std::string& path = scene.output.thermo_file;
+    std::vector<std::string> kept;
+    if (!args.restart.empty()) {
+      std::ifstream old(path);
+      for (std::string line; std::getline(old, line);)
+        if (kept.empty() || std::stoll(line.substr(0, line.find(','))) <= state.step) kept.push_back(line);
+    }
+    csv = std::make_unique<std::ofstream>(path, std::ios::trunc);
+    if (!*csv) throw Error(path + ": cannot write the thermo file");
+    if (kept.empty()) kept.push_back("step,time,temperature,kinetic_energy,potential_energy,total_energy,pressure");
+    for (const std::string& line : kept) *csv << line << "\n";
+    csv->flush();
   }
 
   const bool screen = !args.quiet;
@@ -153,6 +175,8 @@ int run_md(const RunArgs& args) {
   std::printf("  %s, dt %g, %lld steps; %s, precision %s\n",
               integrator.langevin ? "Langevin (BAOAB)" : "NVE (velocity Verlet)", integrator.dt,
               (long long)scene.steps, engine.description().c_str(), to_string(scene.backend.precision));
+  if (!args.restart.empty())
+    std::printf("  restarting from %s at step %lld\n", args.restart.c_str(), (long long)state.step);
 
   ForceResult result;
   StageTotals stages;
@@ -164,7 +188,7 @@ int run_md(const RunArgs& args) {
     ++evaluations;
     s.forces = result.forces;
   };
-  Progress progress(state.step, state.step + scene.steps, screen);
+  Progress progress(state.step, scene.steps, screen);
   auto report = [&](const MdState& s) {
     const auto t0 = Clock::now();
     const Thermo th = thermo(s, masses, result, !integrator.langevin);
@@ -188,11 +212,18 @@ int run_md(const RunArgs& args) {
   const double setup_seconds = seconds_since(t_setup);
   if (screen)
     progress.print("      step       time       temp      ke/atom      pe/atom    etot/atom       press");
-  report(state);
+  if (args.restart.empty()) report(state);
+  else if (screen) progress.print("(continuing from " + args.restart + ")");
+  auto save_checkpoint = [&] {
+    const auto t0 = Clock::now();
+    write_checkpoint(scene.output.checkpoint, state, checkpoint_info);
+    t_output += seconds_since(t0);
+  };
 
   const auto t_loop = Clock::now();
   double t_forces_wall = 0;
-  const int64_t last = state.step + scene.steps;
+  const int64_t first = state.step, last = scene.steps;
+  const int64_t checkpoint_every = scene.output.checkpoint_every;
   while (state.step < last) {
     const int64_t next = state.step + 1;
     const bool observe = next % scene.output.thermo_every == 0 || next == last;
@@ -202,15 +233,19 @@ int run_md(const RunArgs& args) {
       t_forces_wall += seconds_since(t0);
     });
     if (observe) report(state);
+    if (!scene.output.checkpoint.empty() && checkpoint_every > 0 && state.step % checkpoint_every == 0 &&
+        state.step != last)
+      save_checkpoint();
     progress.update(state.step);
   }
+  if (!scene.output.checkpoint.empty()) save_checkpoint();
   progress.finish();
   const double loop_seconds = seconds_since(t_loop);
 
-  const double steps = double(scene.steps);
-  std::printf("\nperformance: %lld steps of %zu particles in %.3f s (setup %.3f s)\n", (long long)scene.steps, n,
+  const double steps = double(last - first);
+  std::printf("\nperformance: %lld steps of %zu particles in %.3f s (setup %.3f s)\n", (long long)(last - first), n,
               loop_seconds, setup_seconds);
-  if (scene.steps > 0) {
+  if (steps > 0) {
     std::printf("  %.2f steps/s, %.4g particle-steps/s, %.4f ms per step\n", steps / loop_seconds,
                 steps * double(n) / loop_seconds, 1e3 * loop_seconds / steps);
     const double per = 1e3 / double(evaluations);

@@ -1,6 +1,7 @@
 // `cellforce run [SCENE]`: molecular dynamics of a scene (systems/*.toml, or the built-in LAMMPS
 // in.lj fluid): thermodynamics on the screen and in CSV, a progress bar on a terminal (plain
-// lines otherwise), and a performance summary at the end.
+// lines otherwise), and a performance summary at the end. [run] steps is the run's total length:
+// a restart from a checkpoint at step s runs the steps from s to it.
 #pragma once
 
 #include <cstdint>
@@ -14,6 +15,7 @@ struct RunArgs {
   std::string backend;        // non-empty: overrides [run] backend
   std::string precision;      // non-empty: overrides [run] precision
   std::string thermo_file;    // non-empty: overrides [output] thermo_file
+  std::string restart;        // non-empty: continue from this checkpoint (same scene)
   bool quiet = false;         // no thermo lines or progress on the screen (summary only)
 };
 

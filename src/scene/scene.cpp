@@ -201,6 +201,7 @@ Scene parse_scene(const std::string& text, const std::string& name, const std::s
   }
   Scene scene;
   scene.source = name;
+  scene.text = text;
   static const std::set<std::string> kSections = {"system", "particles", "types", "interactions",
                                                   "initial", "integrator", "run", "output"};
   for (const auto& [key, value] : root)

@@ -78,6 +78,7 @@ struct SceneOutput {
 
 struct Scene {
   std::string source = "built-in";  // the file it came from
+  std::string text;                 // the file's text (empty for the built-in scene)
   int dim = 3;
   std::array<bool, 3> periodic = {true, true, true};
   SceneParticles particles;

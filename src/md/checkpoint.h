@@ -1,0 +1,30 @@
+// Checkpoints: the state of a run (positions, velocities, step, time) in an HDF5 file, written
+// under a temporary name and renamed when complete. Restarting from one reproduces the
+// uninterrupted run bit for bit on the same backend: the integrators' random numbers depend only
+// on (seed, step, particle, axis), and the forces are recomputed from the stored positions.
+#pragma once
+
+#include <cstdint>
+#include <string>
+
+#include "md/md.h"
+
+namespace cellforce {
+
+struct CheckpointInfo {
+  uint64_t seed = 0;
+  uint64_t scene_fingerprint = 0;  // of the scene's text: a restart must use the same scene
+  std::string scene;               // where the scene came from (for messages)
+};
+
+void write_checkpoint(const std::string& path, const MdState& state, const CheckpointInfo& info);
+
+// Reads a checkpoint into `state` (whose configuration must already hold the scene's particles:
+// the particle count, dimension, types and box must match). Throws cellforce::Error naming the
+// file and what differs.
+void read_checkpoint(const std::string& path, MdState& state, const CheckpointInfo& expected);
+
+// FNV-1a of a text: stable across machines and compilers.
+uint64_t fingerprint(const std::string& text);
+
+}  // namespace cellforce
