@@ -1,0 +1,150 @@
+// `cellforce run` end to end: a restart from a checkpoint reproduces the uninterrupted run bit
+// for bit (NVE and Langevin, every backend here), the thermo file holds the steps asked for, and
+// a checkpoint from another scene or seed is refused.
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+
+#include "cli/run.h"
+#include "core/error.h"
+#include "io/hdf5.h"
+
+#ifdef CELLFORCE_HAVE_CUDA
+#include "engine.h"  // cuda/engine.h
+#endif
+
+namespace {
+
+using namespace cellforce;
+using ::testing::HasSubstr;
+namespace fs = std::filesystem;
+
+// Runs in a fresh folder (output paths in scenes are relative to the working folder).
+class RunFolder : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
+    dir_ = fs::temp_directory_path() / ("cellforce-run-" + std::to_string(::getpid()) + "-" + info->name());
+    fs::remove_all(dir_);
+    fs::create_directories(dir_);
+    previous_ = fs::current_path();
+    fs::current_path(dir_);
+  }
+  void TearDown() override {
+    fs::current_path(previous_);
+    fs::remove_all(dir_);
+  }
+  static std::string read(const std::string& path) {
+    std::ifstream in(path);
+    std::stringstream s;
+    s << in.rdbuf();
+    return s.str();
+  }
+  fs::path dir_, previous_;
+};
+
+// A small 2D liquid: 80 particles on a hexagonal lattice at area density 0.7.
+std::string scene_text(const std::string& kind, const std::string& backend, int64_t steps, uint64_t seed = 5) {
+  std::ostringstream s;
+  s << "[system]\ndimension = 2\n[particles]\nlattice = \"hexagonal\"\ncells = [8, 5]\ndensity = 0.7\n"
+    << "[[types]]\nname = \"A\"\n[interactions]\ncutoff = 2.5\nmode = \"force-shift\"\n"
+    << "[initial]\ntemperature = 1.0\nseed = " << seed << "\n[integrator]\nkind = \"" << kind << "\"\ndt = 0.005\n"
+    << (kind == "langevin" ? "temperature = 0.8\nfriction = 1.0\n" : "") << "[run]\nsteps = " << steps
+    << "\nbackend = \"" << backend << "\"\nprecision = \"double\"\n"
+    << "[output]\nthermo_every = 5\nthermo_file = \"thermo.csv\"\ncheckpoint = \"ckpt.h5\"\ncheckpoint_every = 30\n";
+  return s.str();
+}
+
+std::vector<std::string> backends_here() {
+  std::vector<std::string> b = {"cpu"};
+#ifdef CELLFORCE_HAVE_CUDA
+  if (GpuEngine::unavailable().empty()) b.push_back("cuda");
+#endif
+  return b;
+}
+
+struct Saved {
+  std::vector<double> positions, velocities;
+  int64_t step = 0;
+};
+
+Saved load(const std::string& path) {
+  h5::File f = h5::File::open_read(path);
+  return {h5::read_doubles(f.id(), "positions", path).values, h5::read_doubles(f.id(), "velocities", path).values,
+          h5::read_int_attribute(f.id(), "step", path)};
+}
+
+TEST_F(RunFolder, RestartReproducesTheUninterruptedRunBitwise) {
+  for (const std::string& backend : backends_here())
+    for (const std::string kind : {"nve", "langevin"}) {
+      SCOPED_TRACE(backend + " " + kind);
+      std::ofstream("scene.toml") << scene_text(kind, backend, 60);
+      RunArgs args;
+      args.scene = "scene.toml";
+      args.quiet = true;
+      ASSERT_EQ(run_md(args), 0);
+      const Saved full = load("ckpt.h5");
+      const std::string full_thermo = read("thermo.csv");
+      EXPECT_EQ(full.step, 60);
+
+      // Interrupted at step 30 (its checkpoint), then continued.
+      args.steps = 30;
+      ASSERT_EQ(run_md(args), 0);
+      fs::copy_file("ckpt.h5", "ckpt30.h5", fs::copy_options::overwrite_existing);
+      EXPECT_EQ(load("ckpt30.h5").step, 30);
+      args.steps = -1;
+      args.restart = "ckpt30.h5";
+      ASSERT_EQ(run_md(args), 0);
+      const Saved resumed = load("ckpt.h5");
+      EXPECT_EQ(resumed.step, 60);
+      EXPECT_EQ(resumed.positions, full.positions);
+      EXPECT_EQ(resumed.velocities, full.velocities);
+      EXPECT_EQ(read("thermo.csv"), full_thermo);
+    }
+}
+
+TEST_F(RunFolder, ThermoFileHoldsTheStepsAskedFor) {
+  std::ofstream("scene.toml") << scene_text("nve", "cpu", 23);
+  RunArgs args;
+  args.scene = "scene.toml";
+  args.quiet = true;
+  ASSERT_EQ(run_md(args), 0);
+  std::istringstream lines(read("thermo.csv"));
+  std::string line;
+  std::getline(lines, line);
+  EXPECT_EQ(line, "step,time,temperature,kinetic_energy,potential_energy,total_energy,pressure");
+  std::vector<long> steps;
+  while (std::getline(lines, line)) steps.push_back(std::stol(line.substr(0, line.find(','))));
+  EXPECT_EQ(steps, (std::vector<long>{0, 5, 10, 15, 20, 23}));  // every 5, and the last step
+}
+
+TEST_F(RunFolder, CheckpointOfAnotherSceneOrSeedIsRefused) {
+  std::ofstream("scene.toml") << scene_text("langevin", "cpu", 30);
+  RunArgs args;
+  args.scene = "scene.toml";
+  args.quiet = true;
+  ASSERT_EQ(run_md(args), 0);
+  fs::copy_file("ckpt.h5", "old.h5");
+  std::ofstream("scene.toml") << scene_text("langevin", "cpu", 30, /*seed=*/6);
+  args.restart = "old.h5";
+  try {
+    run_md(args);
+    ADD_FAILURE() << "a checkpoint of another scene was accepted";
+  } catch (const Error& e) {
+    EXPECT_THAT(std::string(e.what()), HasSubstr("old.h5: written for another scene"));
+  }
+  std::ofstream("scene.toml") << scene_text("langevin", "cpu", 30);
+  args.steps = 20;
+  try {
+    run_md(args);
+    ADD_FAILURE() << "a checkpoint beyond the run's end was accepted";
+  } catch (const Error& e) {
+    EXPECT_THAT(std::string(e.what()), HasSubstr("old.h5: checkpoint at step 30, beyond the run's 20 steps"));
+  }
+}
+
+}  // namespace
