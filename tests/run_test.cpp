@@ -55,7 +55,8 @@ std::string scene_text(const std::string& kind, const std::string& backend, int6
     << "[initial]\ntemperature = 1.0\nseed = " << seed << "\n[integrator]\nkind = \"" << kind << "\"\ndt = 0.005\n"
     << (kind == "langevin" ? "temperature = 0.8\nfriction = 1.0\n" : "") << "[run]\nsteps = " << steps
     << "\nbackend = \"" << backend << "\"\nprecision = \"double\"\n"
-    << "[output]\nthermo_every = 5\nthermo_file = \"thermo.csv\"\ncheckpoint = \"ckpt.h5\"\ncheckpoint_every = 30\n";
+    << "[output]\nthermo_every = 5\nthermo_file = \"thermo.csv\"\ncheckpoint = \"ckpt.h5\"\ncheckpoint_every = 30\n"
+    << "trajectory = \"traj.h5\"\ntrajectory_every = 10\nvelocities = true\n";
   return s.str();
 }
 
@@ -71,6 +72,19 @@ struct Saved {
   std::vector<double> positions, velocities;
   int64_t step = 0;
 };
+
+// Every frame of the trajectory: steps, positions and velocities.
+struct Frames {
+  std::vector<double> steps, positions, velocities;
+  bool operator==(const Frames&) const = default;
+};
+
+Frames load_trajectory(const std::string& path) {
+  h5::File f = h5::File::open_read(path);
+  return {h5::read_doubles(f.id(), "particles/all/position/step", path).values,
+          h5::read_doubles(f.id(), "particles/all/position/value", path).values,
+          h5::read_doubles(f.id(), "particles/all/velocity/value", path).values};
+}
 
 Saved load(const std::string& path) {
   h5::File f = h5::File::open_read(path);
@@ -89,21 +103,28 @@ TEST_F(RunFolder, RestartReproducesTheUninterruptedRunBitwise) {
       ASSERT_EQ(run_md(args), 0);
       const Saved full = load("ckpt.h5");
       const std::string full_thermo = read("thermo.csv");
+      const Frames full_frames = load_trajectory("traj.h5");
       EXPECT_EQ(full.step, 60);
 
-      // Interrupted at step 30 (its checkpoint), then continued.
+      // A run that checkpointed at step 30, went on to step 45 (thermo rows to 45, frames to 40)
+      // and died there; continued from the checkpoint, the rows and frames beyond 30 are redone.
       args.steps = 30;
       ASSERT_EQ(run_md(args), 0);
       fs::copy_file("ckpt.h5", "ckpt30.h5", fs::copy_options::overwrite_existing);
       EXPECT_EQ(load("ckpt30.h5").step, 30);
+      args.steps = 45;
+      ASSERT_EQ(run_md(args), 0);
       args.steps = -1;
       args.restart = "ckpt30.h5";
       ASSERT_EQ(run_md(args), 0);
+      args.restart.clear();
       const Saved resumed = load("ckpt.h5");
       EXPECT_EQ(resumed.step, 60);
       EXPECT_EQ(resumed.positions, full.positions);
       EXPECT_EQ(resumed.velocities, full.velocities);
       EXPECT_EQ(read("thermo.csv"), full_thermo);
+      EXPECT_EQ(load_trajectory("traj.h5"), full_frames);
+      fs::remove("traj.h5");
     }
 }
 
@@ -120,6 +141,9 @@ TEST_F(RunFolder, ThermoFileHoldsTheStepsAskedFor) {
   std::vector<long> steps;
   while (std::getline(lines, line)) steps.push_back(std::stol(line.substr(0, line.find(','))));
   EXPECT_EQ(steps, (std::vector<long>{0, 5, 10, 15, 20, 23}));  // every 5, and the last step
+  const Frames frames = load_trajectory("traj.h5");
+  EXPECT_EQ(frames.steps, (std::vector<double>{0, 10, 20}));    // every 10
+  EXPECT_EQ(frames.positions.size(), 3u * 80u * 2u);
 }
 
 TEST_F(RunFolder, CheckpointOfAnotherSceneOrSeedIsRefused) {

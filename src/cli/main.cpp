@@ -246,6 +246,9 @@ int main(int argc, char** argv) {
   run_cmd->add_option("--precision", ra.precision, "Override the scene's precision: single, mixed or double")
       ->check(CLI::IsMember({"single", "mixed", "double"}));
   run_cmd->add_option("--thermo-file", ra.thermo_file, "Write the thermodynamics to this CSV file");
+  run_cmd->add_option("--trajectory", ra.trajectory, "Write an H5MD trajectory to this file");
+  run_cmd->add_option("--trajectory-every", ra.trajectory_every, "Steps between trajectory frames")
+      ->check(CLI::PositiveNumber);
   run_cmd->add_option("--restart", ra.restart, "Continue from this checkpoint (written by the same scene)")
       ->check(CLI::ExistingFile);
   run_cmd->add_flag("--quiet,-q", ra.quiet, "Only the setup and the performance summary on the screen");

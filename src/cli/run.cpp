@@ -10,9 +10,14 @@
 
 #include "cli/backend.h"
 #include "core/error.h"
+#include "io/h5md_writer.h"
 #include "md/checkpoint.h"
 #include "md/md.h"
 #include "scene/scene.h"
+
+#ifndef CELLFORCE_VERSION
+#define CELLFORCE_VERSION "unknown"
+#endif
 
 namespace cellforce {
 namespace {
@@ -118,6 +123,8 @@ int run_md(const RunArgs& args) {
     else throw Error("--precision '" + args.precision + "': expected single, mixed or double");
   }
   if (!args.thermo_file.empty()) scene.output.thermo_file = args.thermo_file;
+  if (!args.trajectory.empty()) scene.output.trajectory = args.trajectory;
+  if (args.trajectory_every > 0) scene.output.trajectory_every = args.trajectory_every;
 
   MdState state;
   state.config = build_configuration(scene);
@@ -166,6 +173,25 @@ int run_md(const RunArgs& args) {
     csv->flush();
   }
 
+  // H5MD trajectory: a frame every trajectory_every steps with the thermodynamic observables. On
+  // a restart the file is continued after dropping the frames beyond the checkpoint.
+  const std::vector<std::string> observables = {"potential_energy", "kinetic_energy", "total_energy",
+                                                "temperature", "pressure"};
+  std::unique_ptr<H5mdWriter> trajectory;
+  if (!scene.output.trajectory.empty()) {
+    H5mdOptions o;
+    o.velocities = scene.output.velocities;
+    o.forces = scene.output.forces;
+    o.observables = observables;
+    o.creator_version = CELLFORCE_VERSION;
+    o.append = !args.restart.empty() && std::ifstream(scene.output.trajectory).good();
+    std::vector<std::string> names;
+    for (const ParticleType& t : scene.force_field.types) names.push_back(t.name);
+    trajectory = std::make_unique<H5mdWriter>(scene.output.trajectory, state.config.box, state.config.types, names, o);
+    if (o.append) trajectory->truncate_after(state.step);
+  }
+  const int64_t trajectory_every = scene.output.trajectory_every;
+
   const bool screen = !args.quiet;
   std::printf("cellforce run: %s\n", scene.source.c_str());
   std::printf("  %zu particles, %dD, box", n, dim);
@@ -182,16 +208,25 @@ int run_md(const RunArgs& args) {
   StageTotals stages;
   int64_t evaluations = 0;
   double t_output = 0;
-  auto compute = [&](MdState& s, bool observables) {
-    engine.evaluate(view, ff, Request{observables, observables}, result);
+  auto compute = [&](MdState& s, bool observe) {
+    engine.evaluate(view, ff, Request{observe, observe}, result);
     stages.add(engine.stats(view, ff, false));
     ++evaluations;
     s.forces = result.forces;
   };
   Progress progress(state.step, scene.steps, screen);
-  auto report = [&](const MdState& s) {
+  auto report = [&](const MdState& s, bool thermo_line, bool frame) {
     const auto t0 = Clock::now();
     const Thermo th = thermo(s, masses, result, !integrator.langevin);
+    if (frame && trajectory)
+      trajectory->write_frame(s.step, s.time, s.config.positions.data(),
+                              scene.output.velocities ? s.velocities.data() : nullptr,
+                              scene.output.forces ? s.forces.data() : nullptr,
+                              {th.potential, th.kinetic, th.total, th.temperature, th.pressure});
+    if (!thermo_line) {
+      t_output += seconds_since(t0);
+      return;
+    }
     const double inv_n = n ? 1.0 / double(n) : 0.0;
     if (screen) {
       char line[256];
@@ -212,7 +247,7 @@ int run_md(const RunArgs& args) {
   const double setup_seconds = seconds_since(t_setup);
   if (screen)
     progress.print("      step       time       temp      ke/atom      pe/atom    etot/atom       press");
-  if (args.restart.empty()) report(state);
+  if (args.restart.empty()) report(state, true, true);
   else if (screen) progress.print("(continuing from " + args.restart + ")");
   auto save_checkpoint = [&] {
     const auto t0 = Clock::now();
@@ -226,19 +261,22 @@ int run_md(const RunArgs& args) {
   const int64_t checkpoint_every = scene.output.checkpoint_every;
   while (state.step < last) {
     const int64_t next = state.step + 1;
-    const bool observe = next % scene.output.thermo_every == 0 || next == last;
+    const bool thermo_step = next % scene.output.thermo_every == 0 || next == last;
+    const bool frame_step = trajectory && next % trajectory_every == 0;
+    const bool observe = thermo_step || frame_step;
     advance(state, masses, integrator, [&](MdState& s) {
       const auto t0 = Clock::now();
       compute(s, observe);
       t_forces_wall += seconds_since(t0);
     });
-    if (observe) report(state);
+    if (observe) report(state, thermo_step, frame_step);
     if (!scene.output.checkpoint.empty() && checkpoint_every > 0 && state.step % checkpoint_every == 0 &&
         state.step != last)
       save_checkpoint();
     progress.update(state.step);
   }
   if (!scene.output.checkpoint.empty()) save_checkpoint();
+  if (trajectory) trajectory->close();
   progress.finish();
   const double loop_seconds = seconds_since(t_loop);
 

@@ -16,6 +16,8 @@ struct RunArgs {
   std::string precision;      // non-empty: overrides [run] precision
   std::string thermo_file;    // non-empty: overrides [output] thermo_file
   std::string restart;        // non-empty: continue from this checkpoint (same scene)
+  std::string trajectory;     // non-empty: overrides [output] trajectory
+  int64_t trajectory_every = 0;  // > 0: overrides [output] trajectory_every
   bool quiet = false;         // no thermo lines or progress on the screen (summary only)
 };
 

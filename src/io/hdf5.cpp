@@ -45,13 +45,13 @@ Handle make_space(const std::vector<hsize_t>& shape, const std::string& where) {
 template <class T>
 void write_dataset(hid_t loc, const std::string& name, hid_t file_type, hid_t mem_type,
                    const std::vector<T>& values, const std::vector<hsize_t>& shape,
-                   const std::string& where) {
+                   const std::string& where, hid_t dcpl = H5P_DEFAULT) {
   quiet();
   if (values.size() != element_count(shape))
     fail(where, "dataset '" + name + "': " + std::to_string(values.size()) +
                     " values do not fill its shape");
   Handle space = make_space(shape, where);
-  Handle set(check(H5Dcreate2(loc, name.c_str(), file_type, space.get(), H5P_DEFAULT, H5P_DEFAULT,
+  Handle set(check(H5Dcreate2(loc, name.c_str(), file_type, space.get(), H5P_DEFAULT, dcpl,
                               H5P_DEFAULT),
                    where, "cannot create dataset '" + name + "'"));
   if (!values.empty())
@@ -91,6 +91,25 @@ Handle utf8_string_type(const std::string& where) {
   return t;
 }
 
+// Chunk shape and filters of a new dataset.
+Handle creation_properties(const std::string& name, const Storage& storage, std::size_t rank,
+                           const std::string& where) {
+  Handle dcpl(check(H5Pcreate(H5P_DATASET_CREATE), where, "cannot create a property list"));
+  if (storage.chunk.empty()) return dcpl;
+  if (storage.chunk.size() != rank)
+    fail(where, "dataset '" + name + "': a chunk shape of rank " + std::to_string(storage.chunk.size()) +
+                    " for a dataset of rank " + std::to_string(rank));
+  const std::string what = "cannot set the storage of dataset '" + name + "'";
+  check_status(H5Pset_chunk(dcpl.get(), int(rank), storage.chunk.data()), where, what);
+  if (storage.deflate > 0 && deflate_available()) {
+    // Shuffle first: grouping the bytes of equal significance is what lets deflate find the
+    // repeated sign, exponent and leading mantissa bytes of floating-point data.
+    check_status(H5Pset_shuffle(dcpl.get()), where, what);
+    check_status(H5Pset_deflate(dcpl.get(), unsigned(std::min(storage.deflate, 9))), where, what);
+  }
+  return dcpl;
+}
+
 void write_attribute_raw(hid_t obj, const std::string& name, hid_t type, hid_t space,
                          const void* data, const std::string& where) {
   quiet();
@@ -98,6 +117,26 @@ void write_attribute_raw(hid_t obj, const std::string& name, hid_t type, hid_t s
   Handle attr(check(H5Acreate2(obj, name.c_str(), type, space, H5P_DEFAULT, H5P_DEFAULT), where,
                     "cannot create attribute '" + name + "'"));
   check_status(H5Awrite(attr.get(), type, data), where, "cannot write attribute '" + name + "'");
+}
+
+void write_fixed_strings(hid_t obj, const std::string& name, const std::vector<std::string>& values,
+                         const std::vector<hsize_t>& shape, const std::string& where) {
+  std::size_t size = 1;  // HDF5 has no strings of size 0
+  bool ascii = true;
+  for (const std::string& v : values) {
+    size = std::max(size, v.size());
+    for (const char c : v) ascii = ascii && static_cast<unsigned char>(c) < 0x80;
+  }
+  Handle type(check(H5Tcopy(H5T_C_S1), where, "cannot create a string type"));
+  check_status(H5Tset_size(type.get(), size), where, "cannot create a string type");
+  check_status(H5Tset_strpad(type.get(), H5T_STR_NULLPAD), where, "cannot create a string type");
+  check_status(H5Tset_cset(type.get(), ascii ? H5T_CSET_ASCII : H5T_CSET_UTF8), where,
+               "cannot create a string type");
+  std::vector<char> buffer(size * std::max<std::size_t>(values.size(), 1), '\0');
+  for (std::size_t k = 0; k < values.size(); ++k)
+    std::copy(values[k].begin(), values[k].end(), buffer.begin() + long(k * size));
+  Handle space = make_space(shape, where);
+  write_attribute_raw(obj, name, type.get(), space.get(), buffer.data(), where);
 }
 
 }  // namespace
@@ -134,10 +173,25 @@ File File::open_read(const std::string& path) {
   return File(Handle(id), path);
 }
 
+File File::open_read_write(const std::string& path) {
+  quiet();
+  if (!std::filesystem::exists(path)) fail(path, "no such file");
+  if (!is_hdf5(path)) fail(path, "not an HDF5 file");
+  const hid_t id = H5Fopen(path.c_str(), H5F_ACC_RDWR, H5P_DEFAULT);
+  if (id < 0)
+    fail(path, "cannot open the HDF5 file for writing (is it read-only, or open in another program?)");
+  return File(Handle(id), path);
+}
+
 bool File::is_hdf5(const std::string& path) {
   quiet();
   if (!std::filesystem::is_regular_file(path)) return false;
   return H5Fis_hdf5(path.c_str()) > 0;
+}
+
+void File::flush() {
+  if (!handle_.valid()) fail(path_, "the HDF5 file is closed");
+  if (H5Fflush(handle_.get(), H5F_SCOPE_GLOBAL) < 0) fail(path_, "cannot flush the HDF5 file");
 }
 
 void File::close() {
@@ -208,6 +262,117 @@ void write_ints(hid_t loc, const std::string& name, const std::vector<int64_t>& 
   write_dataset(loc, name, H5T_STD_I64LE, H5T_NATIVE_INT64, values, shape, where);
 }
 
+bool deflate_available() {
+  quiet();
+  if (H5Zfilter_avail(H5Z_FILTER_DEFLATE) <= 0) return false;
+  unsigned config = 0;
+  if (H5Zget_filter_info(H5Z_FILTER_DEFLATE, &config) < 0) return false;
+  return (config & H5Z_FILTER_CONFIG_ENCODE_ENABLED) != 0;
+}
+
+void write_int32s(hid_t loc, const std::string& name, const std::vector<int32_t>& values,
+                  const std::vector<hsize_t>& shape, const Storage& storage, const std::string& where) {
+  quiet();
+  Handle dcpl = creation_properties(name, storage, shape.size(), where);
+  write_dataset(loc, name, H5T_STD_I32LE, H5T_NATIVE_INT32, values, shape, where, dcpl.get());
+}
+
+Handle create_extendible(hid_t loc, const std::string& name, hid_t file_type,
+                         const std::vector<hsize_t>& row_shape, const Storage& storage,
+                         const std::string& where) {
+  quiet();
+  std::vector<hsize_t> shape = {0}, max_shape = {H5S_UNLIMITED};
+  shape.insert(shape.end(), row_shape.begin(), row_shape.end());
+  max_shape.insert(max_shape.end(), row_shape.begin(), row_shape.end());
+  // An extendible dataset must be chunked.
+  if (storage.chunk.empty()) fail(where, "dataset '" + name + "': an extendible dataset needs a chunk shape");
+  Handle dcpl = creation_properties(name, storage, shape.size(), where);
+  Handle space(check(H5Screate_simple(int(shape.size()), shape.data(), max_shape.data()), where,
+                     "cannot create a dataspace"));
+  return Handle(check(H5Dcreate2(loc, name.c_str(), file_type, space.get(), H5P_DEFAULT, dcpl.get(),
+                                 H5P_DEFAULT),
+                      where, "cannot create dataset '" + name + "'"));
+}
+
+Handle open_dataset(hid_t loc, const std::string& path, const std::string& where) {
+  quiet();
+  if (!exists(loc, path)) fail(where, "no dataset '" + path + "'");
+  return Handle(check(H5Dopen2(loc, path.c_str(), H5P_DEFAULT), where, "'" + path + "' is not a dataset"));
+}
+
+std::vector<hsize_t> dataset_shape(hid_t set, const std::string& where, std::vector<hsize_t>* max_shape) {
+  quiet();
+  const std::string what = "cannot read the shape of '" + object_path(set) + "'";
+  Handle space(check(H5Dget_space(set), where, what));
+  const int rank = H5Sget_simple_extent_ndims(space.get());
+  if (rank < 0) fail(where, what);
+  const std::size_t axes = std::size_t(rank);
+  std::vector<hsize_t> shape(axes), max(axes);
+  if (rank > 0) check_status(H5Sget_simple_extent_dims(space.get(), shape.data(), max.data()), where, what);
+  if (max_shape) *max_shape = max;
+  return shape;
+}
+
+void set_rows(hid_t set, hsize_t rows, const std::string& where) {
+  quiet();
+  std::vector<hsize_t> shape = dataset_shape(set, where);
+  if (shape.empty()) fail(where, "'" + object_path(set) + "' is a scalar; it has no rows");
+  shape[0] = rows;
+  check_status(H5Dset_extent(set, shape.data()), where,
+               "cannot resize '" + object_path(set) + "' to " + std::to_string(rows) + " rows");
+}
+
+void write_row(hid_t set, hsize_t row, hid_t mem_type, const void* values, const std::string& where) {
+  quiet();
+  const std::string name = object_path(set);
+  const std::vector<hsize_t> shape = dataset_shape(set, where);
+  if (shape.empty() || row >= shape[0])
+    fail(where, "'" + name + "' has no row " + std::to_string(row));
+  std::vector<hsize_t> start(shape.size(), 0), count = shape;
+  start[0] = row;
+  count[0] = 1;
+  Handle file_space(check(H5Dget_space(set), where, "cannot read the shape of '" + name + "'"));
+  check_status(H5Sselect_hyperslab(file_space.get(), H5S_SELECT_SET, start.data(), nullptr, count.data(), nullptr),
+               where, "cannot select row " + std::to_string(row) + " of '" + name + "'");
+  Handle mem_space(check(H5Screate_simple(int(count.size()), count.data(), nullptr), where,
+                         "cannot create a dataspace"));
+  check_status(H5Dwrite(set, mem_type, mem_space.get(), file_space.get(), H5P_DEFAULT, values), where,
+               "cannot write row " + std::to_string(row) + " of '" + name + "'");
+}
+
+void link_hard(hid_t loc, const std::string& target, const std::string& link_path, const std::string& where) {
+  quiet();
+  check_status(H5Lcreate_hard(loc, target.c_str(), loc, link_path.c_str(), H5P_DEFAULT, H5P_DEFAULT), where,
+               "cannot link '" + link_path + "' to '" + target + "'");
+}
+
+bool same_object(hid_t loc, const std::string& a, const std::string& b, const std::string& where) {
+  quiet();
+  if (!exists(loc, a) || !exists(loc, b)) return false;
+  H5O_info_t ia, ib;
+#if H5_VERSION_GE(1, 12, 0)
+  check_status(H5Oget_info_by_name3(loc, a.c_str(), &ia, H5O_INFO_BASIC, H5P_DEFAULT), where, "cannot inspect '" + a + "'");
+  check_status(H5Oget_info_by_name3(loc, b.c_str(), &ib, H5O_INFO_BASIC, H5P_DEFAULT), where, "cannot inspect '" + b + "'");
+  int cmp = 1;
+  check_status(H5Otoken_cmp(loc, &ia.token, &ib.token, &cmp), where, "cannot compare '" + a + "' and '" + b + "'");
+  return ia.fileno == ib.fileno && cmp == 0;
+#else
+  check_status(H5Oget_info_by_name2(loc, a.c_str(), &ia, H5O_INFO_BASIC, H5P_DEFAULT), where, "cannot inspect '" + a + "'");
+  check_status(H5Oget_info_by_name2(loc, b.c_str(), &ib, H5O_INFO_BASIC, H5P_DEFAULT), where, "cannot inspect '" + b + "'");
+  return ia.fileno == ib.fileno && ia.addr == ib.addr;
+#endif
+}
+
+std::string object_path(hid_t obj) {
+  quiet();
+  const ssize_t len = H5Iget_name(obj, nullptr, 0);
+  if (len <= 0) return "?";
+  std::string name(std::size_t(len) + 1, '\0');
+  H5Iget_name(obj, name.data(), name.size());
+  name.resize(std::size_t(len));
+  return name;
+}
+
 Array<double> read_doubles(hid_t loc, const std::string& name, const std::string& where) {
   return read_dataset<double>(loc, name, H5T_NATIVE_DOUBLE, H5T_FLOAT, where);
 }
@@ -234,6 +399,17 @@ void write_attribute(hid_t obj, const std::string& name, int64_t value, const st
   write_attribute_raw(obj, name, H5T_NATIVE_INT64, space.get(), &value, where);
 }
 
+void write_attribute(hid_t obj, const std::string& name, int32_t value, const std::string& where) {
+  Handle space = make_space({}, where);
+  write_attribute_raw(obj, name, H5T_NATIVE_INT32, space.get(), &value, where);
+}
+
+void write_attribute(hid_t obj, const std::string& name, const std::vector<int32_t>& value,
+                     const std::string& where) {
+  Handle space = make_space({hsize_t(value.size())}, where);
+  write_attribute_raw(obj, name, H5T_NATIVE_INT32, space.get(), value.data(), where);
+}
+
 void write_attribute(hid_t obj, const std::string& name, const std::vector<double>& value,
                      const std::string& where) {
   Handle space = make_space({hsize_t(value.size())}, where);
@@ -247,6 +423,16 @@ void write_attribute(hid_t obj, const std::string& name, const std::vector<std::
   std::vector<const char*> p;
   for (const std::string& s : value) p.push_back(s.c_str());
   write_attribute_raw(obj, name, type.get(), space.get(), p.data(), where);
+}
+
+void write_fixed_string_attribute(hid_t obj, const std::string& name, const std::string& value,
+                                  const std::string& where) {
+  write_fixed_strings(obj, name, {value}, {}, where);
+}
+
+void write_fixed_string_attribute(hid_t obj, const std::string& name,
+                                  const std::vector<std::string>& values, const std::string& where) {
+  write_fixed_strings(obj, name, values, {hsize_t(values.size())}, where);
 }
 
 bool has_attribute(hid_t obj, const std::string& name) {
