@@ -1,0 +1,115 @@
+"""NVE energy conservation of `cellforce run`: drift and fluctuation of the total energy.
+
+For each backend x precision x size, runs an LJ liquid (fcc at density 0.8442, T0 = 1.44,
+rc 2.5 force-shifted unless --mode says otherwise, dt 0.005, velocity Verlet) for --steps steps,
+reads the thermo CSV (every 20 steps) and reports, per particle: the drift (least-squares slope of
+E_total/N against time) and the RMS fluctuation of E_total/N about its mean, with the run's speed.
+
+    python validation/nve_drift.py --cellforce build/cellforce [--backends cpu cuda]
+        [--precisions single mixed double] [--cells 5 20] [--steps 20000] [--dt 0.005]
+        [--mode force-shift] --json out.json
+
+Exit status: 0 when every run finished, 1 when one failed, 2 usage error.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import re
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+import lj
+
+SCENE = """
+[system]
+dimension = 3
+[particles]
+lattice = "fcc"
+cells = [{cells}, {cells}, {cells}]
+density = 0.8442
+[[types]]
+name = "A"
+[interactions]
+cutoff = 2.5
+mode = "{mode}"
+[initial]
+temperature = 1.44
+seed = 2026
+[integrator]
+kind = "nve"
+dt = {dt}
+[run]
+steps = {steps}
+backend = "{backend}"
+precision = "{precision}"
+[output]
+thermo_every = 20
+thermo_file = "{thermo}"
+"""
+
+
+def drift_and_rms(csv_path: Path, n: int):
+    data = np.genfromtxt(csv_path, delimiter=",", names=True)
+    t, e = data["time"], data["total_energy"] / n
+    slope = np.polyfit(t, e, 1)[0]
+    return float(slope), float(np.sqrt(np.mean((e - e.mean()) ** 2))), float(e[-1] - e[0])
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--cellforce", required=True)
+    parser.add_argument("--backends", nargs="+", choices=["cpu", "cuda"], default=["cpu"])
+    parser.add_argument("--precisions", nargs="+", choices=["single", "mixed", "double"],
+                        default=["single", "mixed", "double"])
+    parser.add_argument("--cells", nargs="+", type=int, default=[5])
+    parser.add_argument("--steps", type=int, default=20000)
+    parser.add_argument("--dt", type=float, default=0.005)
+    parser.add_argument("--mode", choices=lj.MODES, default="force-shift")
+    parser.add_argument("--json", type=Path, required=True)
+    args = parser.parse_args()
+    rows, failed = [], []
+    with tempfile.TemporaryDirectory(prefix="cellforce-nve-") as work:
+        for backend in args.backends:
+            for cells in args.cells:
+                for precision in args.precisions:
+                    thermo = Path(work) / f"{backend}_{cells}_{precision}.csv"
+                    scene = Path(work) / "scene.toml"
+                    scene.write_text(SCENE.format(cells=cells, mode=args.mode, dt=args.dt,
+                                                  steps=args.steps, backend=backend,
+                                                  precision=precision, thermo=thermo))
+                    proc = subprocess.run([args.cellforce, "run", str(scene), "--quiet"],
+                                          capture_output=True, text=True)
+                    label = f"{backend} {precision} N={4 * cells ** 3}"
+                    if proc.returncode != 0:
+                        failed.append(f"{label}: {proc.stderr.strip()}")
+                        print(f"failed: {failed[-1]}", flush=True)
+                        continue
+                    n = 4 * cells ** 3
+                    drift, rms, change = drift_and_rms(thermo, n)
+                    rate = re.search(r"([0-9.]+) steps/s", proc.stdout)
+                    engine = re.search(r"steps; (.*), precision", proc.stdout)
+                    row = {"backend": backend, "precision": precision, "n": n, "steps": args.steps,
+                           "dt": args.dt, "mode": args.mode, "drift_per_particle_per_time": drift,
+                           "rms_per_particle": rms, "change_per_particle": change,
+                           "steps_per_s": float(rate.group(1)) if rate else None,
+                           "engine": engine.group(1) if engine else ""}
+                    rows.append(row)
+                    print(f"{label:28s} drift {drift:+.2e}  RMS {rms:.2e}  "
+                          f"{row['steps_per_s']} steps/s  ({row['engine']})", flush=True)
+    args.json.parent.mkdir(parents=True, exist_ok=True)
+    args.json.write_text(json.dumps({
+        "command": " ".join(["python", *sys.argv]), "revision": lj.source_revision(),
+        "date": datetime.datetime.now().astimezone().isoformat(timespec="seconds"),
+        "failed": failed, "rows": rows}, indent=1))
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
