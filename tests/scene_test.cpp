@@ -228,6 +228,36 @@ TEST(Scene, LatticesHaveTheirDensity) {
   EXPECT_EQ(neighbours, 6);
 }
 
+// A scene can start from a configuration file (path relative to the scene's folder); species must
+// name scene types and the periodicity must agree.
+TEST(Scene, StartsFromAFile) {
+  const std::string folder = std::string(CELLFORCE_SOURCE_DIR) + "/systems";
+  const Scene s = parse_scene("[particles]\nsource = \"file\"\npath = \"validation/binary_lb.xyz\"\n"
+                              "[[types]]\nname = \"A\"\n[[types]]\nname = \"B\"\nsigma = 0.88\nepsilon = 0.5\n",
+                              "file.toml", folder);
+  const Configuration c = build_configuration(s);
+  EXPECT_EQ(c.size(), 2000u);
+  std::size_t b = 0;
+  for (uint32_t t : c.types) b += t;
+  EXPECT_EQ(b, 400u) << "80:20 A/B";
+  const Scene missing = parse_scene("[particles]\nsource = \"file\"\npath = \"validation/binary_lb.xyz\"\n"
+                                    "[[types]]\nname = \"A\"\n", "file.toml", folder);
+  try {
+    build_configuration(missing);
+    ADD_FAILURE() << "species B has no type";
+  } catch (const Error& e) {
+    EXPECT_THAT(std::string(e.what()), HasSubstr("has species 'B', which no [[types]] names"));
+  }
+  const Scene open = parse_scene("[system]\nperiodic = [false, false, false]\n[particles]\nsource = \"file\"\n"
+                                 "path = \"validation/lj_liquid.xyz\"\n[[types]]\nname = \"A\"\n", "file.toml", folder);
+  try {
+    build_configuration(open);
+    ADD_FAILURE() << "periodicity differs from the file";
+  } catch (const Error& e) {
+    EXPECT_THAT(std::string(e.what()), HasSubstr("axis x is open in the scene but not in"));
+  }
+}
+
 // Every scene shipped in systems/ is valid and builds its configuration.
 TEST(Scene, SystemsScenesAreValid) {
   const std::filesystem::path dir = std::filesystem::path(CELLFORCE_SOURCE_DIR) / "systems";
