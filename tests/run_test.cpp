@@ -48,6 +48,8 @@ class RunFolder : public ::testing::Test {
 };
 
 // A small 2D liquid: 80 particles on a hexagonal lattice at area density 0.7.
+// Thermo every 7 steps, frames every 9, checkpoints every 30: none divides another, so the rows
+// and frames around a checkpoint are the ones a restart can get wrong.
 std::string scene_text(const std::string& kind, const std::string& backend, int64_t steps, uint64_t seed = 5) {
   std::ostringstream s;
   s << "[system]\ndimension = 2\n[particles]\nlattice = \"hexagonal\"\ncells = [8, 5]\ndensity = 0.7\n"
@@ -55,8 +57,8 @@ std::string scene_text(const std::string& kind, const std::string& backend, int6
     << "[initial]\ntemperature = 1.0\nseed = " << seed << "\n[integrator]\nkind = \"" << kind << "\"\ndt = 0.005\n"
     << (kind == "langevin" ? "temperature = 0.8\nfriction = 1.0\n" : "") << "[run]\nsteps = " << steps
     << "\nbackend = \"" << backend << "\"\nprecision = \"double\"\n"
-    << "[output]\nthermo_every = 5\nthermo_file = \"thermo.csv\"\ncheckpoint = \"ckpt.h5\"\ncheckpoint_every = 30\n"
-    << "trajectory = \"traj.h5\"\ntrajectory_every = 10\nvelocities = true\n";
+    << "[output]\nthermo_every = 7\nthermo_file = \"thermo.csv\"\ncheckpoint = \"ckpt.h5\"\ncheckpoint_every = 30\n"
+    << "trajectory = \"traj.h5\"\ntrajectory_every = 9\nvelocities = true\n";
   return s.str();
 }
 
@@ -100,14 +102,15 @@ TEST_F(RunFolder, RestartReproducesTheUninterruptedRunBitwise) {
       RunArgs args;
       args.scene = "scene.toml";
       args.quiet = true;
+      args.overwrite = true;
       ASSERT_EQ(run_md(args), 0);
       const Saved full = load("ckpt.h5");
       const std::string full_thermo = read("thermo.csv");
       const Frames full_frames = load_trajectory("traj.h5");
       EXPECT_EQ(full.step, 60);
 
-      // A run that checkpointed at step 30, went on to step 45 (thermo rows to 45, frames to 40)
-      // and died there; continued from the checkpoint, the rows and frames beyond 30 are redone.
+      // A run that checkpointed at step 30, went on to step 45 (rows to 45, frames to 36) and died
+      // there; continued from the checkpoint, the rows and frames beyond 30 are redone.
       args.steps = 30;
       ASSERT_EQ(run_md(args), 0);
       fs::copy_file("ckpt.h5", "ckpt30.h5", fs::copy_options::overwrite_existing);
@@ -122,6 +125,19 @@ TEST_F(RunFolder, RestartReproducesTheUninterruptedRunBitwise) {
       EXPECT_EQ(resumed.step, 60);
       EXPECT_EQ(resumed.positions, full.positions);
       EXPECT_EQ(resumed.velocities, full.velocities);
+      EXPECT_EQ(read("thermo.csv"), full_thermo);
+      EXPECT_EQ(load_trajectory("traj.h5"), full_frames);
+
+      // A run of 25 steps continued from its final checkpoint: its row at step 25 (written
+      // because it was the last step) is not one of the uninterrupted run's and goes.
+      args.steps = 25;
+      ASSERT_EQ(run_md(args), 0);
+      fs::copy_file("ckpt.h5", "ckpt25.h5", fs::copy_options::overwrite_existing);
+      args.steps = -1;
+      args.restart = "ckpt25.h5";
+      ASSERT_EQ(run_md(args), 0);
+      args.restart.clear();
+      EXPECT_EQ(load("ckpt.h5").positions, full.positions);
       EXPECT_EQ(read("thermo.csv"), full_thermo);
       EXPECT_EQ(load_trajectory("traj.h5"), full_frames);
       fs::remove("traj.h5");
@@ -140,10 +156,37 @@ TEST_F(RunFolder, ThermoFileHoldsTheStepsAskedFor) {
   EXPECT_EQ(line, "step,time,temperature,kinetic_energy,potential_energy,total_energy,pressure");
   std::vector<long> steps;
   while (std::getline(lines, line)) steps.push_back(std::stol(line.substr(0, line.find(','))));
-  EXPECT_EQ(steps, (std::vector<long>{0, 5, 10, 15, 20, 23}));  // every 5, and the last step
+  EXPECT_EQ(steps, (std::vector<long>{0, 7, 14, 21, 23}));  // every 7, and the last step
   const Frames frames = load_trajectory("traj.h5");
-  EXPECT_EQ(frames.steps, (std::vector<double>{0, 10, 20}));    // every 10
+  EXPECT_EQ(frames.steps, (std::vector<double>{0, 9, 18}));  // every 9
   EXPECT_EQ(frames.positions.size(), 3u * 80u * 2u);
+}
+
+// A fresh run refuses to replace an earlier run's outputs unless told to; a refused restart
+// leaves the outputs as they were.
+TEST_F(RunFolder, OutputsOfAnEarlierRunAreKept) {
+  std::ofstream("scene.toml") << scene_text("nve", "cpu", 20);
+  RunArgs args;
+  args.scene = "scene.toml";
+  args.quiet = true;
+  ASSERT_EQ(run_md(args), 0);
+  const std::string thermo = read("thermo.csv");
+  try {
+    run_md(args);
+    ADD_FAILURE() << "the earlier run's outputs were replaced";
+  } catch (const Error& e) {
+    EXPECT_THAT(std::string(e.what()), HasSubstr("thermo.csv: exists"));
+  }
+  EXPECT_EQ(read("thermo.csv"), thermo);
+  // A restart refused late (a checkpoint beyond the run) touches nothing.
+  args.restart = "ckpt.h5";
+  args.steps = 10;
+  EXPECT_THROW(run_md(args), Error);
+  EXPECT_EQ(read("thermo.csv"), thermo);
+  args.restart.clear();
+  args.steps = -1;
+  args.overwrite = true;
+  EXPECT_EQ(run_md(args), 0);
 }
 
 TEST_F(RunFolder, CheckpointOfAnotherSceneOrSeedIsRefused) {
@@ -159,7 +202,7 @@ TEST_F(RunFolder, CheckpointOfAnotherSceneOrSeedIsRefused) {
     run_md(args);
     ADD_FAILURE() << "a checkpoint of another scene was accepted";
   } catch (const Error& e) {
-    EXPECT_THAT(std::string(e.what()), HasSubstr("old.h5: written for another scene"));
+    EXPECT_THAT(std::string(e.what()), HasSubstr("old.h5: written for another system"));
   }
   std::ofstream("scene.toml") << scene_text("langevin", "cpu", 30);
   args.steps = 20;

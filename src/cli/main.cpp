@@ -252,6 +252,8 @@ int main(int argc, char** argv) {
   run_cmd->add_option("--restart", ra.restart, "Continue from this checkpoint (written by the same scene)")
       ->check(CLI::ExistingFile);
   run_cmd->add_flag("--quiet,-q", ra.quiet, "Only the setup and the performance summary on the screen");
+  run_cmd->add_flag("--overwrite", ra.overwrite,
+                    "Replace the thermo, trajectory and checkpoint files of an earlier run (refused otherwise)");
 
   CLI11_PARSE(app, argc, argv);
   try {

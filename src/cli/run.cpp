@@ -2,7 +2,9 @@
 
 #include <unistd.h>
 
+#include <charconv>
 #include <chrono>
+#include <filesystem>
 #include <cmath>
 #include <cstdio>
 #include <fstream>
@@ -109,6 +111,59 @@ struct StageTotals {
   }
 };
 
+// Errors from building or evaluating the system name the scene (and the step, in the loop).
+template <class F>
+auto within(const std::string& context, F&& f) {
+  try {
+    return f();
+  } catch (const Error& e) {
+    std::string what = e.what();
+    const std::string prefix = "cellforce: ";
+    if (what.rfind(prefix, 0) == 0) what.erase(0, prefix.size());
+    throw Error(context + ": " + what);
+  }
+}
+
+// The thermo CSV rows of an earlier run up to `step`, header first; a restart continues them.
+std::vector<std::string> thermo_rows_until(const std::string& path, int64_t step, int64_t every) {
+  std::ifstream in(path);
+  std::vector<std::string> kept;
+  long line_no = 0;
+  for (std::string line; std::getline(in, line);) {
+    ++line_no;
+    if (line_no == 1) {
+      kept.push_back(line);
+      continue;
+    }
+    if (line.empty()) continue;
+    long long row_step = 0;
+    const auto [ptr, ec] = std::from_chars(line.data(), line.data() + line.size(), row_step);
+    if (ec != std::errc() || ptr == line.data() + line.size() || *ptr != ',')
+      throw Error(path + ":" + std::to_string(line_no) + ": not a thermo row (step,time,...)");
+    // The row at the checkpoint's step stays only if the uninterrupted run writes one there (a
+    // run also writes a row at its last step).
+    if (row_step < step || (row_step == step && step % every == 0)) kept.push_back(line);
+  }
+  return kept;
+}
+
+void write_text_atomically(const std::string& path, const std::vector<std::string>& lines) {
+  const std::string tmp = path + ".partial-" + std::to_string(::getpid());
+  {
+    std::ofstream out(tmp, std::ios::trunc);
+    for (const std::string& line : lines) out << line << '\n';
+    out.flush();
+    if (!out) {
+      std::remove(tmp.c_str());
+      throw Error(path + ": cannot write the thermo file");
+    }
+  }
+  if (std::rename(tmp.c_str(), path.c_str()) != 0) {
+    std::remove(tmp.c_str());
+    throw Error(path + ": cannot move the thermo file into place");
+  }
+}
+
 }  // namespace
 
 int run_md(const RunArgs& args) {
@@ -124,73 +179,100 @@ int run_md(const RunArgs& args) {
   }
   if (!args.thermo_file.empty()) scene.output.thermo_file = args.thermo_file;
   if (!args.trajectory.empty()) scene.output.trajectory = args.trajectory;
-  if (args.trajectory_every > 0) scene.output.trajectory_every = args.trajectory_every;
+  if (args.trajectory_every > 0) {
+    if (scene.output.trajectory.empty()) throw Error("--trajectory-every: the run writes no trajectory (--trajectory)");
+    scene.output.trajectory_every = args.trajectory_every;
+  }
+  const bool restart = !args.restart.empty();
+  const SceneOutput& output = scene.output;
+
+  // A fresh run does not overwrite the outputs of an earlier one unless asked to.
+  if (!restart && !args.overwrite)
+    for (const std::string& path : {output.thermo_file, output.trajectory, output.checkpoint})
+      if (!path.empty() && std::filesystem::exists(path))
+        throw Error(path + ": exists (an earlier run's output); continue that run with --restart CHECKPOINT, or "
+                    "replace it with --overwrite");
 
   MdState state;
-  state.config = build_configuration(scene);
+  state.config = within(scene.source, [&] { return build_configuration(scene); });
   const std::size_t n = state.config.size();
   const int dim = scene.dim;
   std::vector<double> masses(n);
   for (std::size_t i = 0; i < n; ++i) masses[i] = scene.masses[state.config.types[i]];
   const ForceField& ff = scene.force_field;
-  const SystemView view = state.config.view();  // positions are updated in place
-  validate_system(view, ff);
+  within(scene.source, [&] { validate_system(state.config.view(), ff); });
 
   ForceBackend engine(scene.backend);
-  initialize_velocities(state, masses, scene.initial_temperature, scene.seed);
   IntegratorSettings integrator;
   integrator.langevin = scene.integrator.kind == IntegratorKind::kLangevin;
   integrator.dt = scene.integrator.dt;
   integrator.kT = scene.integrator.temperature;
   integrator.friction = scene.integrator.friction;
   integrator.seed = scene.seed;
+  initialize_velocities(state, masses, scene.initial_temperature, scene.seed, !integrator.langevin);
 
-  const CheckpointInfo checkpoint_info{scene.seed, fingerprint(scene.text.empty() ? scene.source : scene.text),
-                                       scene.source};
-  if (!args.restart.empty()) {
-    read_checkpoint(args.restart, state, checkpoint_info);
+  CheckpointInfo checkpoint_info;
+  checkpoint_info.seed = scene.seed;
+  checkpoint_info.scene_fingerprint = scene_fingerprint(scene);
+  checkpoint_info.scene = scene.source;
+  checkpoint_info.backend = engine.name();
+  checkpoint_info.precision = to_string(scene.backend.precision);
+  if (restart) {
+    const CheckpointInfo saved = read_checkpoint(args.restart, state, checkpoint_info);
     state.time = double(state.step) * integrator.dt;
     if (state.step > scene.steps)
       throw Error(args.restart + ": checkpoint at step " + std::to_string(state.step) + ", beyond the run's " +
                   std::to_string(scene.steps) + " steps");
+    if (saved.backend != checkpoint_info.backend || saved.precision != checkpoint_info.precision)
+      std::printf("note: %s was written by backend %s, precision %s; this run uses %s, %s: it continues the run, "
+                  "but not bit for bit\n", args.restart.c_str(), saved.backend.c_str(), saved.precision.c_str(),
+                  checkpoint_info.backend.c_str(), checkpoint_info.precision.c_str());
   }
 
-  // Thermo CSV. On a restart the rows up to the checkpoint's step are kept and the rest dropped
-  // (they belong to the part of the run being redone).
+  ForceResult result;
+  StageTotals stages;
+  int64_t evaluations = 0;
+  double t_output = 0;
+  auto compute = [&](MdState& s, bool observe) {
+    const SystemView view = s.config.view();
+    engine.evaluate(view, ff, Request{observe, observe}, result);
+    stages.add(engine.stats(view, ff, false));
+    ++evaluations;
+    s.forces = result.forces;
+  };
+  within(scene.source + ": step " + std::to_string(state.step), [&] { compute(state, true); });
+
+  // Outputs are touched only now that everything that can refuse the run has run. On a restart
+  // the thermo rows and trajectory frames beyond the checkpoint are dropped (that part of the run
+  // is redone); the thermo file is rewritten under a temporary name.
   std::unique_ptr<std::ofstream> csv;
-  if (!scene.output.thermo_file.empty()) {
-    const std::string& path = scene.output.thermo_file;
-    std::vector<std::string> kept;
-    if (!args.restart.empty()) {
-      std::ifstream old(path);
-      for (std::string line; std::getline(old, line);)
-        if (kept.empty() || std::stoll(line.substr(0, line.find(','))) <= state.step) kept.push_back(line);
-    }
-    csv = std::make_unique<std::ofstream>(path, std::ios::trunc);
-    if (!*csv) throw Error(path + ": cannot write the thermo file");
-    if (kept.empty()) kept.push_back("step,time,temperature,kinetic_energy,potential_energy,total_energy,pressure");
-    for (const std::string& line : kept) *csv << line << "\n";
-    csv->flush();
+  if (!output.thermo_file.empty()) {
+    std::vector<std::string> rows;
+    if (restart && std::filesystem::exists(output.thermo_file))
+      rows = thermo_rows_until(output.thermo_file, state.step, output.thermo_every);
+    if (rows.empty()) rows.push_back("step,time,temperature,kinetic_energy,potential_energy,total_energy,pressure");
+    write_text_atomically(output.thermo_file, rows);
+    csv = std::make_unique<std::ofstream>(output.thermo_file, std::ios::app);
+    if (!*csv) throw Error(output.thermo_file + ": cannot write the thermo file");
   }
-
-  // H5MD trajectory: a frame every trajectory_every steps with the thermodynamic observables. On
-  // a restart the file is continued after dropping the frames beyond the checkpoint.
   const std::vector<std::string> observables = {"potential_energy", "kinetic_energy", "total_energy",
                                                 "temperature", "pressure"};
   std::unique_ptr<H5mdWriter> trajectory;
-  if (!scene.output.trajectory.empty()) {
+  if (!output.trajectory.empty()) {
     H5mdOptions o;
-    o.velocities = scene.output.velocities;
-    o.forces = scene.output.forces;
+    o.velocities = output.velocities;
+    o.forces = output.forces;
     o.observables = observables;
     o.creator_version = CELLFORCE_VERSION;
-    o.append = !args.restart.empty() && std::ifstream(scene.output.trajectory).good();
+    o.append = restart && std::filesystem::exists(output.trajectory);
+    if (restart && !o.append)
+      std::printf("note: %s does not exist; it starts at step %lld\n", output.trajectory.c_str(),
+                  (long long)state.step);
     std::vector<std::string> names;
     for (const ParticleType& t : scene.force_field.types) names.push_back(t.name);
-    trajectory = std::make_unique<H5mdWriter>(scene.output.trajectory, state.config.box, state.config.types, names, o);
+    trajectory = std::make_unique<H5mdWriter>(output.trajectory, state.config.box, state.config.types, names, o);
     if (o.append) trajectory->truncate_after(state.step);
   }
-  const int64_t trajectory_every = scene.output.trajectory_every;
 
   const bool screen = !args.quiet;
   std::printf("cellforce run: %s\n", scene.source.c_str());
@@ -201,81 +283,72 @@ int run_md(const RunArgs& args) {
   std::printf("  %s, dt %g, %lld steps; %s, precision %s\n",
               integrator.langevin ? "Langevin (BAOAB)" : "NVE (velocity Verlet)", integrator.dt,
               (long long)scene.steps, engine.description().c_str(), to_string(scene.backend.precision));
-  if (!args.restart.empty())
-    std::printf("  restarting from %s at step %lld\n", args.restart.c_str(), (long long)state.step);
+  if (restart) std::printf("  restarting from %s at step %lld\n", args.restart.c_str(), (long long)state.step);
 
-  ForceResult result;
-  StageTotals stages;
-  int64_t evaluations = 0;
-  double t_output = 0;
-  auto compute = [&](MdState& s, bool observe) {
-    engine.evaluate(view, ff, Request{observe, observe}, result);
-    stages.add(engine.stats(view, ff, false));
-    ++evaluations;
-    s.forces = result.forces;
-  };
-  Progress progress(state.step, scene.steps, screen);
-  auto report = [&](const MdState& s, bool thermo_line, bool frame) {
+  auto report = [&](const MdState& s, bool thermo_line, bool frame, auto& progress) {
     const auto t0 = Clock::now();
     const Thermo th = thermo(s, masses, result, !integrator.langevin);
     if (frame && trajectory)
-      trajectory->write_frame(s.step, s.time, s.config.positions.data(),
-                              scene.output.velocities ? s.velocities.data() : nullptr,
-                              scene.output.forces ? s.forces.data() : nullptr,
+      trajectory->write_frame(s.step, s.time, s.config.positions.data(), output.velocities ? s.velocities.data() : nullptr,
+                              output.forces ? s.forces.data() : nullptr,
                               {th.potential, th.kinetic, th.total, th.temperature, th.pressure});
-    if (!thermo_line) {
-      t_output += seconds_since(t0);
-      return;
-    }
-    const double inv_n = n ? 1.0 / double(n) : 0.0;
-    if (screen) {
-      char line[256];
-      std::snprintf(line, sizeof line, "%10lld %10.4f %10.5f %12.6f %12.6f %12.6f %11.5f", (long long)s.step, s.time,
-                    th.temperature, th.kinetic * inv_n, th.potential * inv_n, th.total * inv_n, th.pressure);
-      progress.print(line);
-    }
-    if (csv) {
-      char line[320];
-      std::snprintf(line, sizeof line, "%lld,%.10g,%.12g,%.17g,%.17g,%.17g,%.12g\n", (long long)s.step, s.time,
-                    th.temperature, th.kinetic, th.potential, th.total, th.pressure);
-      *csv << line << std::flush;
+    if (thermo_line) {
+      const double inv_n = n ? 1.0 / double(n) : 0.0;
+      if (screen) {
+        char line[256];
+        std::snprintf(line, sizeof line, "%10lld %10.4f %10.5f %12.6f %12.6f %12.6f %11.5f", (long long)s.step,
+                      s.time, th.temperature, th.kinetic * inv_n, th.potential * inv_n, th.total * inv_n, th.pressure);
+        progress.print(line);
+      }
+      if (csv) {
+        char line[320];
+        std::snprintf(line, sizeof line, "%lld,%.10g,%.12g,%.17g,%.17g,%.17g,%.12g\n", (long long)s.step, s.time,
+                      th.temperature, th.kinetic, th.potential, th.total, th.pressure);
+        *csv << line << std::flush;
+        if (!*csv) throw Error(output.thermo_file + ": cannot write the thermo file (disk full?)");
+      }
     }
     t_output += seconds_since(t0);
   };
-
-  compute(state, true);
-  const double setup_seconds = seconds_since(t_setup);
-  if (screen)
-    progress.print("      step       time       temp      ke/atom      pe/atom    etot/atom       press");
-  if (args.restart.empty()) report(state, true, true);
-  else if (screen) progress.print("(continuing from " + args.restart + ")");
   auto save_checkpoint = [&] {
     const auto t0 = Clock::now();
-    write_checkpoint(scene.output.checkpoint, state, checkpoint_info);
+    write_checkpoint(output.checkpoint, state, checkpoint_info);
     t_output += seconds_since(t0);
   };
 
+  Progress setup_lines(state.step, scene.steps, false);
+  if (screen) setup_lines.print("      step       time       temp      ke/atom      pe/atom    etot/atom       press");
+  if (!restart) report(state, true, true, setup_lines);
+  else if (screen) setup_lines.print("(continuing from " + args.restart + ")");
+  const double setup_seconds = seconds_since(t_setup);
+  // The summary covers the loop only: the setup evaluation (allocations, GPU warm-up) is left out.
+  stages = StageTotals{};
+  evaluations = 0;
+  t_output = 0;
+
   const auto t_loop = Clock::now();
+  Progress progress(state.step, scene.steps, screen);
   double t_forces_wall = 0;
   const int64_t first = state.step, last = scene.steps;
-  const int64_t checkpoint_every = scene.output.checkpoint_every;
   while (state.step < last) {
     const int64_t next = state.step + 1;
-    const bool thermo_step = next % scene.output.thermo_every == 0 || next == last;
-    const bool frame_step = trajectory && next % trajectory_every == 0;
+    const bool thermo_step = next % output.thermo_every == 0 || next == last;
+    const bool frame_step = trajectory && next % output.trajectory_every == 0;
     const bool observe = thermo_step || frame_step;
-    advance(state, masses, integrator, [&](MdState& s) {
-      const auto t0 = Clock::now();
-      compute(s, observe);
-      t_forces_wall += seconds_since(t0);
+    within(scene.source + ": step " + std::to_string(next), [&] {
+      advance(state, masses, integrator, [&](MdState& s) {
+        const auto t0 = Clock::now();
+        compute(s, observe);
+        t_forces_wall += seconds_since(t0);
+      });
     });
-    if (observe) report(state, thermo_step, frame_step);
-    if (!scene.output.checkpoint.empty() && checkpoint_every > 0 && state.step % checkpoint_every == 0 &&
+    if (observe) report(state, thermo_step, frame_step, progress);
+    if (!output.checkpoint.empty() && output.checkpoint_every > 0 && state.step % output.checkpoint_every == 0 &&
         state.step != last)
       save_checkpoint();
     progress.update(state.step);
   }
-  if (!scene.output.checkpoint.empty()) save_checkpoint();
+  if (!output.checkpoint.empty()) save_checkpoint();
   if (trajectory) trajectory->close();
   progress.finish();
   const double loop_seconds = seconds_since(t_loop);
@@ -291,7 +364,7 @@ int run_md(const RunArgs& args) {
                 " accumulate %.4f | host copies %.4f | engine total %.4f\n",
                 per * stages.cell_ids, per * stages.sort, per * stages.collision_cells, per * stages.traversal,
                 per * stages.accumulate, per * stages.transfer, per * stages.total);
-    std::printf("  per step (ms): forces %.4f | integration and the rest %.4f | thermo output %.4f\n",
+    std::printf("  per step (ms): forces %.4f | integration and the rest %.4f | output %.4f\n",
                 1e3 * t_forces_wall / steps, 1e3 * (loop_seconds - t_forces_wall - t_output) / steps,
                 1e3 * t_output / steps);
   }

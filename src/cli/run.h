@@ -19,6 +19,7 @@ struct RunArgs {
   std::string trajectory;     // non-empty: overrides [output] trajectory
   int64_t trajectory_every = 0;  // > 0: overrides [output] trajectory_every
   bool quiet = false;         // no thermo lines or progress on the screen (summary only)
+  bool overwrite = false;     // a fresh run may replace the outputs of an earlier one
 };
 
 // Returns the exit code (0) or throws cellforce::Error.

@@ -10,12 +10,6 @@
 
 namespace cellforce {
 
-uint64_t fingerprint(const std::string& text) {
-  uint64_t h = 0xcbf29ce484222325ull;
-  for (unsigned char c : text) h = (h ^ c) * 0x100000001b3ull;
-  return h;
-}
-
 void write_checkpoint(const std::string& path, const MdState& state, const CheckpointInfo& info) {
   const int dim = state.config.box.dim;
   const hsize_t n = state.config.size(), hd = hsize_t(dim);
@@ -36,6 +30,8 @@ void write_checkpoint(const std::string& path, const MdState& state, const Check
     h5::write_attribute(root, "seed", std::to_string(info.seed), path);
     h5::write_attribute(root, "scene_fingerprint", std::to_string(info.scene_fingerprint), path);
     h5::write_attribute(root, "scene", info.scene, path);
+    h5::write_attribute(root, "backend", info.backend, path);
+    h5::write_attribute(root, "precision", info.precision, path);
     f.close();
   } catch (...) {
     std::remove(tmp.c_str());
@@ -47,7 +43,7 @@ void write_checkpoint(const std::string& path, const MdState& state, const Check
   }
 }
 
-void read_checkpoint(const std::string& path, MdState& state, const CheckpointInfo& expected) {
+CheckpointInfo read_checkpoint(const std::string& path, MdState& state, const CheckpointInfo& expected) {
   // state.time is left to the caller: step x dt, as the integrator computes it.
   h5::File f = h5::File::open_read(path);
   const hid_t root = f.id();
@@ -58,8 +54,9 @@ void read_checkpoint(const std::string& path, MdState& state, const CheckpointIn
     throw Error(path + ": checkpoint of a " + std::to_string(file_dim) + "D run, the scene is " + std::to_string(dim) + "D");
   const std::string print = h5::read_string_attribute(root, "scene_fingerprint", path).at(0);
   if (print != std::to_string(expected.scene_fingerprint))
-    throw Error(path + ": written for another scene (" + h5::read_string_attribute(root, "scene", path).at(0) +
-                ", or that file since changed) than " + expected.scene);
+    throw Error(path + ": written for another system (" + h5::read_string_attribute(root, "scene", path).at(0) +
+                ", or its particles, types, interactions, initial state or integrator have changed since) than " +
+                expected.scene);
   if (h5::read_string_attribute(root, "seed", path).at(0) != std::to_string(expected.seed))
     throw Error(path + ": written with seed " + h5::read_string_attribute(root, "seed", path).at(0) +
                 ", the run has seed " + std::to_string(expected.seed));
@@ -77,7 +74,12 @@ void read_checkpoint(const std::string& path, MdState& state, const CheckpointIn
   state.config.positions = pos.values;
   state.velocities = vel.values;
   state.step = h5::read_int_attribute(root, "step", path);
+  CheckpointInfo saved = expected;
+  saved.scene = h5::read_string_attribute(root, "scene", path).at(0);
+  saved.backend = h5::read_string_attribute(root, "backend", path).at(0);
+  saved.precision = h5::read_string_attribute(root, "precision", path).at(0);
   f.close();
+  return saved;
 }
 
 }  // namespace cellforce

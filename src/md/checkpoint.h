@@ -13,18 +13,16 @@ namespace cellforce {
 
 struct CheckpointInfo {
   uint64_t seed = 0;
-  uint64_t scene_fingerprint = 0;  // of the scene's text: a restart must use the same scene
+  uint64_t scene_fingerprint = 0;  // of the scene's physics (scene_fingerprint): a restart needs the same
   std::string scene;               // where the scene came from (for messages)
+  std::string backend, precision;  // what wrote it: a restart on others continues, but not bit for bit
 };
 
 void write_checkpoint(const std::string& path, const MdState& state, const CheckpointInfo& info);
 
 // Reads a checkpoint into `state` (whose configuration must already hold the scene's particles:
-// the particle count, dimension, types and box must match). Throws cellforce::Error naming the
-// file and what differs.
-void read_checkpoint(const std::string& path, MdState& state, const CheckpointInfo& expected);
-
-// FNV-1a of a text: stable across machines and compilers.
-uint64_t fingerprint(const std::string& text);
+// the particle count, dimension and types must match, and the scene fingerprint and seed).
+// Returns what the file says of itself. Throws cellforce::Error naming the file and what differs.
+CheckpointInfo read_checkpoint(const std::string& path, MdState& state, const CheckpointInfo& expected);
 
 }  // namespace cellforce

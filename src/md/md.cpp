@@ -4,6 +4,7 @@
 #include <limits>
 
 #include "core/box.h"
+#include "core/error.h"
 
 namespace cellforce {
 namespace {
@@ -22,6 +23,10 @@ double unit_open(uint64_t bits) {  // (0, 1), 53 random bits
 void wrap(MdState& s) {
   const Box& box = s.config.box;
   const int dim = box.dim;
+  for (std::size_t k = 0; k < s.config.positions.size(); ++k)
+    if (!std::isfinite(s.config.positions[k]))
+      throw Error("particle " + std::to_string(k / std::size_t(dim)) +
+                  " has a non-finite position: the integration diverged (lower dt, or remove overlaps first)");
   for (int a = 0; a < dim; ++a) {
     if (!box.periodic[a]) continue;
     const double length = box.length[a], inv = 1.0 / length;
@@ -69,7 +74,8 @@ double kinetic_energy(const MdState& s, const std::vector<double>& masses) {
   return ke;
 }
 
-void initialize_velocities(MdState& s, const std::vector<double>& masses, double kT, uint64_t seed) {
+void initialize_velocities(MdState& s, const std::vector<double>& masses, double kT, uint64_t seed,
+                           bool com_conserved) {
   const int dim = s.config.box.dim;
   const std::size_t n = s.config.size();
   s.velocities.assign(n * std::size_t(dim), 0.0);
@@ -78,7 +84,7 @@ void initialize_velocities(MdState& s, const std::vector<double>& masses, double
       s.velocities[i * dim + a] = std::sqrt(kT / masses[i]) * counter_normal(seed, /*stream=*/0, i * dim + a);
   remove_com_momentum(s, masses);
   const double ke = kinetic_energy(s, masses);
-  const double target = 0.5 * degrees_of_freedom(n, dim) * kT;
+  const double target = 0.5 * degrees_of_freedom(n, dim, com_conserved) * kT;
   const double scale = ke > 0 ? std::sqrt(target / ke) : 0.0;
   for (double& v : s.velocities) v *= scale;
 }

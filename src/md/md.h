@@ -32,8 +32,10 @@ double counter_normal(uint64_t seed, uint64_t stream, uint64_t index);
 double degrees_of_freedom(std::size_t n, int dim, bool com_conserved = true);
 
 // Maxwell-Boltzmann velocities at temperature kT (energy units), centre-of-mass momentum removed,
-// then scaled so that the kinetic temperature is exactly kT. masses: per particle.
-void initialize_velocities(MdState& state, const std::vector<double>& masses, double kT, uint64_t seed);
+// then scaled so that the kinetic temperature (with the degrees of freedom of com_conserved) is
+// exactly kT. masses: per particle.
+void initialize_velocities(MdState& state, const std::vector<double>& masses, double kT, uint64_t seed,
+                           bool com_conserved = true);
 
 // Removes the centre-of-mass momentum (mass-weighted).
 void remove_com_momentum(MdState& state, const std::vector<double>& masses);
@@ -60,7 +62,8 @@ struct IntegratorSettings {
 //   NVE, velocity Verlet:  v += dt/2 F/m; x += dt v; F(x); v += dt/2 F/m
 //   Langevin, BAOAB (Leimkuhler & Matthews): v += dt/2 F/m; x += dt/2 v;
 //     v = c1 v + sqrt((1 - c1^2) kT/m) xi, c1 = exp(-gamma dt); x += dt/2 v; F(x); v += dt/2 F/m
-// Positions are wrapped into the box on periodic axes after the drift.
+// Positions are wrapped into the box on periodic axes after the drift. Throws cellforce::Error
+// naming the particle when a position is no longer finite (the integration diverged).
 void advance(MdState& state, const std::vector<double>& masses, const IntegratorSettings& settings,
              const std::function<void(MdState&)>& compute_forces);
 

@@ -100,8 +100,17 @@ Configuration make_random_spaced(const Box& box, std::size_t n, double min_dista
   const int dim = box.dim;
   // A grid of cells no smaller than min_distance: a new particle is checked against the 3^dim
   // neighbouring cells only.
+  // Cells no smaller than min_distance, and about as many as particles (a large, dilute box must
+  // not allocate a huge grid).
+  double volume = 1.0;
+  for (int a = 0; a < dim; ++a) {
+    if (!(box.length[a] > 0) || !std::isfinite(box.length[a]))
+      throw Error("random placement: box edge " + std::string(1, "xyz"[a]) + " must be finite and > 0");
+    volume *= box.length[a];
+  }
+  const double edge = std::max(min_distance, std::pow(volume / double(std::max<std::size_t>(n, 1)), 1.0 / dim));
   int cells[3] = {1, 1, 1};
-  for (int a = 0; a < dim; ++a) cells[a] = std::max(1, std::min(1024, int(box.length[a] / min_distance)));
+  for (int a = 0; a < dim; ++a) cells[a] = std::max(1, int(std::min(1024.0, box.length[a] / edge)));
   const std::size_t ncells = std::size_t(cells[0]) * std::size_t(cells[1]) * std::size_t(cells[2]);
   std::vector<std::vector<uint32_t>> grid(ncells);
   auto cell_of = [&](const double* x, int* c) {

@@ -112,6 +112,7 @@ class Section {
       } else {
         if (!(e.is_integer() || e.is_floating_point())) fail(key, "expected numbers");
         out[k] = T(*e.value<double>());
+        if (!std::isfinite(double(out[k]))) fail(key, "entries must be finite numbers");
       }
     }
     if (dim == 2 && a->size() == 3 && out[2] != T{}) fail(key, "a 2D scene has no third component");
@@ -130,13 +131,17 @@ class Section {
     return n->as_array();
   }
 
-  // Every key of the table must have been read.
-  void finish() const {
+  // Every key of the table must have been read; `hints` explain keys that exist but do not apply.
+  void finish(const std::map<std::string, std::string>& hints = {}) const {
     if (!table_) return;
-    for (const auto& [key, value] : *table_)
-      if (!used_.count(std::string(key.str())))
-        throw Error(file_ + ":" + std::to_string(value.source().begin.line) + ": unknown key '" +
-                    (name_.empty() ? "" : name_ + ".") + std::string(key.str()) + "'");
+    for (const auto& [key, value] : *table_) {
+      const std::string k(key.str());
+      if (used_.count(k)) continue;
+      const auto hint = hints.find(k);
+      throw Error(file_ + ":" + std::to_string(value.source().begin.line) + ": " +
+                  (hint != hints.end() ? "'" + name_ + "." + k + "' " + hint->second
+                                       : "unknown key '" + (name_.empty() ? "" : name_ + ".") + k + "'"));
+    }
   }
 
  private:
@@ -324,7 +329,14 @@ Scene parse_scene(const std::string& text, const std::string& name, const std::s
   }
   for (int a = 0; a < dim; ++a)
     if (p.source != ParticleSource::kFile && p.box[std::size_t(a)] < 0) pa.fail("box", "lengths must be >= 0");
-  pa.finish();
+  const std::string lattice_only = "applies only to source = \"lattice\"";
+  const std::string random_only = "applies only to source = \"random\"";
+  const std::string file_only = "applies only to source = \"file\"";
+  pa.finish({{"lattice", lattice_only}, {"cells", lattice_only}, {"density", lattice_only},
+             {"lattice_constant", lattice_only}, {"offset", lattice_only}, {"sphere_radius", lattice_only},
+             {"count", random_only}, {"min_distance", random_only}, {"path", file_only}, {"frame", file_only},
+             {"composition", "does not apply to source = \"file\" (the file's species give the types)"},
+             {"box", "does not apply to source = \"file\" (the file gives the box)"}});
 
   Section init = section(root, "initial", name);
   scene.initial_temperature = init.non_negative("temperature", 1.0);
@@ -339,7 +351,8 @@ Scene parse_scene(const std::string& text, const std::string& name, const std::s
     scene.integrator.temperature = integ.non_negative("temperature", 1.0);
     scene.integrator.friction = integ.positive("friction", 1.0);
   }
-  integ.finish();
+  integ.finish({{"temperature", "applies only to kind = \"langevin\" (the initial one is [initial] temperature)"},
+                {"friction", "applies only to kind = \"langevin\""}});
 
   Section run = section(root, "run", name);
   scene.steps = run.integer("steps", 1000, 0);
@@ -356,6 +369,11 @@ Scene parse_scene(const std::string& text, const std::string& name, const std::s
   scene.output.forces = out.boolean("forces", false);
   scene.output.checkpoint = out.string("checkpoint", "");
   scene.output.checkpoint_every = out.integer("checkpoint_every", 0, 0);
+  if (scene.output.trajectory.empty())
+    for (const char* key : {"trajectory_every", "velocities", "forces"})
+      if (out.node(key)) out.fail(key, "applies only with a trajectory (trajectory = \"FILE.h5\")");
+  if (scene.output.checkpoint.empty() && out.node("checkpoint_every"))
+    out.fail("checkpoint_every", "applies only with a checkpoint (checkpoint = \"FILE.h5\")");
   out.finish();
 
   try {
@@ -364,6 +382,28 @@ Scene parse_scene(const std::string& text, const std::string& name, const std::s
     throw Error(name + ": " + std::string(e.what()).substr(std::string("cellforce: ").size()));
   }
   return scene;
+}
+
+uint64_t scene_fingerprint(const Scene& scene) {
+  std::ostringstream t;
+  t.precision(17);
+  const SceneParticles& p = scene.particles;
+  t << scene.dim << '|' << scene.periodic[0] << scene.periodic[1] << scene.periodic[2] << '|' << int(p.source) << '|'
+    << int(p.lattice) << '|' << p.cells[0] << ',' << p.cells[1] << ',' << p.cells[2] << '|' << p.density << '|'
+    << p.lattice_constant << '|';
+  for (int a = 0; a < 3; ++a) t << p.box[std::size_t(a)] << ',' << p.offset[std::size_t(a)] << ',';
+  t << '|' << p.sphere_radius << '|' << p.count << '|' << p.min_distance << '|' << p.path << '|' << p.frame << '|';
+  for (const auto& [name, f] : p.composition) t << name << '=' << f << ',';
+  const ForceField& ff = scene.force_field;
+  for (std::size_t k = 0; k < ff.types.size(); ++k)
+    t << '|' << ff.types[k].name << ':' << scene.masses[k] << ':' << ff.types[k].sigma << ':' << ff.types[k].epsilon;
+  t << '|' << ff.cutoff << '|' << int(ff.mode) << '|' << int(ff.mixing);
+  for (const PairOverride& o : ff.overrides) t << '|' << o.a << '-' << o.b << ':' << o.sigma << ':' << o.epsilon;
+  t << '|' << scene.initial_temperature << '|' << scene.seed << '|' << int(scene.integrator.kind) << '|'
+    << scene.integrator.dt << '|' << scene.integrator.temperature << '|' << scene.integrator.friction;
+  uint64_t h = 0xcbf29ce484222325ull;  // FNV-1a: the same on every machine and compiler
+  for (unsigned char c : t.str()) h = (h ^ c) * 0x100000001b3ull;
+  return h;
 }
 
 Scene read_scene(const std::string& path) {
@@ -424,7 +464,7 @@ Configuration build_configuration(const Scene& scene) {
       if (it == index.end()) {
         std::size_t first = 0;
         while (f.species[f.config.types[first]] != s) ++first;
-        throw Error(scene.source + ": [particles] path: particle " + std::to_string(first) + " of " + f.source +
+        throw Error("[particles] path: particle " + std::to_string(first) + " of " + f.source +
                     " has species '" + s + "', which no [[types]] names");
       }
       type_of_species.push_back(it->second);
@@ -432,7 +472,7 @@ Configuration build_configuration(const Scene& scene) {
     for (uint32_t& t : f.config.types) t = type_of_species[t];
     for (int a = 0; a < dim; ++a)
       if (f.config.box.periodic[a] != scene.periodic[std::size_t(a)])
-        throw Error(scene.source + ": [system] periodic: axis " + std::string(1, "xyz"[a]) + " is " +
+        throw Error("[system] periodic: axis " + std::string(1, "xyz"[a]) + " is " +
                     (scene.periodic[std::size_t(a)] ? "periodic" : "open") + " in the scene but not in " + f.source);
     return f.config;
   }
@@ -443,7 +483,7 @@ Configuration build_configuration(const Scene& scene) {
     for (int a = 0; a < dim; ++a) {
       if (p.box[std::size_t(a)] > 0) {
         if (p.box[std::size_t(a)] < c.box.length[a] * (1 - 1e-12))
-          throw Error(scene.source + ": [particles] box: axis " + std::string(1, "xyz"[a]) + " is " +
+          throw Error("[particles] box: axis " + std::string(1, "xyz"[a]) + " is " +
                       std::to_string(p.box[std::size_t(a)]) + ", smaller than the lattice's " +
                       std::to_string(c.box.length[a]));
         c.box.length[a] = p.box[std::size_t(a)];
@@ -474,11 +514,19 @@ Configuration build_configuration(const Scene& scene) {
       box.length[a] = a < dim ? p.box[std::size_t(a)] : 0.0;
       box.periodic[a] = a < dim && scene.periodic[std::size_t(a)];
       if (a < dim && !(box.length[a] > 0))
-        throw Error(scene.source + ": [particles] box: random placement needs every length > 0");
+        throw Error("[particles] box: random placement needs every length > 0");
     }
     c = make_random_spaced(box, p.count, p.min_distance, scene.seed);
   }
   for (int a = 0; a < kMaxDim; ++a) c.box.periodic[a] = a < dim && scene.periodic[std::size_t(a)];
+  if (c.size() == 0) throw Error("[particles]: the scene places no particle (sphere_radius too small?)");
+  // Periodic axes: every particle in [0, L), as the integrator keeps them.
+  for (int a = 0; a < dim; ++a)
+    if (c.box.periodic[a])
+      for (std::size_t i = 0; i < c.size(); ++i) {
+        double& x = c.positions[i * std::size_t(dim) + std::size_t(a)];
+        x = wrap_coordinate(x, c.box.length[a], 1.0 / c.box.length[a]);
+      }
   c.types = assign_types(scene, c.size());
   return c;
 }

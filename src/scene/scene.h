@@ -19,6 +19,9 @@
 //   [initial]      temperature = T, seed = 1
 //   [integrator]   kind = "nve"|"langevin", dt = 0.005, temperature = T, friction = 1 (langevin)
 //   [run]          steps = n, backend = "auto"|"cpu"|"cuda", precision = "single"|"mixed"|"double"
+// Input paths ([particles] path) are relative to the scene file's folder; output paths are
+// relative to the working folder.
+//
 //   [output]       thermo_every = 100, thermo_file = "thermo.csv", trajectory = "traj.h5",
 //                  trajectory_every = 1000, velocities = false, forces = false,
 //                  checkpoint = "checkpoint.h5", checkpoint_every = 0 (0: at the end only)
@@ -101,6 +104,11 @@ Scene read_scene(const std::string& path);
 // The same from text; `name` stands for the file in messages, and relative paths in the scene
 // are resolved against `folder`.
 Scene parse_scene(const std::string& text, const std::string& name, const std::string& folder = ".");
+
+// A fingerprint of what determines a run's trajectory (system, particles, types, interactions,
+// initial state, integrator), not of its length, outputs, backend or the file's comments: a
+// checkpoint can only continue a run with the same fingerprint.
+uint64_t scene_fingerprint(const Scene& scene);
 
 // The scene's starting configuration (box, positions, types) and the names of its types.
 // Lattice and random placements are deterministic for the scene's seed.
