@@ -282,6 +282,9 @@ TEST(Scene, SystemsScenesAreValid) {
   for (const char* name : {"lj_liquid", "lj_gas", "lj_solid", "kob_andersen", "lj_2d", "lj_slab", "lj_droplet"})
     EXPECT_TRUE(sizes.count(name)) << name << ".toml is missing from systems/";
   EXPECT_EQ(sizes["lj_liquid"], 32000u);
+  // The built-in default scene is systems/lj_liquid.toml's physics.
+  EXPECT_EQ(scene_fingerprint(default_scene()), scene_fingerprint(read_scene((dir / "lj_liquid.toml").string())));
+  EXPECT_NE(scene_fingerprint(default_scene()), scene_fingerprint(read_scene((dir / "lj_solid.toml").string())));
 }
 
 }  // namespace
