@@ -189,6 +189,23 @@ TEST_F(RunFolder, OutputsOfAnEarlierRunAreKept) {
   EXPECT_EQ(run_md(args), 0);
 }
 
+// A run that blows up (dt far too large) stops with the scene, the step and a diagnosis.
+TEST_F(RunFolder, DivergenceIsReportedWithItsStep) {
+  std::string text = scene_text("nve", "cpu", 200);
+  text.replace(text.find("dt = 0.005"), 10, "dt = 0.2");
+  std::ofstream("scene.toml") << text;
+  RunArgs args;
+  args.scene = "scene.toml";
+  args.quiet = true;
+  try {
+    run_md(args);
+    ADD_FAILURE() << "dt = 0.2 did not diverge";
+  } catch (const Error& e) {
+    EXPECT_THAT(std::string(e.what()), HasSubstr("scene.toml: step "));
+    EXPECT_THAT(std::string(e.what()), HasSubstr("the integration diverged"));
+  }
+}
+
 TEST_F(RunFolder, CheckpointOfAnotherSceneOrSeedIsRefused) {
   std::ofstream("scene.toml") << scene_text("langevin", "cpu", 30);
   RunArgs args;

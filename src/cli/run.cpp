@@ -335,13 +335,15 @@ int run_md(const RunArgs& args) {
     const bool thermo_step = next % output.thermo_every == 0 || next == last;
     const bool frame_step = trajectory && next % output.trajectory_every == 0;
     const bool observe = thermo_step || frame_step;
-    within(scene.source + ": step " + std::to_string(next), [&] {
+    try {
       advance(state, masses, integrator, [&](MdState& s) {
         const auto t0 = Clock::now();
         compute(s, observe);
         t_forces_wall += seconds_since(t0);
       });
-    });
+    } catch (const Error&) {  // name the scene and the step (built only when a step fails)
+      within(scene.source + ": step " + std::to_string(next), [] { throw; });
+    }
     if (observe) report(state, thermo_step, frame_step, progress);
     if (!output.checkpoint.empty() && output.checkpoint_every > 0 && state.step % output.checkpoint_every == 0 &&
         state.step != last)

@@ -20,19 +20,22 @@ double unit_open(uint64_t bits) {  // (0, 1), 53 random bits
   return (double(bits >> 11) + 0.5) * 0x1.0p-53;
 }
 
+// Wraps positions into [0, L) on periodic axes. Positions start each step inside the box, so one
+// that is now more than a box length outside it (or not finite) means the integration diverged.
 void wrap(MdState& s) {
   const Box& box = s.config.box;
   const int dim = box.dim;
-  for (std::size_t k = 0; k < s.config.positions.size(); ++k)
-    if (!std::isfinite(s.config.positions[k]))
-      throw Error("particle " + std::to_string(k / std::size_t(dim)) +
-                  " has a non-finite position: the integration diverged (lower dt, or remove overlaps first)");
+  const std::size_t n = s.config.size();
   for (int a = 0; a < dim; ++a) {
-    if (!box.periodic[a]) continue;
     const double length = box.length[a], inv = 1.0 / length;
-    for (std::size_t i = 0; i < s.config.size(); ++i) {
+    for (std::size_t i = 0; i < n; ++i) {
       double& x = s.config.positions[i * dim + a];
-      x = wrap_coordinate(x, length, inv);
+      const bool lost = !std::isfinite(x) || (box.periodic[a] && (x < -length || x >= 2.0 * length));
+      if (lost)
+        throw Error("particle " + std::to_string(i) + " moved more than a box length in one step (" +
+                    std::string(1, "xyz"[a]) + " = " + std::to_string(x) +
+                    "): the integration diverged; lower dt, or remove overlaps first");
+      if (box.periodic[a]) x = wrap_coordinate(x, length, inv);
     }
   }
 }
