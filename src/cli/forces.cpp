@@ -35,19 +35,6 @@ double parse_number(const std::string& text, const std::string& option, const st
   return v;
 }
 
-// Errors from the engines name particles by index; say which file they are in.
-template <class F>
-auto in_context(const std::string& source, F&& f) {
-  try {
-    return f();
-  } catch (const Error& e) {
-    std::string what = e.what();
-    const std::string prefix = "cellforce: ";
-    if (what.rfind(prefix, 0) == 0) what.erase(0, prefix.size());
-    throw Error(source + ": " + what);
-  }
-}
-
 }  // namespace
 
 ForceField make_force_field(const ForcesArgs& args, const ConfigurationFile& input,
@@ -115,7 +102,7 @@ int run_forces(const ForcesArgs& args) {
   for (uint32_t& t : config.types) t = type_of_species[t];
   const SystemView sys = config.view();
   // Before any engine is built: bad input names the particle (and the file).
-  in_context(input.source, [&] { validate_system(sys, ff); });
+  with_context(input.source, [&] { validate_system(sys, ff); });
 
   ForceBackend backend(args.backend);
   const Request request{true, true};
@@ -123,7 +110,7 @@ int run_forces(const ForcesArgs& args) {
   std::vector<double> wall, pipeline;
   for (int r = 0; r < args.repeats; ++r) {
     const auto t0 = std::chrono::steady_clock::now();
-    in_context(input.source, [&] { backend.evaluate(sys, ff, request, result); });
+    with_context(input.source, [&] { backend.evaluate(sys, ff, request, result); });
     wall.push_back(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
     const PipelineStats s = backend.stats(sys, ff, false);
     pipeline.push_back(s.t_total - s.t_transfer);

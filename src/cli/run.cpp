@@ -111,19 +111,6 @@ struct StageTotals {
   }
 };
 
-// Errors from building or evaluating the system name the scene (and the step, in the loop).
-template <class F>
-auto within(const std::string& context, F&& f) {
-  try {
-    return f();
-  } catch (const Error& e) {
-    std::string what = e.what();
-    const std::string prefix = "cellforce: ";
-    if (what.rfind(prefix, 0) == 0) what.erase(0, prefix.size());
-    throw Error(context + ": " + what);
-  }
-}
-
 // The thermo CSV rows of an earlier run up to `step`, header first; a restart continues them.
 std::vector<std::string> thermo_rows_until(const std::string& path, int64_t step, int64_t every) {
   std::ifstream in(path);
@@ -194,13 +181,13 @@ int run_md(const RunArgs& args) {
                     "replace it with --overwrite");
 
   MdState state;
-  state.config = within(scene.source, [&] { return build_configuration(scene); });
+  state.config = with_context(scene.source, [&] { return build_configuration(scene); });
   const std::size_t n = state.config.size();
   const int dim = scene.dim;
   std::vector<double> masses(n);
   for (std::size_t i = 0; i < n; ++i) masses[i] = scene.masses[state.config.types[i]];
   const ForceField& ff = scene.force_field;
-  within(scene.source, [&] { validate_system(state.config.view(), ff); });
+  with_context(scene.source, [&] { validate_system(state.config.view(), ff); });
 
   ForceBackend engine(scene.backend);
   IntegratorSettings integrator;
@@ -238,9 +225,9 @@ int run_md(const RunArgs& args) {
     engine.evaluate(view, ff, Request{observe, observe}, result);
     stages.add(engine.stats(view, ff, false));
     ++evaluations;
-    s.forces = result.forces;
+    s.forces.swap(result.forces);  // no copy: the engine overwrites the old buffer next time
   };
-  within(scene.source + ": step " + std::to_string(state.step), [&] { compute(state, true); });
+  with_context(scene.source + ": step " + std::to_string(state.step), [&] { compute(state, true); });
 
   // Outputs are touched only now that everything that can refuse the run has run. On a restart
   // the thermo rows and trajectory frames beyond the checkpoint are dropped (that part of the run
@@ -341,8 +328,8 @@ int run_md(const RunArgs& args) {
         compute(s, observe);
         t_forces_wall += seconds_since(t0);
       });
-    } catch (const Error&) {  // name the scene and the step (built only when a step fails)
-      within(scene.source + ": step " + std::to_string(next), [] { throw; });
+    } catch (const Error& e) {  // name the scene and the step (built only when a step fails)
+      throw Error(scene.source + ": step " + std::to_string(next) + ": " + e.message());
     }
     if (observe) report(state, thermo_step, frame_step, progress);
     if (!output.checkpoint.empty() && output.checkpoint_every > 0 && state.step % output.checkpoint_every == 0 &&

@@ -1,10 +1,6 @@
 #include "io/forces_file.h"
 
-#include <unistd.h>
-
-#include <cstdio>
 #include <filesystem>
-#include <random>
 
 #include "core/error.h"
 #include "io/hdf5.h"
@@ -31,13 +27,7 @@ void write_forces_file(const std::string& path, const ForceResult& result, std::
                 " force components for " + std::to_string(n) + " particles");
   if (result.energies.size() != n)
     throw Error(path + ": internal error: per-particle energies were not computed");
-  // A name no other run uses, created exclusively, so that concurrent runs and a user's own
-  // files beside `path` are never overwritten.
-  const std::string tmp = path + ".partial-" + std::to_string(::getpid()) + "-" +
-                          std::to_string(std::random_device{}());
-  try {
-    h5::File file = h5::File::create(tmp, /*exclusive=*/true, path);
-    const hid_t root = file.id();
+  h5::write_file_atomically(path, [&](hid_t root) {
     const hsize_t hn = n, hd = hsize_t(dim);
     h5::write_doubles(root, "forces", result.forces, {hn, hd}, path);
     h5::write_doubles(root, "energies", result.energies, {hn}, path);
@@ -50,15 +40,7 @@ void write_forces_file(const std::string& path, const ForceResult& result, std::
       h5::write_doubles(root, name, values, {hsize_t(values.size())}, path);
     for (const auto& [name, value] : attributes)
       std::visit([&, &key = name](const auto& v) { h5::write_attribute(root, key, v, path); }, value);
-    file.close();
-  } catch (...) {
-    std::remove(tmp.c_str());
-    throw;
-  }
-  if (std::rename(tmp.c_str(), path.c_str()) != 0) {
-    std::remove(tmp.c_str());
-    throw Error(path + ": cannot move the finished file into place");
-  }
+  });
 }
 
 }  // namespace cellforce

@@ -1,9 +1,13 @@
 #include "io/hdf5.h"
 
+#include <unistd.h>
+
 #include <algorithm>
+#include <cstdio>
 #include <filesystem>
 #include <functional>
 #include <numeric>
+#include <random>
 
 #include "core/error.h"
 
@@ -201,6 +205,24 @@ void File::close() {
   const herr_t closed = H5Fclose(id);
   handle_ = Handle();  // already closed above
   if (flushed < 0 || closed < 0) fail(path_, "cannot flush and close the HDF5 file");
+}
+
+void write_file_atomically(const std::string& path, const std::function<void(hid_t root)>& fill) {
+  // A name no other run uses, created exclusively, so that concurrent runs and a user's own files
+  // beside `path` are never overwritten.
+  const std::string tmp = path + ".partial-" + std::to_string(::getpid()) + "-" + std::to_string(std::random_device{}());
+  try {
+    File file = File::create(tmp, /*exclusive=*/true, path);
+    fill(file.id());
+    file.close();
+  } catch (...) {
+    std::remove(tmp.c_str());
+    throw;
+  }
+  if (std::rename(tmp.c_str(), path.c_str()) != 0) {
+    std::remove(tmp.c_str());
+    fail(path, "cannot move the finished file into place");
+  }
 }
 
 bool exists(hid_t loc, const std::string& path) {

@@ -8,6 +8,7 @@
 #include <hdf5.h>
 
 #include <cstdint>
+#include <functional>
 #include <string>
 #include <utility>
 #include <vector>
@@ -71,6 +72,11 @@ class File {
   Handle handle_;
   std::string path_;
 };
+
+// Writes a new HDF5 file: `fill(root)` writes its contents into a file created exclusively under a
+// fresh temporary name beside `path`, which is renamed to `path` once closed. On any failure the
+// temporary is removed and an existing file at `path` is left as it was; errors name `path`.
+void write_file_atomically(const std::string& path, const std::function<void(hid_t root)>& fill);
 
 // `where` is the file path, used in error messages. Object paths are HDF5 paths relative to loc.
 bool exists(hid_t loc, const std::string& path);

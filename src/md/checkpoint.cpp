@@ -1,10 +1,5 @@
 #include "md/checkpoint.h"
 
-#include <unistd.h>
-
-#include <cstdio>
-#include <random>
-
 #include "core/error.h"
 #include "io/hdf5.h"
 
@@ -13,10 +8,7 @@ namespace cellforce {
 void write_checkpoint(const std::string& path, const MdState& state, const CheckpointInfo& info) {
   const int dim = state.config.box.dim;
   const hsize_t n = state.config.size(), hd = hsize_t(dim);
-  const std::string tmp = path + ".partial-" + std::to_string(::getpid()) + "-" + std::to_string(std::random_device{}());
-  try {
-    h5::File f = h5::File::create(tmp, /*exclusive=*/true, path);
-    const hid_t root = f.id();
+  h5::write_file_atomically(path, [&](hid_t root) {
     h5::write_doubles(root, "positions", state.config.positions, {n, hd}, path);
     h5::write_doubles(root, "velocities", state.velocities, {n, hd}, path);
     std::vector<int64_t> types(state.config.types.begin(), state.config.types.end());
@@ -32,15 +24,7 @@ void write_checkpoint(const std::string& path, const MdState& state, const Check
     h5::write_attribute(root, "scene", info.scene, path);
     h5::write_attribute(root, "backend", info.backend, path);
     h5::write_attribute(root, "precision", info.precision, path);
-    f.close();
-  } catch (...) {
-    std::remove(tmp.c_str());
-    throw;
-  }
-  if (std::rename(tmp.c_str(), path.c_str()) != 0) {
-    std::remove(tmp.c_str());
-    throw Error(path + ": cannot move the finished checkpoint into place");
-  }
+  });
 }
 
 CheckpointInfo read_checkpoint(const std::string& path, MdState& state, const CheckpointInfo& expected) {

@@ -376,11 +376,7 @@ Scene parse_scene(const std::string& text, const std::string& name, const std::s
     out.fail("checkpoint_every", "applies only with a checkpoint (checkpoint = \"FILE.h5\")");
   out.finish();
 
-  try {
-    ff.validate();
-  } catch (const Error& e) {
-    throw Error(name + ": " + std::string(e.what()).substr(std::string("cellforce: ").size()));
-  }
+  with_context(name, [&] { ff.validate(); });
   return scene;
 }
 
