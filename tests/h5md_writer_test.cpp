@@ -23,43 +23,20 @@
 #include "io/h5md_writer.h"
 #include "io/hdf5.h"
 #include "oracle.h"
+#include "temp_folder.h"
 
 namespace {
 
 using namespace cellforce;
 using ::testing::HasSubstr;
 namespace fs = std::filesystem;
+using cftest::error_of;
 
 const std::string kAll = "particles/all";
 
-// A fresh folder per test, removed afterwards.
-class TempFolder : public ::testing::Test {
- protected:
-  void SetUp() override {
-    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    dir_ = fs::temp_directory_path() /
-           ("cellforce-h5md-" + std::to_string(::getpid()) + "-" + info->test_suite_name() + "-" + info->name());
-    fs::remove_all(dir_);
-    fs::create_directories(dir_);
-  }
-  void TearDown() override { fs::remove_all(dir_); }
-  std::string path(const std::string& name) const { return (dir_ / name).string(); }
-  fs::path dir_;
-};
-
-using H5mdTrajectory = TempFolder;
+using H5mdTrajectory = cftest::TempFolder;
 
 // The message of the cellforce::Error that f throws (fails the test when it throws nothing).
-template <class F>
-std::string error_of(F&& f) {
-  try {
-    f();
-  } catch (const Error& e) {
-    return e.what();
-  }
-  ADD_FAILURE() << "no cellforce::Error was thrown";
-  return {};
-}
 
 // A run's frames, deterministic in (seed, frame index) so that a restarted run can regenerate
 // any of them: positions inside the box on periodic axes and beyond it on open ones, velocities,

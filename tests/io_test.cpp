@@ -17,46 +17,17 @@
 #include "oracle.h"
 #include "reference/brute_force.h"
 
-#ifdef CELLFORCE_HAVE_CUDA
-#include "engine.h"  // cuda/engine.h
-#endif
+#include "temp_folder.h"
 
 namespace {
 
 using namespace cellforce;
 using ::testing::HasSubstr;
 namespace fs = std::filesystem;
+using cftest::backends_here;
+using cftest::error_of;
+using TempDir = cftest::TempFolder;
 
-// A fresh folder per test, removed afterwards.
-class TempDir : public ::testing::Test {
- protected:
-  void SetUp() override {
-    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    dir_ = fs::temp_directory_path() /
-           ("cellforce-io-" + std::to_string(::getpid()) + "-" + info->test_suite_name() + "-" + info->name());
-    fs::remove_all(dir_);
-    fs::create_directories(dir_);
-  }
-  void TearDown() override { fs::remove_all(dir_); }
-  std::string path(const std::string& name) const { return (dir_ / name).string(); }
-  std::string write(const std::string& name, const std::string& text) const {
-    std::ofstream(path(name)) << text;
-    return path(name);
-  }
-  fs::path dir_;
-};
-
-// The message of the cellforce::Error that f throws (fails the test when it throws nothing).
-template <class F>
-std::string error_of(F&& f) {
-  try {
-    f();
-  } catch (const Error& e) {
-    return e.what();
-  }
-  ADD_FAILURE() << "no cellforce::Error was thrown";
-  return {};
-}
 
 Configuration two_species_liquid(int dim, uint64_t seed) {
   const Box box = cftest::cube(dim, dim == 3 ? 7.3 : 11.9);
@@ -413,14 +384,6 @@ ForcesFile read_forces_file(const std::string& p) {
   out.precision = h5::read_string_attribute(f.id(), "precision", p).at(0);
   out.mode = h5::read_string_attribute(f.id(), "cutoff_mode", p).at(0);
   return out;
-}
-
-std::vector<std::string> backends_here() {
-  std::vector<std::string> b = {"cpu"};
-#ifdef CELLFORCE_HAVE_CUDA
-  if (GpuEngine::unavailable().empty()) b.push_back("cuda");
-#endif
-  return b;
 }
 
 // The file holds what the brute force computes, in the input's order and shapes, for a binary

@@ -13,39 +13,16 @@
 #include "core/error.h"
 #include "io/hdf5.h"
 
-#ifdef CELLFORCE_HAVE_CUDA
-#include "engine.h"  // cuda/engine.h
-#endif
+#include "temp_folder.h"
 
 namespace {
 
 using namespace cellforce;
 using ::testing::HasSubstr;
 namespace fs = std::filesystem;
-
-// Runs in a fresh folder (output paths in scenes are relative to the working folder).
-class RunFolder : public ::testing::Test {
- protected:
-  void SetUp() override {
-    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    dir_ = fs::temp_directory_path() / ("cellforce-run-" + std::to_string(::getpid()) + "-" + info->name());
-    fs::remove_all(dir_);
-    fs::create_directories(dir_);
-    previous_ = fs::current_path();
-    fs::current_path(dir_);
-  }
-  void TearDown() override {
-    fs::current_path(previous_);
-    fs::remove_all(dir_);
-  }
-  static std::string read(const std::string& path) {
-    std::ifstream in(path);
-    std::stringstream s;
-    s << in.rdbuf();
-    return s.str();
-  }
-  fs::path dir_, previous_;
-};
+using cftest::backends_here;
+// Runs in a fresh working folder (output paths in scenes are relative to it).
+using RunFolder = cftest::WorkingFolder;
 
 // A small 2D liquid: 80 particles on a hexagonal lattice at area density 0.7.
 // Thermo every 7 steps, frames every 9, checkpoints every 30: none divides another, so the rows
@@ -60,14 +37,6 @@ std::string scene_text(const std::string& kind, const std::string& backend, int6
     << "[output]\nthermo_every = 7\nthermo_file = \"thermo.csv\"\ncheckpoint = \"ckpt.h5\"\ncheckpoint_every = 30\n"
     << "trajectory = \"traj.h5\"\ntrajectory_every = 9\nvelocities = true\n";
   return s.str();
-}
-
-std::vector<std::string> backends_here() {
-  std::vector<std::string> b = {"cpu"};
-#ifdef CELLFORCE_HAVE_CUDA
-  if (GpuEngine::unavailable().empty()) b.push_back("cuda");
-#endif
-  return b;
 }
 
 struct Saved {
