@@ -40,6 +40,7 @@ class DeviceBuffer {
   }
   T* data() const { return ptr_; }
   std::size_t capacity() const { return capacity_; }
+  std::size_t bytes() const { return capacity_ * sizeof(T); }
 
  private:
   T* ptr_ = nullptr;

@@ -106,6 +106,22 @@ struct GpuEngine::Impl {
   int multiprocessors = 1;  // of the engine's device, read once
   bool has_types = false;
 
+  // Device bytes held by the stage buffers.
+  std::size_t bytes() const {
+    std::size_t b = positions.bytes() + types.bytes() + keys.bytes() + object_ids.bytes() +
+                    sorted_keys.bytes() + sorted_ids.bytes() + control.bytes() + cub.bytes() +
+                    cells.bytes() + staged.bytes() + table.bytes() + force_slots.bytes() +
+                    energy_slots.bytes() + cell_sums.bytes() + forces.bytes() + energies.bytes() +
+                    totals.bytes() + flags.bytes() + pairs.bytes();
+    b += chapter_sort.keys.bytes() + chapter_sort.values.bytes() + chapter_sort.counts.bytes() +
+         chapter_sort.digit_totals.bytes();
+    b += collision.flags.bytes() + collision.run_start.bytes() + collision.runs.bytes() +
+         collision.count.bytes() + collision.cub.bytes();
+    b += split.keys.bytes() + split.keys_out.bytes() + split.order.bytes() +
+         split.order_out.bytes() + split.cells.bytes() + split.counts.bytes() + split.cub.bytes();
+    return b;
+  }
+
   ~Impl() {
     for (cudaEvent_t e : events)
       if (e) cudaEventDestroy(e);
@@ -348,6 +364,7 @@ void GpuEngine::evaluate(const SystemView& system, const ForceField& ff, const R
   stats_.t_traversal = s.seconds(kCellsFound, kTraversed);
   stats_.t_accumulate = s.seconds(kTraversed, kAccumulated);
   stats_.t_total = s.seconds(kStart, kDownloaded);
+  stats_.buffer_bytes = s.bytes();
 }
 
 // Runs the pair recorder; with `keep` the pairs are stored (the buffer grows to the count the

@@ -21,14 +21,19 @@ __global__ void stage_kernel(const Grid grid, const uint32_t* __restrict__ sorte
   const uint32_t i = sorted_ids[e];
   int k[kMaxDim];
   cell_coords(grid, sorted_keys[e] >> 1, k);
-  Real r[kMaxDim] = {0, 0, 0};
+  StagedCoordinate<Real> r[kMaxDim] = {};
   for (int a = 0; a < grid.dim; ++a)
-    r[a] = Real(relative_coordinate(grid, a, positions[std::size_t(i) * grid.dim + a],
-                                    cell_center(grid, a, k[a])));
+    r[a] = StagedCoordinate<Real>::from(relative_coordinate(
+        grid, a, positions[std::size_t(i) * grid.dim + a], cell_center(grid, a, k[a])));
   StagedEntry<Real> s{};
-  s.x = r[0];
-  s.y = r[1];
-  s.z = r[2];
+  s.x = r[0].hi;
+  s.y = r[1].hi;
+  s.z = r[2].hi;
+  if constexpr (StagedCoordinate<Real>::kCompensated) {
+    s.lx = r[0].lo;
+    s.ly = r[1].lo;
+    s.lz = r[2].lo;
+  }
   s.meta = uint32_t(control[i]) | (types ? types[i] : 0u) << 16;
   staged[e] = s;
 }

@@ -27,9 +27,11 @@ inline constexpr int kCellSums = 7;
 template <class Real>
 struct StagedEntry;
 template <>
-struct alignas(16) StagedEntry<float> {
+struct alignas(32) StagedEntry<float> {
   float x, y, z;
   uint32_t meta;
+  float lx, ly, lz;  // the lo parts of StagedCoordinate<float> (core/grid.h)
+  uint32_t unused;
 };
 template <>
 struct alignas(32) StagedEntry<double> {

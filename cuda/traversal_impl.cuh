@@ -46,6 +46,11 @@ __device__ __forceinline__ Real separation(const StagedEntry<Real>& a, const Sta
   d[0] = a.x - b.x;
   d[1] = a.y - b.y;
   d[2] = T::kDim == 3 ? a.z - b.z : Real(0);
+  if constexpr (StagedCoordinate<Real>::kCompensated) {
+    d[0] += a.lx - b.lx;
+    d[1] += a.ly - b.ly;
+    if constexpr (T::kDim == 3) d[2] += a.lz - b.lz;
+  }
   if constexpr (T::kWrap)
     for (int c = 0; c < T::kDim; ++c) d[c] = minimum_image(d[c], length[c], inv_length[c]);
   Real r2 = d[0] * d[0] + d[1] * d[1];

@@ -22,6 +22,7 @@ class UnderTest final : public EngineUnderTest {
                                   const cellforce::ForceField& ff) override {
     return engine_.visited_pairs(system, ff);
   }
+  const cellforce::PipelineStats& stats() const override { return engine_.stats(); }
 
  private:
   Engine engine_;

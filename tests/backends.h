@@ -34,6 +34,8 @@ class EngineUnderTest {
   // Every pair evaluated with r < rc, once per evaluation (a pair evaluated twice appears twice).
   virtual std::vector<Pair> visited_pairs(const cellforce::SystemView& system,
                                           const cellforce::ForceField& ff) = 0;
+  // The engine's statistics of its last call (stage times, counts, buffer bytes).
+  virtual const cellforce::PipelineStats& stats() const = 0;
 };
 
 struct Backend {

@@ -33,6 +33,11 @@ struct PipelineStats {
   std::size_t max_occupancy = 0;      // most entries in one collision cell
   std::size_t candidate_pairs = 0;    // pairs tested (after the control-bit rule)
   std::size_t interacting_pairs = 0;  // pairs with r < rc
+  // Bytes the engine holds in its stage buffers after the evaluation (host memory for the CPU,
+  // device memory for CUDA). Buffers are sized from particle, entry and collision-cell counts,
+  // never from the number of grid cells, so a dilute scene in a huge box costs no more than a
+  // dense one of the same size.
+  std::size_t buffer_bytes = 0;
   double t_cell_ids = 0, t_count = 0, t_sort = 0, t_collision_cells = 0, t_traversal = 0,
          t_accumulate = 0, t_transfer = 0;
   double t_total = 0;

@@ -16,6 +16,17 @@ struct CpuEngine::Scratch {
   std::vector<std::size_t> type_start;
   cpu::Accumulators<float> acc_float;
   cpu::Accumulators<double> acc_double;
+
+  std::size_t bytes() const {
+    std::size_t b = 0;
+    auto add = [&b](const auto& v) { b += v.capacity() * sizeof(v[0]); };
+    add(ids.keys), add(ids.object_ids), add(ids.control);
+    add(sort.keys), add(sort.values), add(sort.counts);
+    add(cells), add(type_start);
+    add(acc_float.force), add(acc_float.energy), add(acc_float.cell_energy), add(acc_float.cell_virial);
+    add(acc_double.force), add(acc_double.energy), add(acc_double.cell_energy), add(acc_double.cell_virial);
+    return b;
+  }
 };
 
 namespace {
@@ -95,6 +106,7 @@ void CpuEngine::evaluate(const SystemView& system, const ForceField& ff, const R
   else
     cpu::accumulate(s.acc_double, options_.accumulation, system.box.dim, system.n, request, result);
   stats_.t_accumulate = seconds_since(t);
+  stats_.buffer_bytes = s.bytes();
   stats_.t_total = seconds_since(t0);
 }
 

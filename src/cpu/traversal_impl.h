@@ -73,7 +73,8 @@ struct CellStage {
   std::vector<uint32_t> index;  // particle index (user order)
   std::vector<Control> control;
   std::vector<uint32_t> type;
-  std::vector<Real> pos[kMaxDim];   // relative to the cell centre
+  std::vector<Real> pos[kMaxDim];   // relative to the cell centre (hi part for float)
+  std::vector<Real> low[kMaxDim];   // float pairs: the lo part (StagedCoordinate)
   std::vector<Accum> force[kMaxDim];
   std::vector<Accum> energy;
 
@@ -88,6 +89,7 @@ struct CellStage {
       type.resize(m);
       for (int a = 0; a < kMaxDim; ++a) {
         pos[a].resize(m);
+        if constexpr (StagedCoordinate<Real>::kCompensated) low[a].resize(m);
         force[a].resize(m);
       }
       energy.resize(m);
@@ -112,8 +114,12 @@ struct CellStage {
       index[to] = i;
       control[to] = c;
       type[to] = in.system.types ? in.system.types[i] : 0u;
-      for (int a = 0; a < dim; ++a)
-        pos[a][to] = Real(relative_coordinate(in.grid, a, x[std::size_t(i) * dim + a], center[a]));
+      for (int a = 0; a < dim; ++a) {
+        const auto v = StagedCoordinate<Real>::from(
+            relative_coordinate(in.grid, a, x[std::size_t(i) * dim + a], center[a]));
+        pos[a][to] = v.hi;
+        if constexpr (StagedCoordinate<Real>::kCompensated) low[a][to] = v.lo;
+      }
     }
   }
 };
@@ -132,6 +138,7 @@ inline void for_each_candidate(const Stage& s, const CollisionCell& cell, unsign
     Real r2 = 0;
     for (int c = 0; c < D; ++c) {
       Real v = s.pos[c][a] - s.pos[c][b];
+      if constexpr (StagedCoordinate<Real>::kCompensated) v += s.low[c][a] - s.low[c][b];
       if constexpr (Wrap) v = minimum_image(v, length[c], inv_length[c]);
       d[c] = v;
       r2 += v * v;
@@ -188,8 +195,19 @@ TraversalReport run(const TraversalInput& in, Accumulation mode, Accumulators<Ac
         s.load(in, cell, D);
         for (int a = 0; a < D; ++a) std::fill_n(s.force[a].begin(), m, Accum(0));
         if constexpr (T::kEnergy) std::fill_n(s.energy.begin(), m, Accum(0));
-        Accum cell_e = 0;
-        Accum w[kVirialComponents] = {};
+        // Cell totals of energy and virial. With float sums (single precision) the pairs are
+        // summed in blocks of kBlock, each block then added to the total: a crowded cell of n
+        // pairs then rounds ~kBlock + n/kBlock times per term instead of ~n times.
+        Accum cell_e = 0, total_e = 0;
+        Accum w[kVirialComponents] = {}, total_w[kVirialComponents] = {};
+        constexpr int kBlock = std::is_same_v<Accum, float> ? 64 : 0;
+        int in_block = 0;
+        auto flush = [&] {
+          total_e += cell_e;
+          cell_e = 0;
+          for (int k = 0; k < kVirialComponents; ++k) total_w[k] += w[k], w[k] = 0;
+          in_block = 0;
+        };
         const unsigned type = cell_type_of_id(g, cell.cell);
         local.max_occupancy = std::max<std::size_t>(local.max_occupancy, m);
 
@@ -231,7 +249,10 @@ TraversalReport run(const TraversalInput& in, Accumulation mode, Accumulators<Ac
                   w[5] += Accum(fr * d[1] * d[2]);
                 }
               }
+              if constexpr (kBlock > 0 && (T::kEnergy || T::kVirial))
+                if (++in_block == kBlock) flush();
             });
+        flush();
 
         // Jacobi: slot `type` of each occupant is written by this cell only (condition 1).
         Accum* force = out.force.data() + (jacobi ? std::size_t(type) * n * D : 0);
@@ -247,9 +268,9 @@ TraversalReport run(const TraversalInput& in, Accumulation mode, Accumulators<Ac
             else energy[i] += s.energy[e];
           }
         }
-        if constexpr (T::kEnergy) out.cell_energy[ci] = cell_e;
+        if constexpr (T::kEnergy) out.cell_energy[ci] = total_e;
         if constexpr (T::kVirial)
-          for (int k = 0; k < kVirialComponents; ++k) out.cell_virial[ci * kVirialComponents + k] = w[k];
+          for (int k = 0; k < kVirialComponents; ++k) out.cell_virial[ci * kVirialComponents + k] = total_w[k];
       }
     }
 #pragma omp critical(cellforce_traversal_report)
