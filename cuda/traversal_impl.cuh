@@ -77,20 +77,39 @@ __device__ __forceinline__ void record_pair(const TraversalArgs<double, double>&
   if (k < args.pair_capacity) args.pairs[k] = make_uint2(i < j ? i : j, i < j ? j : i);
 }
 
-// Per-cell energy and virial (xx yy zz xy xz yz).
+// Per-cell energy and virial (xx yy zz xy xz yz). With float sums (single precision) the pairs
+// are summed in blocks of kBlock, each block then added to the total (as the CPU traversal does):
+// a thread that walks a crowded cell rounds ~kBlock + n/kBlock times per term instead of ~n.
+// finish() must run before v is read.
 template <class Accum>
 struct CellTotals {
+  static constexpr bool kBlocked = std::is_same_v<Accum, float>;
+  static constexpr int kBlock = 64;
   Accum v[kCellSums] = {};
+  Accum block[kBlocked ? kCellSums : 1] = {};
+  int in_block = 0;
   template <int D, class Real>
   __device__ __forceinline__ void add(Real e, Real fr, const Real d[3]) {
-    v[0] += Accum(e);
-    v[1] += Accum(fr * d[0] * d[0]);
-    v[2] += Accum(fr * d[1] * d[1]);
-    v[4] += Accum(fr * d[0] * d[1]);
+    Accum* s = kBlocked ? block : v;
+    s[0] += Accum(e);
+    s[1] += Accum(fr * d[0] * d[0]);
+    s[2] += Accum(fr * d[1] * d[1]);
+    s[4] += Accum(fr * d[0] * d[1]);
     if constexpr (D == 3) {
-      v[3] += Accum(fr * d[2] * d[2]);
-      v[5] += Accum(fr * d[0] * d[2]);
-      v[6] += Accum(fr * d[1] * d[2]);
+      s[3] += Accum(fr * d[2] * d[2]);
+      s[5] += Accum(fr * d[0] * d[2]);
+      s[6] += Accum(fr * d[1] * d[2]);
+    }
+    if constexpr (kBlocked)
+      if (++in_block == kBlock) finish();
+  }
+  __device__ __forceinline__ void finish() {
+    if constexpr (kBlocked) {
+      for (int k = 0; k < kCellSums; ++k) {
+        v[k] += block[k];
+        block[k] = 0;
+      }
+      in_block = 0;
     }
   }
 };
@@ -172,6 +191,7 @@ __global__ void __launch_bounds__(kThreadsPerBlock)
     atomicAdd(&args.flags->candidates, candidates);
     atomicAdd(&args.flags->interacting, interacting);
   } else if constexpr (T::kObservables) {
+    totals.finish();
     for (int k = 0; k < kCellSums; ++k)
       args.cell_sums[(std::size_t(args.first_cell) + ci) * kCellSums + k] = totals.v[k];
   }
@@ -289,6 +309,7 @@ __global__ void __launch_bounds__(kWarpsPerBlock * 32)
       atomicAdd(&args.flags->interacting, interacting);
     }
   } else if constexpr (T::kObservables) {
+    totals.finish();
     for (int k = 0; k < kCellSums; ++k) {
       const Accum v = warp_sum(totals.v[k]);
       if (lane == 0) args.cell_sums[(std::size_t(args.first_cell) + ci) * kCellSums + k] = v;
