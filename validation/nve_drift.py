@@ -108,8 +108,10 @@ def main() -> int:
             n = 4 * cells ** 3
             label = f"{backend} {mode} dt={dt} {precision} N={n}"
             if proc.returncode != 0:
-                failed.append(f"{label}: {proc.stderr.strip()}")
-                print(f"failed: {failed[-1]}", flush=True)
+                with lock:
+                    failed.append(f"{label}: {proc.stderr.strip()}")
+                    write()
+                print(f"failed: {label}: {proc.stderr.strip()}", flush=True)
                 return
             drift, rms, change = drift_and_rms(thermo, n)
             rate = re.search(r"([0-9.]+) steps/s", proc.stdout)
