@@ -26,6 +26,7 @@ namespace {
 enum Event : int {
   kStart,
   kUploaded,
+  kChecked,
   kCellIds,
   kCounted,
   kSorted,
@@ -102,6 +103,9 @@ struct GpuEngine::Impl {
   DeviceBuffer<double> forces, energies, totals;
   DeviceBuffer<cuda::DeviceFlags> flags;
   DeviceBuffer<uint2> pairs;
+  DeviceBuffer<double> build_positions;  // reuse: positions at the build in use (n x dim)
+  std::vector<uint32_t> build_keys;      // audit (host): stage 1's keys of that build, user order
+  std::vector<Control> build_control;    // audit (host): its control bits
   std::size_t valid = 0, num_cells = 0;
   int multiprocessors = 1;  // of the engine's device, read once
   bool has_types = false;
@@ -112,7 +116,7 @@ struct GpuEngine::Impl {
                     sorted_keys.bytes() + sorted_ids.bytes() + control.bytes() + cub.bytes() +
                     cells.bytes() + staged.bytes() + table.bytes() + force_slots.bytes() +
                     energy_slots.bytes() + cell_sums.bytes() + forces.bytes() + energies.bytes() +
-                    totals.bytes() + flags.bytes() + pairs.bytes();
+                    totals.bytes() + flags.bytes() + pairs.bytes() + build_positions.bytes();
     b += chapter_sort.keys.bytes() + chapter_sort.values.bytes() + chapter_sort.counts.bytes() +
          chapter_sort.digit_totals.bytes();
     b += collision.flags.bytes() + collision.run_start.bytes() + collision.runs.bytes() +
@@ -144,31 +148,27 @@ struct GpuEngine::Impl {
     CF_CUDA_CHECK(cudaMemsetAsync(&f->bad_pair, 0xff, sizeof(f->bad_pair), stream));
   }
 
-  // Stages 1-3: upload, cell IDs, count, sort, collision cells (split by type when asked).
-  void build(const GpuOptions& o, PipelineStats& st, const SystemView& sys, const ForceField& ff,
-             bool split_by_type) {
-    validate_system(sys, ff);
-    if (ff.num_types() > cuda::kMaxStagedTypes)
-      throw Error("the CUDA engine supports at most " + std::to_string(cuda::kMaxStagedTypes) +
-                  " particle types; the force field has " + std::to_string(ff.num_types()));
+  // The positions (and types) of this evaluation, on every evaluation.
+  void upload_system(const SystemView& sys) {
+    record(kStart);
+    upload(positions, sys.positions, sys.n * std::size_t(sys.box.dim), stream);
+    has_types = sys.types != nullptr;
+    if (has_types) upload(types, sys.types, sys.n, stream);
+    record(kUploaded);
+  }
+
+  // Stages 1-3 on the uploaded positions: cell IDs, count, sort, collision cells (split by type
+  // for Gauss-Seidel). With a skin, keeps the build's positions (and, for the audit, its keys).
+  void build(const GpuOptions& o, PipelineStats& st, const SystemView& sys, const ForceField& ff) {
+    const double skin = o.reuse.skin;
     if (o.grid_override) {
       st.grid = *o.grid_override;
     } else {
-      st.grid = plan_grid(sys.box, ff.cutoff, sys.positions, sys.n, o.grid);
-      check_grid(st.grid, sys.box, ff.cutoff, o.grid.rule);
+      st.grid = plan_grid(sys.box, ff.cutoff, sys.positions, sys.n, o.grid, skin);
+      check_grid(st.grid, sys.box, ff.cutoff, o.grid.rule, skin);
     }
     const Grid& g = st.grid;
     const std::size_t n = sys.n, entries = n << g.dim;
-    if (entries > std::size_t(INT32_MAX))
-      throw Error("the CUDA engine takes at most 2^31 - 1 cell-ID entries (N x 2^d): " +
-                  std::to_string(n) + " particles in " + std::to_string(g.dim) + "D make " +
-                  std::to_string(entries));
-    record(kStart);
-    upload(positions, sys.positions, n * std::size_t(g.dim), stream);
-    has_types = sys.types != nullptr;
-    if (has_types) upload(types, sys.types, n, stream);
-    record(kUploaded);
-
     const std::size_t cap = std::max<std::size_t>(entries, 1);
     keys.reserve(cap);
     object_ids.reserve(cap);
@@ -176,6 +176,16 @@ struct GpuEngine::Impl {
     sorted_ids.reserve(cap);
     control.reserve(std::max<std::size_t>(n, 1));
     cuda::build_cell_ids(g, positions.data(), n, keys.data(), object_ids.data(), control.data(), stream);
+    if (skin > 0) {
+      build_positions.reserve(std::max<std::size_t>(n * std::size_t(g.dim), 1));
+      if (n)
+        CF_CUDA_CHECK(cudaMemcpyAsync(build_positions.data(), positions.data(), n * g.dim * sizeof(double),
+                                      cudaMemcpyDeviceToDevice, stream));
+      if (o.reuse.audit) {  // before the sort (the chapter's may reuse the input); read after a sync
+        download(build_keys, keys.data(), entries, stream);
+        download(build_control, control.data(), n, stream);
+      }
+    }
     record(kCellIds);
     valid = cuda::count_valid(keys.data(), entries, cub, stream);
     record(kCounted);
@@ -191,11 +201,20 @@ struct GpuEngine::Impl {
     }
     record(kSorted);
     num_cells = cuda::find_collision_cells(sorted_keys.data(), valid, cells, collision, stream);
-    if (split_by_type) cuda::split_by_type(g, cells, num_cells, split, type_start, stream);
+    if (o.accumulation == Accumulation::kGaussSeidel)
+      cuda::split_by_type(g, cells, num_cells, split, type_start, stream);
     record(kCellsFound);
     st.entries = entries;
     st.valid_entries = valid;
     st.collision_cells = num_cells;
+  }
+
+  // A reused structure: the stage events recorded back to back (zero stage times).
+  void skip_build() {
+    record(kCellIds);
+    record(kCounted);
+    record(kSorted);
+    record(kCellsFound);
   }
 
   // The arguments shared by the force and pair-recording kernels; stages the occupants.
@@ -291,7 +310,8 @@ struct GpuEngine::Impl {
 };
 
 GpuEngine::GpuEngine(GpuOptions options)
-    : options_(std::move(options)), impl_(std::make_unique<Impl>()) {
+    : options_(std::move(options)), reuse_(options_.reuse), impl_(std::make_unique<Impl>()) {
+  validate_reuse(options_.reuse);
   const std::string why = unavailable();
   if (!why.empty()) throw Error("CUDA engine: " + why);
   int count = 0;
@@ -319,8 +339,7 @@ void GpuEngine::evaluate(const SystemView& system, const ForceField& ff, const R
                          ForceResult& result) {
   const DeviceScope scope(options_.device);
   Impl& s = *impl_;
-  const bool gs = options_.accumulation == Accumulation::kGaussSeidel;
-  s.build(options_, stats_, system, ff, gs);
+  prepare(system, ff);
   const Grid& g = stats_.grid;
   switch (options_.precision) {
     case Precision::kSingle: s.traverse_and_sum<float, float>(options_, g, system, ff, request); break;
@@ -357,7 +376,8 @@ void GpuEngine::evaluate(const SystemView& system, const ForceField& ff, const R
   // Pair counts come from count_pairs()/visited_pairs(), not from the force kernels.
   stats_.candidate_pairs = stats_.interacting_pairs = stats_.max_occupancy = 0;
   stats_.t_transfer = s.seconds(kStart, kUploaded) + s.seconds(kAccumulated, kDownloaded);
-  stats_.t_cell_ids = s.seconds(kUploaded, kCellIds);
+  stats_.t_check = s.seconds(kUploaded, kChecked);
+  stats_.t_cell_ids = s.seconds(kChecked, kCellIds);
   stats_.t_count = s.seconds(kCellIds, kCounted);
   stats_.t_sort = s.seconds(kCounted, kSorted);
   stats_.t_collision_cells = s.seconds(kSorted, kCellsFound);
@@ -365,6 +385,52 @@ void GpuEngine::evaluate(const SystemView& system, const ForceField& ff, const R
   stats_.t_accumulate = s.seconds(kTraversed, kAccumulated);
   stats_.t_total = s.seconds(kStart, kDownloaded);
   stats_.buffer_bytes = s.bytes();
+  audit(system, ff);  // after the total: its host search is no part of the engine's time
+}
+
+// Validates the input, uploads it, then rebuilds the structure (stages 1-3) or keeps the last
+// one: shared by evaluate() and the pair recorder.
+void GpuEngine::prepare(const SystemView& system, const ForceField& ff) {
+  Impl& s = *impl_;
+  validate_system(system, ff);
+  if (ff.num_types() > cuda::kMaxStagedTypes)
+    throw Error("the CUDA engine supports at most " + std::to_string(cuda::kMaxStagedTypes) +
+                " particle types; the force field has " + std::to_string(ff.num_types()));
+  const std::size_t entries = system.n << system.box.dim;
+  if (entries > std::size_t(INT32_MAX))
+    throw Error("the CUDA engine takes at most 2^31 - 1 cell-ID entries (N x 2^d): " +
+                std::to_string(system.n) + " particles in " + std::to_string(system.box.dim) +
+                "D make " + std::to_string(entries));
+  s.upload_system(system);
+  bool rebuild = reuse_.must_rebuild(system, ff.cutoff);
+  stats_.max_displacement = 0;
+  stats_.missed_pairs = stats_.repeated_pairs = 0;
+  if (!rebuild && reuse_.measures_displacement()) {
+    const double d2 = cuda::max_displacement2(system.box, s.positions.data(), s.build_positions.data(),
+                                              system.n, s.cub, s.stream);
+    stats_.max_displacement = std::sqrt(d2);
+    rebuild = reuse_.too_far(d2);
+  }
+  s.record(kChecked);
+  stats_.rebuilt = rebuild;
+  if (rebuild) {
+    reuse_.invalidate();  // until this build completes
+    s.build(options_, stats_, system, ff);
+    reuse_.built(system, ff.cutoff);
+  } else {
+    s.skip_build();
+    reuse_.reused();
+  }
+  stats_.builds = reuse_.builds();
+}
+
+// The audit of a reused structure: pairs closer than rc now that it misses or repeats.
+void GpuEngine::audit(const SystemView& system, const ForceField& ff) {
+  if (!options_.reuse.audit || stats_.rebuilt) return;
+  const ReuseAudit a = audit_reuse(stats_.grid, impl_->build_keys.data(), impl_->build_control.data(),
+                                   system, ff.cutoff, pairs_within(system, ff.cutoff));
+  stats_.missed_pairs = a.missed;
+  stats_.repeated_pairs = a.repeated;
 }
 
 // Runs the pair recorder; with `keep` the pairs are stored (the buffer grows to the count the
@@ -373,7 +439,7 @@ std::vector<std::pair<uint32_t, uint32_t>> GpuEngine::record(const SystemView& s
                                                              const ForceField& ff, bool keep) {
   const DeviceScope scope(options_.device);
   Impl& s = *impl_;
-  s.build(options_, stats_, system, ff, false);
+  prepare(system, ff);
   const Grid& g = stats_.grid;
   cuda::TraversalArgs<double, double> args =
       s.prepare<double, double>(g, system, ff, CutoffMode::kTruncate);
@@ -405,7 +471,8 @@ std::vector<std::pair<uint32_t, uint32_t>> GpuEngine::record(const SystemView& s
     stats_.max_occupancy = std::max<std::size_t>(stats_.max_occupancy, std::size_t(c.h) + c.p);
   // Stage times belong to evaluate().
   stats_.t_cell_ids = stats_.t_count = stats_.t_sort = stats_.t_collision_cells = 0;
-  stats_.t_traversal = stats_.t_accumulate = stats_.t_transfer = stats_.t_total = 0;
+  stats_.t_traversal = stats_.t_accumulate = stats_.t_transfer = stats_.t_total = stats_.t_check = 0;
+  audit(system, ff);
   std::vector<std::pair<uint32_t, uint32_t>> pairs(raw.size());
   for (std::size_t k = 0; k < raw.size(); ++k) pairs[k] = {raw[k].x, raw[k].y};
   return pairs;

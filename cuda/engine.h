@@ -14,6 +14,7 @@
 #include "core/engine_options.h"
 #include "core/force_field.h"
 #include "core/grid.h"
+#include "core/reuse.h"
 #include "core/system.h"
 
 namespace cellforce {
@@ -37,6 +38,7 @@ struct GpuOptions {
   TraversalForm traversal = TraversalForm::kWarpPerCell;
   SortMethod sort = SortMethod::kCub;
   GridOptions grid;
+  ReuseOptions reuse;  // skin > 0: stages 1-3 reused while no particle moved more than skin / 2
   std::optional<Grid> grid_override;  // tests only: this grid, unchecked
   int device = 0;                     // CUDA device ordinal
 };
@@ -58,7 +60,8 @@ class GpuEngine {
 
   // Every pair the traversal finds with r < rc, once per evaluation (a pair found twice appears
   // twice), as (min index, max index), in no particular order. Also sets the candidate and
-  // interacting pair counts and the largest occupancy in stats().
+  // interacting pair counts and the largest occupancy in stats(). With a skin, the structure is
+  // rebuilt or reused as for evaluate() (so the pairs show what reuse finds).
   std::vector<std::pair<uint32_t, uint32_t>> visited_pairs(const SystemView& system,
                                                            const ForceField& ff);
 
@@ -83,7 +86,10 @@ class GpuEngine {
  private:
   std::vector<std::pair<uint32_t, uint32_t>> record(const SystemView& system, const ForceField& ff,
                                                     bool keep);
+  void prepare(const SystemView& system, const ForceField& ff);
+  void audit(const SystemView& system, const ForceField& ff);
   GpuOptions options_;
+  ReusePolicy reuse_;
   PipelineStats stats_;
   std::unique_ptr<Impl> impl_;
 };

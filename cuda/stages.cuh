@@ -72,4 +72,9 @@ void split_by_type(const Grid& grid, DeviceBuffer<CollisionCell>& cells, std::si
                    SplitScratch& scratch, std::size_t type_start[kMaxCellTypes + 1],
                    cudaStream_t stream);
 
+// Reuse (src/core/reuse.h): the largest squared displacement between the device arrays now and
+// then (n x box.dim, minimum image on periodic axes). Synchronises the stream to return it.
+double max_displacement2(const Box& box, const double* now, const double* then, std::size_t n,
+                         DeviceBuffer<std::byte>& scratch, cudaStream_t stream);
+
 }  // namespace cellforce::cuda

@@ -35,6 +35,7 @@ Options options_from(const EngineSpec& spec) {
   o.precision = spec.precision;
   o.accumulation = spec.accumulation;
   o.grid_override = spec.grid_override;
+  o.reuse = spec.reuse;
   return o;
 }
 

@@ -12,6 +12,7 @@
 #include <vector>
 
 #include "core/grid.h"
+#include "core/reuse.h"
 #include "core/system.h"
 #include "cpu/engine.h"
 #include "oracle.h"
@@ -24,6 +25,7 @@ struct EngineSpec {
   cellforce::Accumulation accumulation = cellforce::Accumulation::kJacobi;
   // Tests only: a grid used as given, unchecked (make_grid_unchecked), to break a condition.
   std::optional<cellforce::Grid> grid_override;
+  cellforce::ReuseOptions reuse;  // skin, check, every, audit (core/reuse.h)
 };
 
 class EngineUnderTest {

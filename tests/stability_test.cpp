@@ -68,6 +68,7 @@ constexpr Case kFaces{7, "Particles on cell faces and box edges"};
 constexpr Case kFar{8, "Far from the origin"};
 constexpr Case kFcc{9, "Perfect fcc lattice"};
 constexpr Case kCrowded{10, "All in one cell; droplet in a huge box"};
+constexpr Case kSkin{11, "Skin reuse"};
 
 std::string num(double v) {
   char b[64];
@@ -625,6 +626,122 @@ TEST_P(Stability, CrowdedAndDilute) {
     check(kCrowded, what + ": buffer bytes (grid of " + std::to_string(st.grid.num_cells) + " cells)",
           "<= 1.1 x " + std::to_string(tight_bytes) + " (same droplet, tight open box)",
           std::to_string(st.buffer_bytes), double(st.buffer_bytes) <= 1.1 * double(tight_bytes));
+  }
+}
+
+// =====================================================================================================
+// 11. Skin reuse (core/reuse.h): built for rc + skin, the structure serves while no particle has moved
+// more than skin / 2 (then exact: the brute force's pairs, each once); a particle beyond skin / 2
+// triggers a rebuild; with the check off, the audit's missed-pair counter equals the pairs the
+// traversal actually lacks (brute-force pairs minus visited pairs), and the forces are wrong.
+// =====================================================================================================
+
+// `c` with each particle moved by a random vector shorter than max_step.
+Configuration moved(const Configuration& c, double max_step, uint64_t seed) {
+  Configuration m = c;
+  const std::size_t dim = std::size_t(c.box.dim);
+  Rng rng(seed);
+  for (std::size_t i = 0; i < c.size(); ++i) {
+    double d[3] = {0, 0, 0}, norm2 = 0;
+    while (norm2 < 1e-6) {
+      norm2 = 0;
+      for (std::size_t a = 0; a < dim; ++a) d[a] = rng.uniform(-1, 1), norm2 += d[a] * d[a];
+    }
+    const double length = max_step * rng.uniform() / std::sqrt(norm2);
+    for (std::size_t a = 0; a < dim; ++a) m.positions[i * dim + a] += length * d[a];
+  }
+  return m;
+}
+
+TEST_P(Stability, SkinReuse) {
+  const double skin = 0.4;
+  EngineSpec spec;
+  spec.precision = GetParam().precision;
+  spec.reuse.skin = skin;
+  spec.reuse.audit = true;
+  const Backend& backend = backends()[GetParam().backend];
+  for (const std::string name : {"random3d_periodic", "random2d_open", "slab3d"}) {
+    const Scene s = make_scene(name);
+    auto e = backend.make(spec);
+    ForceResult r;
+    e->evaluate(s.config.view(), s.ff, cellforce::Request{}, r);
+    const Configuration near = moved(s.config, 0.499 * skin, 111);
+    e->evaluate(near.view(), s.ff, cellforce::Request{}, r);
+    const cellforce::PipelineStats st = e->stats();
+    const std::string what = name + ", every particle moved < skin/2 (max " + num(st.max_displacement) + ")";
+    check(kSkin, what + ": stages 1-3 rerun", "no (reused)", st.rebuilt ? "yes" : "no (reused)", !st.rebuilt);
+    check(kSkin, what + ": missed, repeated pairs (audit)", "0, 0",
+          std::to_string(st.missed_pairs) + ", " + std::to_string(st.repeated_pairs),
+          st.missed_pairs == 0 && st.repeated_pairs == 0);
+    check_against(kSkin, what, oracle_of(near, s.ff), r);
+    const auto want = cellforce::brute_force_pairs(near.view(), s.ff);
+    const auto got = e->visited_pairs(near.view(), s.ff);
+    check(kSkin, what + ": pairs within rc", std::to_string(want.size()),
+          std::to_string(got.size()) + (pair_sets_equal(want, got) ? ", the same set" : ", a different set"),
+          bool(pair_sets_equal(want, got)));
+
+    // One particle 0.501 skin from where it was at the build (the others as before).
+    Configuration beyond = near;
+    for (int a = 0; a < s.config.box.dim; ++a) beyond.positions[std::size_t(a)] = s.config.positions[std::size_t(a)];
+    beyond.positions[0] += 0.501 * skin;
+    e->evaluate(beyond.view(), s.ff, cellforce::Request{}, r);
+    const std::string over = name + ", particle 0 moved 0.501 skin";
+    check(kSkin, over + ": stages 1-3 rerun (builds)", "yes (2)",
+          std::string(e->stats().rebuilt ? "yes" : "no") + " (" + std::to_string(e->stats().builds) + ")",
+          e->stats().rebuilt && e->stats().builds == 2);
+    check_against(kSkin, over, oracle_of(beyond, s.ff), r);
+  }
+
+  // The check disabled: particle 0 jumps into a region far beyond rc + skin of where it was (a box of
+  // four cells per axis, so that its old cells are not its new neighbours' cells).
+  RandomSpec liquid;
+  liquid.min_distance = 0.85;
+  const Scene s{"random3d_20", random_configuration(cube(3, 20), 4000, 113, liquid), lj_field(2.5)};
+  const std::size_t dim = 3, n = s.config.size();
+  Configuration jump = s.config;
+  Rng rng(112);
+  for (int attempt = 0; attempt < 100000; ++attempt) {
+    for (std::size_t a = 0; a < dim; ++a) jump.positions[a] = rng.uniform(0, s.config.box.length[a]);
+    double r2 = 0;  // from where it was at the build
+    for (std::size_t a = 0; a < dim; ++a) {
+      double d = jump.positions[a] - s.config.positions[a];
+      d -= s.config.box.length[a] * std::rint(d / s.config.box.length[a]);
+      r2 += d * d;
+    }
+    bool ok = r2 > 8.0 * 8.0;
+    for (std::size_t j = 1; j < n && ok; ++j) ok = distance2(jump, 0, j) > 0.9 * 0.9;
+    if (ok) break;
+  }
+  for (const bool check_on : {false, true}) {
+    EngineSpec unchecked = spec;
+    unchecked.reuse.check = check_on;
+    auto e = backend.make(unchecked);
+    ForceResult r;
+    e->evaluate(s.config.view(), s.ff, cellforce::Request{}, r);
+    e->evaluate(jump.view(), s.ff, cellforce::Request{}, r);
+    const cellforce::PipelineStats st = e->stats();
+    const auto want = cellforce::brute_force_pairs(jump.view(), s.ff);
+    const auto got = e->visited_pairs(jump.view(), s.ff);
+    const std::size_t lacking = missing(want, got).size(), extra = duplicates(got).size();
+    const Errors err = errors_against(oracle_of(jump, s.ff), r);
+    const std::string what = std::string("4000 particles, L = 20, particle 0 jumps ") +
+                             (check_on ? "(check on)" : "(check off)");
+    if (!check_on) {
+      check(kSkin, what + ": stages 1-3 rerun", "no (nothing asks)", st.rebuilt ? "yes" : "no (nothing asks)",
+            !st.rebuilt);
+      check(kSkin, what + ": missed-pair counter", "> 0 and = brute-force pairs not visited (" +
+            std::to_string(lacking) + ")", std::to_string(st.missed_pairs),
+            st.missed_pairs > 0 && st.missed_pairs == lacking);
+      check(kSkin, what + ": repeated-pair counter", "= pairs visited twice (" + std::to_string(extra) + ")",
+            std::to_string(st.repeated_pairs), st.repeated_pairs == extra);
+      check(kSkin, what + ": max |dF|/F_rms (wrong, as the counter says)", "> " + sci(tol().max_frms),
+            sci(err.max_frms), err.max_frms > tol().max_frms);
+    } else {
+      check(kSkin, what + ": stages 1-3 rerun", "yes", st.rebuilt ? "yes" : "no", st.rebuilt);
+      check(kSkin, what + ": missed-pair counter", "0", std::to_string(st.missed_pairs),
+            st.missed_pairs == 0 && lacking == 0 && extra == 0);
+      check_against(kSkin, what, oracle_of(jump, s.ff), r);
+    }
   }
 }
 

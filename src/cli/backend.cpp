@@ -35,6 +35,7 @@ ForceBackend::ForceBackend(const BackendChoice& choice) : impl_(std::make_unique
     g.grid.rule = choice.rule;
     g.traversal = choice.traversal == "thread" ? TraversalForm::kThreadPerCell : TraversalForm::kWarpPerCell;
     g.sort = choice.sort == "chapter" ? SortMethod::kChapter : SortMethod::kCub;
+    g.reuse = choice.reuse;
     impl_->gpu = std::make_unique<GpuEngine>(g);
     description_ = "CUDA on " + impl_->gpu->device_name() + ", " + to_string(g.traversal) + ", " +
                    to_string(g.sort) + " sort";
@@ -48,6 +49,7 @@ ForceBackend::ForceBackend(const BackendChoice& choice) : impl_(std::make_unique
   c.precision = choice.precision;
   c.accumulation = choice.accumulation;
   c.grid.rule = choice.rule;
+  c.reuse = choice.reuse;
   impl_->cpu = std::make_unique<CpuEngine>(c);
   description_ = "CPU, " + std::to_string(omp_get_max_threads()) + " OpenMP threads";
 }
@@ -77,6 +79,11 @@ PipelineStats ForceBackend::stats(const SystemView& system, const ForceField& ff
     merged.t_accumulate = timing.t_accumulate;
     merged.t_transfer = timing.t_transfer;
     merged.t_total = timing.t_total;
+    merged.t_check = timing.t_check;
+    merged.rebuilt = timing.rebuilt;
+    merged.max_displacement = timing.max_displacement;
+    merged.missed_pairs = timing.missed_pairs;
+    merged.repeated_pairs = timing.repeated_pairs;
     return merged;
   }
 #endif

@@ -8,6 +8,7 @@
 #include "core/engine_options.h"
 #include "core/force_field.h"
 #include "core/grid.h"
+#include "core/reuse.h"
 #include "core/system.h"
 
 namespace cellforce {
@@ -19,6 +20,7 @@ struct BackendChoice {
   CellRule rule = CellRule::kTight;
   std::string traversal = "warp";  // CUDA: warp (a warp per cell) or thread (a thread per cell)
   std::string sort = "cub";        // CUDA: cub or chapter
+  ReuseOptions reuse;              // skin, check, every, audit (core/reuse.h)
 };
 
 class ForceBackend {

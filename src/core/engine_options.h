@@ -38,6 +38,16 @@ struct PipelineStats {
   // never from the number of grid cells, so a dilute scene in a huge box costs no more than a
   // dense one of the same size.
   std::size_t buffer_bytes = 0;
+  // Reuse of the structure (core/reuse.h; skin > 0): whether this evaluation ran stages 1-3, how
+  // many builds the engine has made, the largest displacement since the build in use (0 when not
+  // measured), and, with the audit, pairs closer than rc that the reused structure never
+  // evaluated (missed) or evaluated more than once (repeated). The stage counts above (entries,
+  // collision cells) are those of the build in use; t_check is the displacement check.
+  bool rebuilt = true;
+  std::size_t builds = 0;
+  double max_displacement = 0;
+  std::size_t missed_pairs = 0, repeated_pairs = 0;
+  double t_check = 0;
   double t_cell_ids = 0, t_count = 0, t_sort = 0, t_collision_cells = 0, t_traversal = 0,
          t_accumulate = 0, t_transfer = 0;
   double t_total = 0;

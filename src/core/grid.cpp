@@ -59,14 +59,21 @@ void set_axis_geometry(Grid& g, const Box& box, int a, uint32_t n, double lo, do
   }
 }
 
+// Whether a particle of a periodic axis's cell c, its box of half-width h, moved by up to skin/2
+// since the build, stays within half a box edge of the cell centre (staged as the right image).
+bool holds_moved_box(double cell, double half_width, double skin, double length) {
+  return skin <= 0.0 || 0.5 * cell + half_width + 0.5 * skin < 0.5 * length;
+}
+
 }  // namespace
 
 double min_cell_edge(CellRule rule, double cutoff, double half_width) {
   return rule == CellRule::kTight ? cutoff + half_width : 3.0 * half_width;
 }
 
-Grid plan_grid(const Box& box, double cutoff, const double* positions, std::size_t n_particles,
-               const GridOptions& options) {
+Grid plan_grid(const Box& box, double physical_cutoff, const double* positions,
+               std::size_t n_particles, const GridOptions& options, double skin) {
+  const double cutoff = physical_cutoff + skin;  // what the structure must hold
   Grid g;
   g.dim = box.dim;
   g.half_width = options.half_width_factor * cutoff;
@@ -82,6 +89,7 @@ Grid plan_grid(const Box& box, double cutoff, const double* positions, std::size
       uint64_t m = count < 1 ? 1 : uint64_t(count);
       while (m > 1 && box.length[a] / double(m) < min_edge) --m;  // rounding at the boundary
       if (m % 2 == 1) m = m - 1;  // the parity pattern must tile the box
+      if (m == 2 && !holds_moved_box(box.length[a] / 2.0, g.half_width, skin, box.length[a])) m = 1;
       n[a] = uint32_t(std::max<uint64_t>(m, 1));
     } else {
       bounding_interval(positions, n_particles, box.dim, a, lo[a], extent[a]);
@@ -118,28 +126,35 @@ Grid make_grid_unchecked(const Box& box, const uint32_t cells[kMaxDim], double h
   return g;
 }
 
-void check_grid(const Grid& g, const Box& box, double cutoff, CellRule rule) {
+void check_grid(const Grid& g, const Box& box, double physical_cutoff, CellRule rule, double skin) {
+  const double cutoff = physical_cutoff + skin;  // what the structure must hold
   auto fail = [&](int a, const std::string& what) {
     std::ostringstream s;
     s << "grid violates " << what << " on axis " << kAxisName[a] << " (box edge " << box.length[a]
-      << ", cutoff " << cutoff << ", cells " << g.n[a] << ", cell edge " << g.cell[a]
-      << ", half-width " << g.half_width << ")";
+      << ", cutoff " << physical_cutoff;
+    if (skin > 0) s << ", skin " << skin;
+    s << ", cells " << g.n[a] << ", cell edge " << g.cell[a] << ", half-width " << g.half_width << ")";
     throw Error(s.str());
   };
   const double kCoverage = cutoff * 0.70710678118654752440;
   if (g.half_width < kCoverage)
-    fail(0, "coverage (half-width h must be >= rc/sqrt(2))");
+    fail(0, skin > 0 ? "coverage (half-width h must be >= (rc + skin)/sqrt(2))"
+                     : "coverage (half-width h must be >= rc/sqrt(2))");
   for (int a = 0; a < g.dim; ++a) {
-    if (box.periodic[a] && 2.0 * cutoff > box.length[a])
+    if (box.periodic[a] && 2.0 * physical_cutoff > box.length[a])
       fail(a, "minimum image (cutoff must be <= half the periodic box edge)");
+    if (box.periodic[a] && g.n[a] > 1 && !holds_moved_box(g.cell[a], g.half_width, skin, box.length[a]))
+      fail(a, "reuse (c/2 + h + skin/2 must be < L/2 on a periodic axis of two or more cells)");
     if (box.periodic[a] && g.n[a] > 1 && g.n[a] % 2 == 1)
       fail(a, "the parity tiling (cell count on a periodic axis must be even or 1)");
     if (g.n[a] == 1) continue;
     if (2.0 * g.half_width > g.cell[a])
       fail(a, "at most two cells per axis (2h must be <= cell edge)");
     if (g.cell[a] < min_cell_edge(rule, cutoff, g.half_width))
-      fail(a, rule == CellRule::kTight ? "the control-bit rule (cell edge must be >= rc + h)"
-                                       : "the chapter's rule (cell edge must be >= 3h)");
+      fail(a, rule == CellRule::kTight
+                  ? (skin > 0 ? "the control-bit rule (cell edge must be >= rc + skin + h)"
+                              : "the control-bit rule (cell edge must be >= rc + h)")
+                  : "the chapter's rule (cell edge must be >= 3h)");
   }
 }
 

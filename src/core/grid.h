@@ -194,8 +194,11 @@ struct CollisionCell {
 // cell (one cell if even two do not fit); on an open axis cells of at least that edge over the
 // particles' extent. The grid is coarsened if it would exceed kMaxCells. positions: n_particles x
 // box.dim, row-major, user order; only read on open axes.
+// With skin > 0 (reuse, core/reuse.h) the grid is planned for the cutoff rc + skin, and a
+// periodic axis that would get two cells too small to hold a particle's box after it moves by
+// skin / 2 (c/2 + h + skin/2 >= L/2, so the staged image could flip) gets one cell instead.
 Grid plan_grid(const Box& box, double cutoff, const double* positions, std::size_t n_particles,
-               const GridOptions& options = {});
+               const GridOptions& options = {}, double skin = 0.0);
 
 // Builds a grid with the given cells per axis and half-width, without checking any condition:
 // for tests that show what breaks when a condition does not hold.
@@ -203,8 +206,12 @@ Grid make_grid_unchecked(const Box& box, const uint32_t cells[kMaxDim], double h
                          const double* positions, std::size_t n_particles);
 
 // Throws cellforce::Error naming the violated condition (and axis, box, cutoff) when the grid
-// does not satisfy the design note's conditions for this cutoff and rule.
-void check_grid(const Grid& grid, const Box& box, double cutoff, CellRule rule = CellRule::kTight);
+// does not satisfy the design note's conditions for this cutoff and rule. With skin > 0 the
+// coverage and control-bit conditions are checked for rc + skin (minimum image still for rc),
+// and on a periodic axis of two or more cells c/2 + h + skin/2 < L/2: a particle that has moved
+// skin / 2 since the build is still staged as the image next to its cell.
+void check_grid(const Grid& grid, const Box& box, double cutoff, CellRule rule = CellRule::kTight,
+                double skin = 0.0);
 
 // Smallest cell edge the rule allows for half-width h and cutoff rc.
 double min_cell_edge(CellRule rule, double cutoff, double half_width);

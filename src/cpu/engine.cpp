@@ -2,6 +2,7 @@
 #include "cpu/engine.h"
 
 #include <chrono>
+#include <cmath>
 
 #include "core/error.h"
 #include "cpu/stages.h"
@@ -16,6 +17,8 @@ struct CpuEngine::Scratch {
   std::vector<std::size_t> type_start;
   cpu::Accumulators<float> acc_float;
   cpu::Accumulators<double> acc_double;
+  std::vector<double> build_positions;  // reuse: positions at the build in use (n x dim)
+  std::vector<uint32_t> build_keys;     // audit: stage 1's keys of that build, user order
 
   std::size_t bytes() const {
     std::size_t b = 0;
@@ -25,6 +28,7 @@ struct CpuEngine::Scratch {
     add(cells), add(type_start);
     add(acc_float.force), add(acc_float.energy), add(acc_float.cell_energy), add(acc_float.cell_virial);
     add(acc_double.force), add(acc_double.energy), add(acc_double.cell_energy), add(acc_double.cell_virial);
+    add(build_positions), add(build_keys);
     return b;
   }
 };
@@ -39,24 +43,57 @@ double seconds_since(Clock::time_point t0) {
 }  // namespace
 
 CpuEngine::CpuEngine(CpuOptions options)
-    : options_(std::move(options)), scratch_(std::make_unique<Scratch>()) {}
+    : options_(std::move(options)), reuse_(options_.reuse), scratch_(std::make_unique<Scratch>()) {
+  validate_reuse(options_.reuse);
+}
 CpuEngine::~CpuEngine() = default;
 
-// Stages 1-3, shared by evaluate() and visited_pairs().
-void CpuEngine::build(const SystemView& system, const ForceField& ff, bool split) {
+// Validates the input, then rebuilds the structure (stages 1-3) or keeps the last one: shared by
+// evaluate() and visited_pairs().
+void CpuEngine::prepare(const SystemView& system, const ForceField& ff) {
   validate_system(system, ff);
+  Scratch& s = *scratch_;
+  bool rebuild = reuse_.must_rebuild(system, ff.cutoff);
+  stats_.max_displacement = 0;
+  stats_.t_check = 0;
+  stats_.missed_pairs = stats_.repeated_pairs = 0;
+  if (!rebuild && reuse_.measures_displacement()) {
+    const auto t = Clock::now();
+    const double d2 = max_displacement2(system.box, system.n, system.positions, s.build_positions.data());
+    stats_.max_displacement = std::sqrt(d2);
+    rebuild = reuse_.too_far(d2);
+    stats_.t_check = seconds_since(t);
+  }
+  stats_.rebuilt = rebuild;
+  if (rebuild) {
+    build(system, ff);
+  } else {
+    reuse_.reused();
+    stats_.t_cell_ids = stats_.t_sort = stats_.t_collision_cells = 0;
+  }
+  stats_.builds = reuse_.builds();
+}
+
+// Stages 1-3.
+void CpuEngine::build(const SystemView& system, const ForceField& ff) {
   const CpuOptions& options = options_;
   Scratch& s = *scratch_;
   PipelineStats& stats = stats_;
+  const double skin = options.reuse.skin;
+  reuse_.invalidate();  // until this build completes
   auto t = Clock::now();
   if (options.grid_override) {
     stats.grid = *options.grid_override;
   } else {
-    stats.grid = plan_grid(system.box, ff.cutoff, system.positions, system.n, options.grid);
-    check_grid(stats.grid, system.box, ff.cutoff, options.grid.rule);
+    stats.grid = plan_grid(system.box, ff.cutoff, system.positions, system.n, options.grid, skin);
+    check_grid(stats.grid, system.box, ff.cutoff, options.grid.rule, skin);
   }
   cpu::build_cell_ids(stats.grid, system, s.ids);
   stats.t_cell_ids = seconds_since(t);
+  if (reuse_.enabled()) {
+    s.build_positions.assign(system.positions, system.positions + system.n * std::size_t(system.box.dim));
+    if (options.reuse.audit) s.build_keys = s.ids.keys;  // before the sort reorders them
+  }
 
   t = Clock::now();
   cpu::radix_sort(s.ids.keys, s.ids.object_ids, stats.grid.key_bits, s.sort);
@@ -64,20 +101,31 @@ void CpuEngine::build(const SystemView& system, const ForceField& ff, bool split
 
   t = Clock::now();
   cpu::find_collision_cells(s.ids.keys.data(), s.ids.valid, s.cells);
-  if (split) cpu::split_by_type(stats.grid, s.cells, s.type_start);
+  // Gauss-Seidel passes need the cells by type; the split is part of the (reusable) build.
+  if (options.accumulation == Accumulation::kGaussSeidel)
+    cpu::split_by_type(stats.grid, s.cells, s.type_start);
   stats.t_collision_cells = seconds_since(t);
 
   stats.entries = s.ids.keys.size();
   stats.valid_entries = s.ids.valid;
   stats.collision_cells = s.cells.size();
+  reuse_.built(system, ff.cutoff);
+}
+
+// The audit of a reused structure: pairs closer than rc now that it misses or repeats.
+void CpuEngine::audit(const SystemView& system, const ForceField& ff) {
+  if (!options_.reuse.audit || stats_.rebuilt) return;
+  const ReuseAudit a = audit_reuse(stats_.grid, scratch_->build_keys.data(), scratch_->ids.control.data(),
+                                   system, ff.cutoff, pairs_within(system, ff.cutoff));
+  stats_.missed_pairs = a.missed;
+  stats_.repeated_pairs = a.repeated;
 }
 
 void CpuEngine::evaluate(const SystemView& system, const ForceField& ff, const Request& request,
                          ForceResult& result) {
   const auto t0 = Clock::now();
   Scratch& s = *scratch_;
-  const bool gauss_seidel = options_.accumulation == Accumulation::kGaussSeidel;
-  build(system, ff, gauss_seidel);
+  prepare(system, ff);
 
   const cpu::TraversalInput in{stats_.grid, system,        ff,         s.ids.object_ids.data(),
                                s.ids.control.data(), s.cells, s.type_start};
@@ -108,12 +156,14 @@ void CpuEngine::evaluate(const SystemView& system, const ForceField& ff, const R
   stats_.t_accumulate = seconds_since(t);
   stats_.buffer_bytes = s.bytes();
   stats_.t_total = seconds_since(t0);
+  audit(system, ff);  // after the total: its host search is no part of the engine's time
 }
 
 std::vector<std::pair<uint32_t, uint32_t>> CpuEngine::visited_pairs(const SystemView& system,
                                                                     const ForceField& ff) {
   Scratch& s = *scratch_;
-  build(system, ff, false);
+  prepare(system, ff);
+  audit(system, ff);
   const cpu::TraversalInput in{stats_.grid, system,        ff,         s.ids.object_ids.data(),
                                s.ids.control.data(), s.cells, s.type_start};
   return cpu::traverse_pairs(in);

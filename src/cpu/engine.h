@@ -12,6 +12,7 @@
 
 #include "core/engine_options.h"
 #include "core/grid.h"
+#include "core/reuse.h"
 #include "core/system.h"
 
 namespace cellforce {
@@ -20,6 +21,7 @@ struct CpuOptions {
   Precision precision = Precision::kDouble;
   Accumulation accumulation = Accumulation::kJacobi;
   GridOptions grid;
+  ReuseOptions reuse;  // skin > 0: stages 1-3 reused while no particle moved more than skin / 2
   // Tests only: use this grid as given, unchecked, instead of planning one.
   std::optional<Grid> grid_override;
 };
@@ -37,7 +39,8 @@ class CpuEngine {
                 ForceResult& result);
 
   // Every pair the traversal evaluates with r < rc, once per evaluation (a pair evaluated twice
-  // appears twice), as (min index, max index), in no particular order.
+  // appears twice), as (min index, max index), in no particular order. With a skin, the structure
+  // is rebuilt or reused as for evaluate() (so the pairs show what reuse finds).
   std::vector<std::pair<uint32_t, uint32_t>> visited_pairs(const SystemView& system,
                                                            const ForceField& ff);
 
@@ -47,8 +50,11 @@ class CpuEngine {
   struct Scratch;  // opaque: stage buffers reused across evaluations
 
  private:
-  void build(const SystemView& system, const ForceField& ff, bool split_by_type);
+  void prepare(const SystemView& system, const ForceField& ff);
+  void build(const SystemView& system, const ForceField& ff);
+  void audit(const SystemView& system, const ForceField& ff);
   CpuOptions options_;
+  ReusePolicy reuse_;
   PipelineStats stats_;
   std::unique_ptr<Scratch> scratch_;
 };

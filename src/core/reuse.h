@@ -1,0 +1,96 @@
+// Reuse of the neighbour structure between evaluations: a Verlet skin for the cell search.
+//
+// Stages 1-3 (cell IDs, sort, collision cells) depend on positions only through which cells each
+// particle's box touches. Built for the cutoff rc + skin, the structure holds every pair closer
+// than rc + skin exactly once (the design note's conditions, read with rc + skin). While no
+// particle has moved more than skin / 2 since that build, a pair now closer than rc was closer
+// than rc + skin then, so the traversal of the old structure with the current positions (staged
+// afresh every evaluation, relative to the same cell centres) and the strict r < rc test finds
+// every interacting pair exactly once. The engines then skip stages 1-3 until a particle has
+// moved more than skin / 2 (the check), the box, particle count or cutoff change, or `every`
+// evaluations have passed. With the check off, the audit counts what reuse got wrong: pairs
+// now closer than rc that the old structure does not find (never visits, or visits with a particle
+// staged as another image after a long move: missed) or finds more than once (repeated).
+#pragma once
+
+#include <cstddef>
+#include <cstdint>
+#include <utility>
+#include <vector>
+
+#include "core/box.h"
+#include "core/grid.h"
+#include "core/system.h"
+
+namespace cellforce {
+
+struct ReuseOptions {
+  double skin = 0.0;    // length units; 0: stages 1-3 run on every evaluation
+  bool check = true;    // rebuild when a particle has moved more than skin / 2 since the build
+  int64_t every = 0;    // a structure serves at most this many evaluations, its build's included
+                        // (1: rebuild on every one; 0: no limit)
+  bool audit = false;   // on every reused evaluation, count missed and repeated pairs against a
+                        // fresh host search (slow: diagnostics and tests only)
+};
+
+// Throws cellforce::Error naming the parameter (skin, every) when it is not usable.
+void validate_reuse(const ReuseOptions& options);
+
+// When to rebuild, apart from the displacement: the first evaluation, a change of box, particle
+// count or cutoff, skin 0, or a structure that has served `every` evaluations. Shared by both
+// engines.
+class ReusePolicy {
+ public:
+  explicit ReusePolicy(ReuseOptions options = {}) : options_(options) {}
+  const ReuseOptions& options() const { return options_; }
+  bool enabled() const { return options_.skin > 0.0; }
+  // Whether the structure must be rebuilt whatever the displacement.
+  bool must_rebuild(const SystemView& system, double cutoff) const;
+  // Whether the displacement since the build (squared, largest over particles) asks for one.
+  bool too_far(double max_displacement2) const {
+    const double half = 0.5 * options_.skin;
+    return options_.check && max_displacement2 > half * half;
+  }
+  // Whether the displacement needs computing at all (for the check or for the statistics).
+  bool measures_displacement() const { return enabled() && (options_.check || options_.audit); }
+  void built(const SystemView& system, double cutoff);
+  void reused() { ++served_; }
+  // The structure no longer matches the last build (a fresh search overwrote it).
+  void invalidate() { valid_ = false; }
+  std::size_t builds() const { return builds_; }
+
+ private:
+  ReuseOptions options_;
+  bool valid_ = false;
+  Box box_;
+  std::size_t n_ = 0;
+  double cutoff_ = 0.0;
+  int64_t served_ = 0;  // evaluations of the structure in use, its build's included
+  std::size_t builds_ = 0;
+};
+
+// Largest squared displacement between two position arrays (n x box.dim, minimum image on
+// periodic axes, so a particle wrapped back into the box counts what it moved, not L).
+double max_displacement2(const Box& box, std::size_t n, const double* now, const double* then);
+
+// Every pair (i < j) closer than `cutoff` (strict, minimum image), from a plain host cell list of
+// edge >= cutoff: the audit's own search, independent of the engines' pipelines. In no order.
+std::vector<std::pair<uint32_t, uint32_t>> pairs_within(const SystemView& system, double cutoff);
+
+struct ReuseAudit {
+  std::size_t missed = 0;    // pairs closer than rc that the structure never evaluates
+  std::size_t repeated = 0;  // pairs closer than rc that it evaluates more than once
+};
+
+// How often the structure built on `grid` evaluates each of `pairs` as the interacting pair it
+// is: the cells both particles' boxes touched at the build, that are one particle's H cell (so a
+// collision cell that visits the pair), where the control-bit rule does not skip it, and where the
+// separation of the coordinates staged relative to that cell's centre (as the traversal stages
+// them, in double) is below the cutoff; a particle that moved too far is staged as another image
+// and the pair is then out of range there. build_keys: n x 2^d, user order, as stage 1 wrote them
+// (cell << 1 | phantom, or kInvalidCell); control: n, from the same build; system: now.
+ReuseAudit audit_reuse(const Grid& grid, const uint32_t* build_keys, const Control* control,
+                       const SystemView& system, double cutoff,
+                       const std::vector<std::pair<uint32_t, uint32_t>>& pairs);
+
+}  // namespace cellforce

@@ -1,0 +1,287 @@
+// Reuse of the neighbour structure (core/reuse.h): the options, the grid condition the skin adds,
+// the rebuild policy, the audit's own pair search and coverage count (against the brute force and
+// against what the traversal actually visits), and MD with a skin against MD without one. The
+// stiff cases (a particle beyond skin / 2, the missed-pair counter) are case 11 of
+// stability_test.cpp.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <string>
+#include <vector>
+
+#include "backends.h"
+#include "core/error.h"
+#include "core/grid.h"
+#include "core/reuse.h"
+#include "cpu/engine.h"
+#include "md/md.h"
+#include "oracle.h"
+#include "reference/brute_force.h"
+#include "scene/lattice.h"
+#include "scenes.h"
+
+namespace cftest {
+namespace {
+
+using cellforce::Configuration;
+using cellforce::CpuEngine;
+using cellforce::CpuOptions;
+using cellforce::ForceField;
+using cellforce::ForceResult;
+using cellforce::Grid;
+using cellforce::Request;
+using cellforce::ReuseOptions;
+
+ForceField lj_field(double cutoff) {
+  ForceField ff;
+  ff.cutoff = cutoff;
+  ff.types = {cellforce::ParticleType{"A", 1.0, 1.0}};
+  return ff;
+}
+
+// `c` with each particle moved by a random vector shorter than max_step.
+Configuration moved(const Configuration& c, double max_step, uint64_t seed) {
+  Configuration m = c;
+  const std::size_t dim = std::size_t(c.box.dim);
+  Rng rng(seed);
+  for (std::size_t i = 0; i < c.size(); ++i) {
+    double d[3] = {0, 0, 0}, norm2 = 0;
+    while (norm2 < 1e-6) {
+      norm2 = 0;
+      for (std::size_t a = 0; a < dim; ++a) d[a] = rng.uniform(-1, 1), norm2 += d[a] * d[a];
+    }
+    const double length = max_step * rng.uniform() / std::sqrt(norm2);
+    for (std::size_t a = 0; a < dim; ++a) m.positions[i * dim + a] += length * d[a];
+  }
+  return m;
+}
+
+std::string error_of(const ReuseOptions& reuse) {
+  try {
+    CpuOptions o;
+    o.reuse = reuse;
+    CpuEngine e(o);
+  } catch (const cellforce::Error& err) {
+    return err.what();
+  }
+  return {};
+}
+
+TEST(ReuseOptions, BadValuesAreRejectedNamingTheParameter) {
+  for (double skin : {-0.1, std::numeric_limits<double>::quiet_NaN(), std::numeric_limits<double>::infinity()}) {
+    ReuseOptions r;
+    r.skin = skin;
+    EXPECT_NE(error_of(r).find("skin"), std::string::npos) << "skin " << skin << ": " << error_of(r);
+  }
+  ReuseOptions r;
+  r.every = -1;
+  EXPECT_NE(error_of(r).find("every"), std::string::npos) << error_of(r);
+  r.every = 0;
+  r.skin = 0.3;
+  EXPECT_EQ(error_of(r), "");
+}
+
+// The condition a skin adds (grid.h): on a periodic axis of two or more cells, c/2 + h + skin/2 <
+// L/2, so that a particle moved by skin / 2 is still staged as the image next to its cell. In a
+// box of 6.2 with rc 1 and skin 0.8 two cells would break it: the planner takes one, check_grid
+// refuses two, and the planned grid is exact after moves up to skin / 2.
+TEST(ReuseGrid, SkinConditionIsPlannedAndChecked) {
+  const cellforce::Box box = cube(3, 6.2);
+  const double rc = 1.0, skin = 0.8;
+  const Grid without = cellforce::plan_grid(box, rc, nullptr, 0, {}, 0.0);
+  EXPECT_EQ(without.n[0], 2u) << "without a skin the box takes two cells per axis";
+  const Grid with = cellforce::plan_grid(box, rc, nullptr, 0, {}, skin);
+  EXPECT_EQ(with.n[0], 1u) << "two cells of 3.1 with h = " << with.half_width << " and skin 0.8 break the condition";
+  EXPECT_NO_THROW(cellforce::check_grid(with, box, rc, cellforce::CellRule::kTight, skin));
+  const uint32_t two[3] = {2, 2, 2};
+  const Grid broken = cellforce::make_grid_unchecked(box, two, with.half_width, nullptr, 0);
+  try {
+    cellforce::check_grid(broken, box, rc, cellforce::CellRule::kTight, skin);
+    ADD_FAILURE() << "check_grid accepted two cells per axis with skin " << skin;
+  } catch (const cellforce::Error& e) {
+    EXPECT_NE(std::string(e.what()).find("skin"), std::string::npos) << e.what();
+  }
+  // rc + skin > L/2 is legal when rc <= L/2 (one cell per axis, minimum image in the pair).
+  EXPECT_NO_THROW(cellforce::check_grid(cellforce::plan_grid(box, 3.0, nullptr, 0, {}, 0.5), box, 3.0,
+                                        cellforce::CellRule::kTight, 0.5));
+
+  RandomSpec spec;
+  spec.min_distance = 0.85;
+  const Configuration c = random_configuration(box, 120, 21, spec);
+  const ForceField ff = lj_field(rc);
+  CpuOptions o;
+  o.reuse.skin = skin;
+  o.reuse.audit = true;
+  CpuEngine e(o);
+  ForceResult r;
+  e.evaluate(c.view(), ff, Request{}, r);
+  const Configuration m = moved(c, 0.499 * skin, 22);
+  e.evaluate(m.view(), ff, Request{}, r);
+  EXPECT_FALSE(e.stats().rebuilt);
+  ForceResult ref;
+  cellforce::brute_force(m.view(), ff, Request{}, ref);
+  EXPECT_TRUE(forces_match(ref, r, 1e-12));
+  EXPECT_TRUE(pair_sets_equal(cellforce::brute_force_pairs(m.view(), ff), e.visited_pairs(m.view(), ff)));
+}
+
+// `every` = N: a structure serves N evaluations (its build's included), whatever the displacement;
+// a change of box, particle count or cutoff rebuilds at once.
+TEST(ReusePolicy, EveryAndChangesOfTheSystem) {
+  const Scene s = make_scene("random3d_periodic");
+  CpuOptions o;
+  o.reuse.skin = 0.3;
+  o.reuse.check = false;
+  o.reuse.every = 3;
+  CpuEngine e(o);
+  ForceResult r;
+  std::vector<std::size_t> builds;
+  for (int k = 0; k < 7; ++k) {
+    e.evaluate(s.config.view(), s.ff, Request{}, r);
+    builds.push_back(e.stats().builds);
+  }
+  EXPECT_EQ(builds, (std::vector<std::size_t>{1, 1, 1, 2, 2, 2, 3}));
+
+  ForceField longer = s.ff;
+  longer.cutoff = 2.6;
+  e.evaluate(s.config.view(), longer, Request{}, r);
+  EXPECT_TRUE(e.stats().rebuilt) << "a new cutoff must rebuild";
+  Configuration bigger = s.config;
+  bigger.box.length[0] *= 1.01;
+  e.evaluate(bigger.view(), longer, Request{}, r);
+  EXPECT_TRUE(e.stats().rebuilt) << "a new box must rebuild";
+  Configuration fewer = bigger;
+  fewer.positions.resize(fewer.positions.size() - 3);
+  fewer.types.pop_back();
+  e.evaluate(fewer.view(), longer, Request{}, r);
+  EXPECT_TRUE(e.stats().rebuilt) << "a new particle count must rebuild";
+  ForceResult ref;
+  cellforce::brute_force(fewer.view(), longer, Request{}, ref);
+  EXPECT_TRUE(forces_match(ref, r, 1e-12));
+
+  CpuOptions off;  // skin 0: every evaluation builds
+  CpuEngine plain(off);
+  for (int k = 0; k < 3; ++k) plain.evaluate(s.config.view(), s.ff, Request{}, r);
+  EXPECT_TRUE(plain.stats().rebuilt);
+  EXPECT_EQ(plain.stats().builds, 3u);
+}
+
+// The audit's own search (pairs_within) is the brute force's pair set on every test scene.
+TEST(ReuseAudit, PairsWithinEqualsBruteForce) {
+  for (const std::string& name : all_scene_names()) {
+    const Scene s = make_scene(name);
+    EXPECT_TRUE(pair_sets_equal(cellforce::brute_force_pairs(s.config.view(), s.ff),
+                                cellforce::pairs_within(s.config.view(), s.ff.cutoff)))
+        << name;
+  }
+}
+
+// The audit's counts equal what the reused traversal really does: missed = brute-force pairs it
+// does not find (not visited, or visited as another image of a particle that moved too far),
+// repeated = pairs it finds more than once, for moves below and well beyond skin / 2 with the
+// check off.
+TEST(ReuseAudit, CountsEqualWhatTheTraversalVisits) {
+  std::size_t total_missed = 0;
+  for (const std::string name : {"random3d_periodic", "random2d_periodic", "random3d_open", "slab3d",
+                                  "two_cells3d", "uneven3d", "half_box3d"}) {
+    const Scene s = make_scene(name);
+    for (double factor : {0.45, 1.5, 4.0}) {
+      const double skin = 0.3;
+      CpuOptions o;
+      o.reuse.skin = skin;
+      o.reuse.check = false;
+      o.reuse.audit = true;
+      CpuEngine e(o);
+      ForceResult r;
+      e.evaluate(s.config.view(), s.ff, Request{}, r);
+      const Configuration m = moved(s.config, factor * skin, 31);
+      const auto got = e.visited_pairs(m.view(), s.ff);
+      const auto want = cellforce::brute_force_pairs(m.view(), s.ff);
+      const auto& st = e.stats();
+      ASSERT_FALSE(st.rebuilt) << name;
+      EXPECT_EQ(st.missed_pairs, missing(want, got).size()) << name << ", moves up to " << factor << " skin";
+      EXPECT_EQ(st.repeated_pairs, duplicates(got).size()) << name << ", moves up to " << factor << " skin";
+      if (factor < 0.5) {
+        EXPECT_EQ(st.missed_pairs + st.repeated_pairs, 0u) << name;
+      }
+      total_missed += st.missed_pairs;
+    }
+  }
+  EXPECT_GT(total_missed, 0u) << "no move beyond skin / 2 missed a pair: the audit was not tested";
+}
+
+// =====================================================================================================
+// MD with a skin: the same trajectory as with a build on every step (to round-off, which chaos
+// amplifies over the run), far fewer builds, and the audit finds nothing missed on any step.
+// =====================================================================================================
+class ReuseMd : public ::testing::TestWithParam<std::size_t> {
+ protected:
+  void SetUp() override {
+    const std::string why = backends()[GetParam()].unavailable();
+    if (!why.empty()) GTEST_SKIP() << backends()[GetParam()].name << ": " << why;
+  }
+};
+
+struct MdRun {
+  cellforce::MdState state;
+  std::size_t builds = 0, missed = 0, repeated = 0;
+  double max_displacement = 0;
+};
+
+MdRun run_md(std::size_t backend, double skin, int steps) {
+  EngineSpec spec;
+  spec.reuse.skin = skin;
+  spec.reuse.audit = skin > 0;
+  auto e = backends()[backend].make(spec);
+  MdRun run;
+  cellforce::MdState& s = run.state;
+  s.config = cellforce::make_lattice(cellforce::Lattice::kFcc, 5, 0.8442);
+  const std::vector<double> masses(s.config.size(), 1.0);
+  ForceField ff = lj_field(2.5);
+  ff.mode = cellforce::CutoffMode::kForceShift;
+  cellforce::initialize_velocities(s, masses, 1.44, 5);
+  ForceResult result;
+  auto compute = [&](cellforce::MdState& st) {
+    e->evaluate(st.config.view(), ff, Request{false, false}, result);
+    st.forces = result.forces;
+    run.missed += e->stats().missed_pairs;
+    run.repeated += e->stats().repeated_pairs;
+    if (!e->stats().rebuilt)  // (a rebuild reports the displacement that asked for it)
+      run.max_displacement = std::max(run.max_displacement, e->stats().max_displacement);
+  };
+  compute(s);
+  cellforce::IntegratorSettings settings;
+  settings.dt = 0.005;
+  for (int k = 0; k < steps; ++k) cellforce::advance(s, masses, settings, compute);
+  run.builds = e->stats().builds;
+  return run;
+}
+
+TEST_P(ReuseMd, TrajectoryMatchesBuildingEveryStep) {
+  const int steps = 200;
+  const MdRun fresh = run_md(GetParam(), 0.0, steps);
+  const MdRun reused = run_md(GetParam(), 0.3, steps);
+  EXPECT_EQ(fresh.builds, std::size_t(steps) + 1);
+  EXPECT_LT(reused.builds, std::size_t(steps) / 5) << "a skin of 0.3 at T = 1.44 should serve ~10+ steps";
+  EXPECT_GT(reused.builds, 1u) << "the run never rebuilt: the check was not exercised";
+  EXPECT_LE(reused.max_displacement, 0.15) << "a structure served past skin / 2";
+  EXPECT_EQ(reused.missed, 0u);
+  EXPECT_EQ(reused.repeated, 0u);
+  // Positions after 200 steps (t = 1): the two runs differ only in the order of the force sums,
+  // ~1e-16 relative per step, grown by the Lyapunov instability to well below 1e-8.
+  double worst = 0;
+  const auto& a = fresh.state.config.positions;
+  const auto& b = reused.state.config.positions;
+  for (std::size_t k = 0; k < a.size(); ++k) {
+    const double l = fresh.state.config.box.length[k % 3];
+    worst = std::max(worst, std::fabs(cellforce::minimum_image(a[k] - b[k], l, 1.0 / l)));
+  }
+  EXPECT_LT(worst, 1e-8);
+}
+
+std::string backend_name(const ::testing::TestParamInfo<std::size_t>& p) { return backends()[p.param].name; }
+INSTANTIATE_TEST_SUITE_P(Backends, ReuseMd, ::testing::ValuesIn(backend_ids()), backend_name);
+
+}  // namespace
+}  // namespace cftest
