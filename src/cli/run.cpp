@@ -15,6 +15,7 @@
 #include "io/h5md_writer.h"
 #include "md/checkpoint.h"
 #include "md/md.h"
+#include "md/minimize.h"
 #include "scene/scene.h"
 
 #ifndef CELLFORCE_VERSION
@@ -196,6 +197,43 @@ int run_md(const RunArgs& args) {
   integrator.kT = scene.integrator.temperature;
   integrator.friction = scene.integrator.friction;
   integrator.seed = scene.seed;
+
+  ForceResult result;
+  StageTotals stages;
+  int64_t evaluations = 0;
+  double t_output = 0;
+  auto compute = [&](MdState& s, bool observe) {
+    const SystemView view = s.config.view();
+    engine.evaluate(view, ff, Request{observe, observe}, result);
+    stages.add(engine.stats(view, ff, false));
+    ++evaluations;
+    s.forces.swap(result.forces);  // no copy: the engine overwrites the old buffer next time
+  };
+
+  // [minimize]: a fresh run relaxes its starting configuration before the velocities are drawn
+  // (a restart continues from the checkpoint's positions, which the fresh run minimised).
+  std::string minimize_line;
+  if (scene.minimize.enabled && !restart) {
+    FireSettings fire;
+    fire.force_tolerance = scene.minimize.force_tolerance;
+    fire.max_steps = scene.minimize.max_steps;
+    fire.dt = scene.minimize.dt;
+    fire.dt_max = scene.minimize.dt_max;
+    fire.max_displacement = scene.minimize.max_displacement;
+    const FireResult r = with_context(scene.source + ": [minimize]", [&] {
+      return minimize_fire(state, masses, fire, [&](MdState& s) {
+        compute(s, true);
+        return result.energy;
+      });
+    });
+    char line[320];
+    std::snprintf(line, sizeof line,
+                  "  minimize (FIRE): %lld steps; max force %.4g -> %.4g (particle %zu); energy per particle "
+                  "%.6g -> %.6g",
+                  (long long)r.steps, r.initial_max_force, r.final_max_force, r.final_max_force_particle,
+                  r.initial_energy / double(n), r.final_energy / double(n));
+    minimize_line = line;
+  }
   initialize_velocities(state, masses, scene.initial_temperature, scene.seed, !integrator.langevin);
 
   CheckpointInfo checkpoint_info;
@@ -216,18 +254,11 @@ int run_md(const RunArgs& args) {
                   checkpoint_info.backend.c_str(), checkpoint_info.precision.c_str());
   }
 
-  ForceResult result;
-  StageTotals stages;
-  int64_t evaluations = 0;
-  double t_output = 0;
-  auto compute = [&](MdState& s, bool observe) {
-    const SystemView view = s.config.view();
-    engine.evaluate(view, ff, Request{observe, observe}, result);
-    stages.add(engine.stats(view, ff, false));
-    ++evaluations;
-    s.forces.swap(result.forces);  // no copy: the engine overwrites the old buffer next time
-  };
-  with_context(scene.source + ": step " + std::to_string(state.step), [&] { compute(state, true); });
+  with_context(scene.source + ": step " + std::to_string(state.step), [&] {
+    compute(state, true);
+    // Dynamics that the first step would throw apart (overlaps) are refused before any output.
+    if (state.step < scene.steps) check_stable_start(state, masses, integrator.dt, ff);
+  });
 
   // Outputs are touched only now that everything that can refuse the run has run. On a restart
   // the thermo rows and trajectory frames beyond the checkpoint are dropped (that part of the run
@@ -270,6 +301,7 @@ int run_md(const RunArgs& args) {
   std::printf("  %s, dt %g, %lld steps; %s, precision %s\n",
               integrator.langevin ? "Langevin (BAOAB)" : "NVE (velocity Verlet)", integrator.dt,
               (long long)scene.steps, engine.description().c_str(), to_string(scene.backend.precision));
+  if (!minimize_line.empty()) std::printf("%s\n", minimize_line.c_str());
   if (restart) std::printf("  restarting from %s at step %lld\n", args.restart.c_str(), (long long)state.step);
 
   auto report = [&](const MdState& s, bool thermo_line, bool frame, auto& progress) {

@@ -208,7 +208,7 @@ Scene parse_scene(const std::string& text, const std::string& name, const std::s
   scene.source = name;
   scene.text = text;
   static const std::set<std::string> kSections = {"system", "particles", "types", "interactions",
-                                                  "initial", "integrator", "run", "output"};
+                                                  "initial", "integrator", "run", "output", "minimize"};
   for (const auto& [key, value] : root)
     if (!kSections.count(std::string(key.str())))
       throw Error(name + ":" + std::to_string(value.source().begin.line) + ": unknown section or key '" +
@@ -354,6 +354,23 @@ Scene parse_scene(const std::string& text, const std::string& name, const std::s
   integ.finish({{"temperature", "applies only to kind = \"langevin\" (the initial one is [initial] temperature)"},
                 {"friction", "applies only to kind = \"langevin\""}});
 
+  Section mini = section(root, "minimize", name);
+  if (mini.present()) {
+    SceneMinimize& m = scene.minimize;
+    m.enabled = true;
+    m.force_tolerance = mini.positive("force_tolerance", 100.0);
+    m.max_steps = mini.integer("max_steps", 10000, 1);
+    m.dt = mini.positive("dt", 0.001);
+    m.dt_max = mini.positive("dt_max", 10.0 * m.dt);
+    if (m.dt_max < m.dt) {
+      std::ostringstream what;
+      what << "must be at least dt (" << m.dt << "), got " << m.dt_max;
+      mini.fail("dt_max", what.str());
+    }
+    m.max_displacement = mini.positive("max_displacement", 0.1);
+  }
+  mini.finish();
+
   Section run = section(root, "run", name);
   scene.steps = run.integer("steps", 1000, 0);
   scene.backend.backend = run.choice("backend", std::string("auto"), kBackends);
@@ -397,6 +414,10 @@ uint64_t scene_fingerprint(const Scene& scene) {
   for (const PairOverride& o : ff.overrides) t << '|' << o.a << '-' << o.b << ':' << o.sigma << ':' << o.epsilon;
   t << '|' << scene.initial_temperature << '|' << scene.seed << '|' << int(scene.integrator.kind) << '|'
     << scene.integrator.dt << '|' << scene.integrator.temperature << '|' << scene.integrator.friction;
+  // Only when present, so that the fingerprints (and checkpoints) of scenes without it stay valid.
+  if (const SceneMinimize& m = scene.minimize; m.enabled)
+    t << "|minimize:" << m.force_tolerance << ',' << m.max_steps << ',' << m.dt << ',' << m.dt_max << ','
+      << m.max_displacement;
   uint64_t h = 0xcbf29ce484222325ull;  // FNV-1a: the same on every machine and compiler
   for (unsigned char c : t.str()) h = (h ^ c) * 0x100000001b3ull;
   return h;

@@ -19,6 +19,14 @@
 //   [initial]      temperature = T, seed = 1
 //   [integrator]   kind = "nve"|"langevin", dt = 0.005, temperature = T, friction = 1 (langevin)
 //   [run]          steps = n, backend = "auto"|"cpu"|"cuda", precision = "single"|"mixed"|"double"
+//   [minimize]     force_tolerance = 100, max_steps = 10000, dt = 0.001, dt_max = 10 x dt,
+//                  max_displacement = 0.1 (the section's presence turns it on; every key optional)
+// [minimize] relaxes a fresh run's starting configuration with FIRE (src/md/minimize.h) before the
+// velocities are drawn, until the largest per-particle force is below force_tolerance
+// (energy/length units), moving no particle more than max_displacement (length units) per step;
+// not converging within max_steps stops the run. Without it, a start whose first time step would
+// move a particle by more than 0.1 x the smallest sigma (an overlap) is refused; so is such a
+// restart.
 // Input paths ([particles] path) are relative to the scene file's folder; output paths are
 // relative to the working folder.
 //
@@ -68,6 +76,16 @@ struct SceneIntegrator {
   double friction = 1.0;     // Langevin gamma (1 / time)
 };
 
+// [minimize]: FIRE before the dynamics (see FireSettings in src/md/minimize.h).
+struct SceneMinimize {
+  bool enabled = false;            // the scene has a [minimize] section
+  double force_tolerance = 100.0;  // converged when max_i |F_i| < this
+  int64_t max_steps = 10000;
+  double dt = 0.001;               // FIRE's initial time step
+  double dt_max = 0.01;            // its largest (default 10 x dt)
+  double max_displacement = 0.1;   // per particle and step
+};
+
 struct SceneOutput {
   int64_t thermo_every = 100;
   std::string thermo_file;   // CSV; empty: screen only
@@ -90,6 +108,7 @@ struct Scene {
   double initial_temperature = 1.44;
   uint64_t seed = 1;
   SceneIntegrator integrator;
+  SceneMinimize minimize;
   int64_t steps = 1000;
   BackendChoice backend;
   SceneOutput output;
@@ -106,7 +125,7 @@ Scene read_scene(const std::string& path);
 Scene parse_scene(const std::string& text, const std::string& name, const std::string& folder = ".");
 
 // A fingerprint of what determines a run's trajectory (system, particles, types, interactions,
-// initial state, integrator), not of its length, outputs, backend or the file's comments: a
+// initial state, integrator, minimisation), not of its length, outputs, backend or the file's comments: a
 // checkpoint can only continue a run with the same fingerprint.
 uint64_t scene_fingerprint(const Scene& scene);
 

@@ -1,0 +1,92 @@
+// Starting from overlaps: the FIRE minimiser that removes them before the dynamics, and the check
+// that refuses dynamics whose first step would throw a particle out of its neighbourhood.
+//
+// FIRE (Bitzek, Koskinen, Gaehler, Moseler, Gumbsch, PRL 97, 170201 (2006)) with the FIRE 2.0
+// refinements of Guenole et al. (Comput. Mater. Sci. 175, 109584 (2020)): semi-implicit Euler
+// steps (v += dt F/m, then the velocity mixing, then x += dt v); on an uphill step (P = F.v <= 0)
+// dt is halved (not below 0.02 x the initial dt), alpha reset, the positions stepped back by half
+// a step and the velocities zeroed; dt grows and alpha shrinks only after n_delay downhill steps
+// in a row, and the first n_delay steps never shrink dt (the "initial delay"). On top of that, no
+// particle moves more than max_displacement in one step's drift: a particle whose velocity would
+// carry it further has its velocity scaled down to that length (so x and v stay consistent, as
+// LAMMPS's nve/limit does); an uphill step's step back retracts at most half of the previous
+// drift, so positions between two force evaluations differ by at most 1.5 x max_displacement.
+// This cap is what makes a start from overlaps safe: a pair at r = 0.01 sigma has a force of
+// ~5e27 epsilon/sigma, and the pair simply walks apart by max_displacement a step.
+#pragma once
+
+#include <cstddef>
+#include <cstdint>
+#include <functional>
+#include <vector>
+
+#include "core/force_field.h"
+#include "md/md.h"
+
+namespace cellforce {
+
+struct FireSettings {
+  double force_tolerance = 100.0;  // converged when max_i |F_i| < this (energy / length)
+  int64_t max_steps = 10000;       // steps (force evaluations after the first) at most
+  double dt = 0.001;               // initial time step
+  double dt_max = 0.01;            // largest time step (>= dt; the scene's default is 10 x dt)
+  double max_displacement = 0.1;   // no particle moves further in one step (length units)
+  double alpha_start = 0.1;        // initial velocity-mixing factor
+  double f_alpha = 0.99;           // alpha *= f_alpha after each downhill step beyond n_delay
+  double f_inc = 1.1;              // dt *= f_inc (up to dt_max) after each downhill step beyond n_delay
+  double f_dec = 0.5;              // dt *= f_dec on an uphill step
+  int64_t n_delay = 5;             // downhill steps in a row before dt may grow
+  // Not converging within max_steps throws cellforce::Error naming the particle with the largest
+  // force; false returns the result with converged = false instead.
+  bool require_convergence = true;
+};
+
+struct FireResult {
+  int64_t steps = 0;  // FIRE steps taken (force evaluations: steps + 1)
+  double initial_energy = 0, final_energy = 0;        // potential energy, total
+  double initial_max_force = 0, final_max_force = 0;  // max_i |F_i|
+  std::size_t initial_max_force_particle = 0, final_max_force_particle = 0;
+  bool converged = false;  // final_max_force < force_tolerance
+};
+
+// Sets state.forces (n x dim) at state's positions and returns the total potential energy.
+using ForceEnergyFunction = std::function<double(MdState&)>;
+
+// The largest per-particle force magnitude |F_i| of state.forces and its particle (0, 0 when
+// there is no particle).
+struct LargestForce {
+  double magnitude = 0;
+  std::size_t particle = 0;
+};
+LargestForce largest_force(const MdState& state);
+
+// Minimises the potential energy with FIRE until max_i |F_i| < settings.force_tolerance.
+// masses: per particle. Positions are wrapped into the box on periodic axes after every step.
+// On return state holds the final positions, their forces, and zero velocities (the run then
+// draws its own); step and time are left alone. Throws cellforce::Error for settings out of range
+// and, unless require_convergence is false, when max_steps pass without converging (naming the
+// particle with the largest force and that force; state then holds the last positions and forces).
+FireResult minimize_fire(MdState& state, const std::vector<double>& masses, const FireSettings& settings,
+                         const ForceEnergyFunction& compute_forces);
+
+// The first time step's displacement due to the force alone, dt^2 |F_i| / (2 m_i): velocity
+// Verlet and BAOAB both move a particle by dt v + dt^2 F / (2 m) in a step.
+struct FirstStepKick {
+  double displacement = 0;  // the largest over the particles
+  std::size_t particle = 0;
+  double force = 0;         // |F| of that particle
+};
+FirstStepKick first_step_kick(const MdState& state, const std::vector<double>& masses, double dt);
+
+// The smallest pair sigma of the force field (over every pair of types, explicit pairs included).
+double smallest_sigma(const ForceField& ff);
+
+// Refuses to start dynamics from state.forces when the first step would move a particle by more
+// than 0.1 x the smallest sigma: throws cellforce::Error naming the particle, its force, its
+// nearest neighbour (minimum image) and their distance, the displacement, and what to do (a
+// [minimize] section, or a lower dt). Lattice starts (forces ~0) and random starts with a
+// minimum distance of ~0.8 sigma (forces up to ~1e3) pass at dt 0.005 (the limit there is ~8e3).
+void check_stable_start(const MdState& state, const std::vector<double>& masses, double dt,
+                        const ForceField& ff);
+
+}  // namespace cellforce
