@@ -5,6 +5,7 @@
 #include <gtest/gtest.h>
 #include <unistd.h>
 
+#include <cmath>
 #include <filesystem>
 #include <fstream>
 #include <sstream>
@@ -129,6 +130,44 @@ TEST_F(RunFolder, ThermoFileHoldsTheStepsAskedFor) {
   const Frames frames = load_trajectory("traj.h5");
   EXPECT_EQ(frames.steps, (std::vector<double>{0, 9, 18}));  // every 9
   EXPECT_EQ(frames.positions.size(), 3u * 80u * 2u);
+}
+
+// --skin: the run reuses the cell structure (the summary says how often it built it) and gives the
+// thermo rows of the run without a skin to round-off (the force sums only change order).
+TEST_F(RunFolder, SkinReuseGivesTheSameThermo) {
+  auto thermo_rows = [&](double skin, const std::string& file) {
+    std::ofstream("scene.toml") << scene_text("nve", "cpu", 60);
+    RunArgs args;
+    args.scene = "scene.toml";
+    args.quiet = true;
+    args.overwrite = true;
+    args.skin = skin;
+    args.thermo_file = file;
+    testing::internal::CaptureStdout();
+    EXPECT_EQ(run_md(args), 0);
+    const std::string out = testing::internal::GetCapturedStdout();
+    if (skin > 0) {
+      EXPECT_THAT(out, HasSubstr("neighbour structure: skin 0.3"));
+    }
+    std::vector<std::vector<double>> rows;
+    std::istringstream lines(read(file));
+    std::string line;
+    std::getline(lines, line);
+    while (std::getline(lines, line)) {
+      std::vector<double> row;
+      std::istringstream cells(line);
+      for (std::string cell; std::getline(cells, cell, ',');) row.push_back(std::stod(cell));
+      rows.push_back(row);
+    }
+    return rows;
+  };
+  const auto plain = thermo_rows(0.0, "plain.csv");
+  const auto reused = thermo_rows(0.3, "reused.csv");
+  ASSERT_EQ(plain.size(), reused.size());
+  ASSERT_FALSE(plain.empty());
+  for (std::size_t r = 0; r < plain.size(); ++r)
+    for (std::size_t c = 0; c < plain[r].size(); ++c)
+      EXPECT_NEAR(reused[r][c], plain[r][c], 1e-9 * std::max(1.0, std::fabs(plain[r][c]))) << "row " << r << ", column " << c;
 }
 
 // A fresh run refuses to replace an earlier run's outputs unless told to; a refused restart

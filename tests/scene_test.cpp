@@ -173,6 +173,28 @@ TEST(Scene, MalformedScenesNameFileLineAndKey) {
 }
 
 // Runtime errors of the configuration name the scene too.
+// [neighbor]: the skin and its policy reach the backend; values that cannot work are refused
+// with the file, line and key.
+TEST(Scene, NeighborSection) {
+  const Scene plain = parse_scene(kMinimal, "plain.toml");
+  EXPECT_EQ(plain.backend.reuse.skin, 0.0);
+  const Scene s = parse_scene(std::string(kMinimal) + "[neighbor]\nskin = 0.3\ncheck = false\nevery = 10\naudit = true\n",
+                              "n.toml");
+  EXPECT_EQ(s.backend.reuse.skin, 0.3);
+  EXPECT_FALSE(s.backend.reuse.check);
+  EXPECT_EQ(s.backend.reuse.every, 10);
+  EXPECT_TRUE(s.backend.reuse.audit);
+  EXPECT_EQ(scene_fingerprint(s), scene_fingerprint(plain)) << "reuse is exact: not part of the fingerprint";
+  const std::string base = std::string(kMinimal) + "[neighbor]\n";
+  EXPECT_THAT(error_of(base + "skin = -0.1\n"), HasSubstr("bad.toml:4"));
+  EXPECT_THAT(error_of(base + "skin = -0.1\n"), HasSubstr("skin"));
+  EXPECT_THAT(error_of(base + "skin = 0.3\nevery = -1\n"), HasSubstr("every"));
+  EXPECT_THAT(error_of(base + "skin = 0.3\ncheck = \"yes\"\n"), HasSubstr("check"));
+  EXPECT_THAT(error_of(base + "every = 5\n"), HasSubstr("applies only with a skin"));
+  EXPECT_THAT(error_of(base + "skin = 0.3\ncheck = false\n"), HasSubstr("never rebuilds"));
+  EXPECT_THAT(error_of(base + "skin = 0.3\nsize = 2\n"), HasSubstr("size"));
+}
+
 TEST(Scene, ImpossibleConfigurationsAreRefused) {
   Scene dense = parse_scene(std::string(kMinimal) +
                                 "[particles]\nsource = \"random\"\ncount = 1000\nbox = [5, 5, 5]\nmin_distance = 1\n",

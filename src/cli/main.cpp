@@ -251,6 +251,10 @@ int main(int argc, char** argv) {
       ->check(CLI::PositiveNumber);
   run_cmd->add_option("--restart", ra.restart, "Continue from this checkpoint (written by the same scene)")
       ->check(CLI::ExistingFile);
+  run_cmd->add_option("--skin", ra.skin,
+                      "Override the scene's [neighbor] skin: build the cell structure for rc + skin and reuse "
+                      "it while no particle has moved more than skin/2 (0: rebuild every step)")
+      ->check(CLI::NonNegativeNumber);
   run_cmd->add_flag("--quiet,-q", ra.quiet, "Only the setup and the performance summary on the screen");
   run_cmd->add_flag("--overwrite", ra.overwrite,
                     "Replace the thermo, trajectory and checkpoint files of an earlier run (refused otherwise)");

@@ -2,6 +2,7 @@
 
 #include <unistd.h>
 
+#include <algorithm>
 #include <charconv>
 #include <chrono>
 #include <filesystem>
@@ -101,7 +102,18 @@ class Progress {
 
 struct StageTotals {
   double cell_ids = 0, sort = 0, collision_cells = 0, traversal = 0, accumulate = 0, transfer = 0, total = 0;
+  double check = 0;
+  // Reuse of the cell structure ([neighbor] skin): builds, the largest displacement a reused
+  // structure served, and the audit's counts.
+  int64_t builds = 0;
+  double served = 0;
+  std::size_t missed = 0, repeated = 0;
   void add(const PipelineStats& s) {
+    check += s.t_check;
+    builds += s.rebuilt ? 1 : 0;
+    if (!s.rebuilt) served = std::max(served, s.max_displacement);
+    missed += s.missed_pairs;
+    repeated += s.repeated_pairs;
     cell_ids += s.t_cell_ids + s.t_count;
     sort += s.t_sort;
     collision_cells += s.t_collision_cells;
@@ -166,6 +178,7 @@ int run_md(const RunArgs& args) {
     else throw Error("--precision '" + args.precision + "': expected single, mixed or double");
   }
   if (!args.thermo_file.empty()) scene.output.thermo_file = args.thermo_file;
+  if (args.skin >= 0) scene.backend.reuse.skin = args.skin;
   if (!args.trajectory.empty()) scene.output.trajectory = args.trajectory;
   if (args.trajectory_every > 0) {
     if (scene.output.trajectory.empty()) throw Error("--trajectory-every: the run writes no trajectory (--trajectory)");
@@ -298,6 +311,11 @@ int run_md(const RunArgs& args) {
   for (int a = 0; a < dim; ++a)
     std::printf(" %.6g%s", state.config.box.length[a], state.config.box.periodic[a] ? "" : " (open)");
   std::printf(", %zu type(s); cutoff %g (%s)\n", ff.types.size(), ff.cutoff, to_string(ff.mode));
+  if (scene.backend.reuse.skin > 0)
+    std::printf("  cell structure built for rc + skin %g, reused while no particle moved more than %g%s\n",
+                scene.backend.reuse.skin, 0.5 * scene.backend.reuse.skin,
+                scene.backend.reuse.every > 0 ? (", and for at most " + std::to_string(scene.backend.reuse.every) +
+                                                 " steps").c_str() : "");
   std::printf("  %s, dt %g, %lld steps; %s, precision %s\n",
               integrator.langevin ? "Langevin (BAOAB)" : "NVE (velocity Verlet)", integrator.dt,
               (long long)scene.steps, engine.description().c_str(), to_string(scene.backend.precision));
@@ -385,6 +403,16 @@ int run_md(const RunArgs& args) {
                 " accumulate %.4f | host copies %.4f | engine total %.4f\n",
                 per * stages.cell_ids, per * stages.sort, per * stages.collision_cells, per * stages.traversal,
                 per * stages.accumulate, per * stages.transfer, per * stages.total);
+    const ReuseOptions& reuse = scene.backend.reuse;
+    if (reuse.skin > 0) {
+      std::printf("  neighbour structure: skin %g, %lld builds in %lld evaluations (one per %.1f steps); "
+                  "largest displacement served %.4g (limit skin/2 = %g%s); check %.4f ms per evaluation",
+                  reuse.skin, (long long)stages.builds, (long long)evaluations,
+                  steps / double(std::max<int64_t>(stages.builds, 1)), stages.served, 0.5 * reuse.skin,
+                  reuse.check ? "" : ", not checked", per * stages.check);
+      if (reuse.audit) std::printf("; audit: missed pairs %zu, repeated pairs %zu", stages.missed, stages.repeated);
+      std::printf("\n");
+    }
     std::printf("  per step (ms): forces %.4f | integration and the rest %.4f | output %.4f\n",
                 1e3 * t_forces_wall / steps, 1e3 * (loop_seconds - t_forces_wall - t_output) / steps,
                 1e3 * t_output / steps);

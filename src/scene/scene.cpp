@@ -208,7 +208,8 @@ Scene parse_scene(const std::string& text, const std::string& name, const std::s
   scene.source = name;
   scene.text = text;
   static const std::set<std::string> kSections = {"system", "particles", "types", "interactions",
-                                                  "initial", "integrator", "run", "output", "minimize"};
+                                                  "initial", "integrator", "run", "output", "minimize",
+                                                  "neighbor"};
   for (const auto& [key, value] : root)
     if (!kSections.count(std::string(key.str())))
       throw Error(name + ":" + std::to_string(value.source().begin.line) + ": unknown section or key '" +
@@ -370,6 +371,21 @@ Scene parse_scene(const std::string& text, const std::string& name, const std::s
     m.max_displacement = mini.positive("max_displacement", 0.1);
   }
   mini.finish();
+
+  Section neighbor = section(root, "neighbor", name);
+  ReuseOptions& reuse = scene.backend.reuse;
+  reuse.skin = neighbor.non_negative("skin", 0.0);
+  reuse.check = neighbor.boolean("check", true);
+  reuse.every = neighbor.integer("every", 0, 0);
+  reuse.audit = neighbor.boolean("audit", false);
+  if (reuse.skin == 0.0)
+    for (const char* key : {"check", "every", "audit"})
+      if (neighbor.node(key)) neighbor.fail(key, "applies only with a skin (skin > 0)");
+  if (!reuse.check && reuse.every == 0 && !reuse.audit)
+    neighbor.fail("check", "false with every = 0 never rebuilds the cell structure: give every = N (LAMMPS's "
+                           "'neigh_modify every N check no'), keep the check, or set audit = true to count "
+                           "the pairs that reuse misses");
+  neighbor.finish();
 
   Section run = section(root, "run", name);
   scene.steps = run.integer("steps", 1000, 0);
