@@ -177,6 +177,17 @@ TEST(ReuseAudit, PairsWithinEqualsBruteForce) {
   }
 }
 
+// A particle far out in an open box (a dilute scene, or one that escaped) does not blow up the
+// audit's cell counts: they are capped before any integer conversion.
+TEST(ReuseAudit, PairsWithinSurvivesAFarParticle) {
+  Configuration c;
+  c.box = cube(3, 10, false);
+  c.positions = {0, 0, 0, 0.5, 0, 0, 4194304.5, 1e12, -3e15, 4194305.0, 1e12, -3e15};
+  c.types = {0, 0, 0, 0};
+  EXPECT_TRUE(pair_sets_equal(cellforce::brute_force_pairs(c.view(), lj_field(2.5)),
+                              cellforce::pairs_within(c.view(), 2.5)));
+}
+
 // The audit's counts equal what the reused traversal really does: missed = brute-force pairs it
 // does not find (not visited, or visited as another image of a particle that moved too far),
 // repeated = pairs it finds more than once, for moves below and well beyond skin / 2 with the

@@ -6,6 +6,7 @@
 #include <unistd.h>
 
 #include <cmath>
+#include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <sstream>
@@ -146,8 +147,17 @@ TEST_F(RunFolder, SkinReuseGivesTheSameThermo) {
     testing::internal::CaptureStdout();
     EXPECT_EQ(run_md(args), 0);
     const std::string out = testing::internal::GetCapturedStdout();
-    if (skin > 0) {
-      EXPECT_THAT(out, HasSubstr("neighbour structure: skin 0.3"));
+    if (skin > 0) {  // the skin reached the engine: fewer builds than evaluations
+      const std::size_t at = out.find("neighbour structure: skin 0.3, ");
+      EXPECT_NE(at, std::string::npos) << out;
+      if (at != std::string::npos) {
+        long builds = 0, evaluations = 0;
+        EXPECT_EQ(std::sscanf(out.c_str() + at, "neighbour structure: skin 0.3, %ld builds in %ld evaluations",
+                              &builds, &evaluations), 2) << out;
+        EXPECT_EQ(evaluations, 60);
+        EXPECT_GE(builds, 2);
+        EXPECT_LT(builds, 20) << "skin 0.3 at T = 1 should serve several steps per build";
+      }
     }
     std::vector<std::vector<double>> rows;
     std::istringstream lines(read(file));

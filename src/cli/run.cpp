@@ -178,7 +178,7 @@ int run_md(const RunArgs& args) {
     else throw Error("--precision '" + args.precision + "': expected single, mixed or double");
   }
   if (!args.thermo_file.empty()) scene.output.thermo_file = args.thermo_file;
-  if (args.skin >= 0) scene.backend.reuse.skin = args.skin;
+  if (!std::isnan(args.skin) && args.skin >= 0) scene.backend.reuse.skin = args.skin;
   if (!args.trajectory.empty()) scene.output.trajectory = args.trajectory;
   if (args.trajectory_every > 0) {
     if (scene.output.trajectory.empty()) throw Error("--trajectory-every: the run writes no trajectory (--trajectory)");
@@ -265,12 +265,29 @@ int run_md(const RunArgs& args) {
       std::printf("note: %s was written by backend %s, precision %s; this run uses %s, %s: it continues the run, "
                   "but not bit for bit\n", args.restart.c_str(), saved.backend.c_str(), saved.precision.c_str(),
                   checkpoint_info.backend.c_str(), checkpoint_info.precision.c_str());
+    if (scene.backend.reuse.skin > 0)
+      std::printf("note: with a skin ([neighbor] skin %g) the restarted run builds its cell structure at step %lld, "
+                  "where the uninterrupted run may still reuse an older one: the force sums change order, so it "
+                  "continues the run to round-off, not bit for bit\n",
+                  scene.backend.reuse.skin, (long long)state.step);
   }
 
   with_context(scene.source + ": step " + std::to_string(state.step), [&] {
     compute(state, true);
     // Dynamics that the first step would throw apart (overlaps) are refused before any output.
-    if (state.step < scene.steps) check_stable_start(state, masses, integrator.dt, ff);
+    if (state.step < scene.steps) {
+      std::string remedy;  // the default advice (add [minimize]) unless it cannot help
+      if (restart)
+        remedy = "the checkpoint's state cannot continue at this dt: lower dt ([minimize] applies to fresh runs "
+                 "only, and would change the scene's fingerprint)";
+      else if (scene.minimize.enabled) {
+        char text[200];
+        std::snprintf(text, sizeof text, "[minimize] stops at a largest force of %g, too large for this dt: lower "
+                      "[minimize] force_tolerance, or lower dt", scene.minimize.force_tolerance);
+        remedy = text;
+      }
+      check_stable_start(state, masses, integrator.dt, ff, remedy);
+    }
   });
 
   // Outputs are touched only now that everything that can refuse the run has run. On a restart

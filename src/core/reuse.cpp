@@ -64,31 +64,34 @@ std::vector<std::pair<uint32_t, uint32_t>> pairs_within(const SystemView& s, dou
   auto pos = [&](std::size_t i, int a) { return s.positions[i * std::size_t(dim) + std::size_t(a)]; };
   double origin[kMaxDim] = {0, 0, 0}, edge[kMaxDim] = {1, 1, 1}, inv_length[kMaxDim] = {0, 0, 0};
   std::size_t m[kMaxDim] = {1, 1, 1};
+  // Cells per axis: edges >= cutoff, and no more cells in all than about twice the particles (a
+  // dilute scene in a huge box): counts are capped in double before any integer conversion, so a
+  // particle far away cannot overflow them.
+  const double cap = double(2 * n + 8);
+  double extent[kMaxDim] = {0, 0, 0};
   for (int a = 0; a < dim; ++a) {
     if (s.box.periodic[a]) {
       inv_length[a] = 1.0 / s.box.length[a];
-      m[a] = std::max<std::size_t>(1, std::size_t(std::floor(s.box.length[a] / cutoff)));
-      edge[a] = s.box.length[a] / double(m[a]);
+      extent[a] = s.box.length[a];
     } else {
       double lo = pos(0, a), hi = lo;
       for (std::size_t i = 1; i < n; ++i) lo = std::min(lo, pos(i, a)), hi = std::max(hi, pos(i, a));
       origin[a] = lo;
-      m[a] = std::max<std::size_t>(1, std::size_t(std::floor((hi - lo) / cutoff)));
-      edge[a] = std::max((hi - lo) / double(m[a]), cutoff);
+      extent[a] = hi - lo;
     }
+    m[a] = std::size_t(std::clamp(std::floor(extent[a] / cutoff), 1.0, cap));
   }
-  // No more cells than about twice the particles (a dilute scene in a huge box): merging cells
-  // keeps every edge >= cutoff.
-  while (m[0] * m[1] * m[2] > 2 * n + 8) {
+  while (double(m[0]) * double(m[1]) * double(m[2]) > cap) {
     const int a = int(std::max_element(m, m + dim) - m);
     m[a] = std::max<std::size_t>(1, m[a] / 2);
-    edge[a] = s.box.periodic[a] ? s.box.length[a] / double(m[a]) : edge[a] * 2.0;
   }
+  for (int a = 0; a < dim; ++a)
+    edge[a] = s.box.periodic[a] ? s.box.length[a] / double(m[a]) : std::max(extent[a] / double(m[a]), cutoff);
   auto coordinate = [&](std::size_t i, int a) {
     double x = pos(i, a);
     if (s.box.periodic[a]) x = wrap_coordinate(x, s.box.length[a], inv_length[a]);
-    const auto k = std::ptrdiff_t(std::floor((x - origin[a]) / edge[a]));
-    return std::size_t(std::clamp<std::ptrdiff_t>(k, 0, std::ptrdiff_t(m[a]) - 1));
+    const double k = std::floor((x - origin[a]) / edge[a]);  // clamped before the conversion
+    return std::size_t(std::clamp(k, 0.0, double(m[a] - 1)));
   };
   std::vector<std::size_t> cell_of(n), start(m[0] * m[1] * m[2] + 1, 0), order(n);
   for (std::size_t i = 0; i < n; ++i) {

@@ -193,7 +193,8 @@ double smallest_sigma(const ForceField& ff) {
   return smallest;
 }
 
-void check_stable_start(const MdState& s, const std::vector<double>& masses, double dt, const ForceField& ff) {
+void check_stable_start(const MdState& s, const std::vector<double>& masses, double dt, const ForceField& ff,
+                        const std::string& remedy) {
   const FirstStepKick kick = first_step_kick(s, masses, dt);
   const double limit = 0.1 * smallest_sigma(ff);
   if (kick.displacement <= limit) return;
@@ -222,8 +223,10 @@ void check_stable_start(const MdState& s, const std::vector<double>& masses, dou
   throw Error("the dynamics would not be stable from this start: particle " + std::to_string(i) + " has a force of " +
               number(kick.force) + " (" + neighbour + "), so the first step (dt " + number(dt) +
               ") would move it by dt^2 |F| / 2m = " + number(kick.displacement) + ", more than 0.1 x the smallest sigma (" +
-              number(limit) + "); the start has overlapping particles: add a [minimize] section to the scene (FIRE "
-              "brings the largest force below its force_tolerance first), or lower dt");
+              number(limit) + "); " +
+              (remedy.empty() ? "the start has overlapping particles: add a [minimize] section to the scene (FIRE "
+                                "brings the largest force below its force_tolerance first), or lower dt"
+                              : remedy));
 }
 
 }  // namespace cellforce

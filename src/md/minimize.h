@@ -18,6 +18,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <functional>
+#include <string>
 #include <vector>
 
 #include "core/force_field.h"
@@ -84,9 +85,10 @@ double smallest_sigma(const ForceField& ff);
 // Refuses to start dynamics from state.forces when the first step would move a particle by more
 // than 0.1 x the smallest sigma: throws cellforce::Error naming the particle, its force, its
 // nearest neighbour (minimum image) and their distance, the displacement, and what to do (a
-// [minimize] section, or a lower dt). Lattice starts (forces ~0) and random starts with a
-// minimum distance of ~0.8 sigma (forces up to ~1e3) pass at dt 0.005 (the limit there is ~8e3).
+// [minimize] section, or a lower dt; `remedy`, when given, replaces that advice). Lattice starts
+// (forces ~0) and random starts with a minimum distance of ~0.8 sigma (forces up to ~1e3) pass at
+// dt 0.005 (the limit there is ~8e3).
 void check_stable_start(const MdState& state, const std::vector<double>& masses, double dt,
-                        const ForceField& ff);
+                        const ForceField& ff, const std::string& remedy = "");
 
 }  // namespace cellforce
