@@ -24,9 +24,12 @@
 #include "core/error.h"
 #include "core/lj.h"
 #include "io/hdf5.h"
+#include "md/md.h"
+#include "md/minimize.h"
 #include "oracle.h"
 #include "reference/brute_force.h"
 #include "scene/lattice.h"
+#include "scene/scene.h"
 #include "scenes.h"
 #include "temp_folder.h"
 
@@ -69,6 +72,7 @@ constexpr Case kFar{8, "Far from the origin"};
 constexpr Case kFcc{9, "Perfect fcc lattice"};
 constexpr Case kCrowded{10, "All in one cell; droplet in a huge box"};
 constexpr Case kSkin{11, "Skin reuse"};
+constexpr Case kStarts{13, "Overlapping start; hot dense states"};
 
 std::string num(double v) {
   char b[64];
@@ -742,6 +746,111 @@ TEST_P(Stability, SkinReuse) {
             st.missed_pairs == 0 && lacking == 0 && extra == 0);
       check_against(kSkin, what, oracle_of(jump, s.ff), r);
     }
+  }
+}
+
+// =====================================================================================================
+// 13. Starts from overlaps and hot dense states (src/md/minimize.h, systems/overlap_random.toml,
+// hot_dense_T2.toml, hot_dense_T5.toml), with the engine under test doing every force evaluation:
+// - 500 particles placed at random (density 0.8, no minimum distance) plus a pair at r = 0.01: the
+//   dynamics refuse to start, naming the particle and [minimize]; FIRE brings the largest force
+//   below 100 (recomputed by the double brute force); NVE from there (kT 1, dt 0.005, 300 steps,
+//   force-shifted rc 2.5) keeps the total energy within 2e-3 of 3/2 N kT of its start
+//   (tests/minimize_test.cpp shows the bound fails for a start relaxed only to 1000);
+// - the hot dense scenes as shipped (2048 fcc particles, velocities at about twice the state's kT):
+//   the temperature settles within 15% of 2 and 5, and after t = 0.5 the total energy per particle
+//   fluctuates by less than 6e-4 (RMS) and drifts by less than 3e-4 per unit time (the bounds of
+//   minimize_test.cpp, which fail for T ~ 5 at dt 0.005).
+// =====================================================================================================
+TEST_P(Stability, StartsFromOverlapsAndHotDenseStates) {
+  using cellforce::MdState;
+  ForceField ff = lj_field(2.5, 1.0, CutoffMode::kForceShift);
+  MdState s;
+  s.config = random_configuration(cube(3, std::cbrt(500 / 0.8)), 500, 2024);
+  for (std::size_t a = 0; a < 3; ++a) s.config.positions[3 + a] = s.config.positions[a];
+  s.config.positions[3] = cellforce::wrap_coordinate(s.config.positions[0] + 0.01, s.config.box.length[0],
+                                                     1.0 / s.config.box.length[0]);
+  const std::size_t n = s.config.size();
+  const std::vector<double> masses(n, 1.0);
+  ForceResult r;
+  auto forces = [&](MdState& st) {
+    engine_->evaluate(st.config.view(), ff, cellforce::Request{}, r);
+    st.forces = r.forces;
+    return r.energy;
+  };
+  forces(s);
+  std::string refusal;
+  try {
+    cellforce::check_stable_start(s, masses, 0.005, ff);
+  } catch (const cellforce::Error& e) {
+    refusal = e.what();
+  }
+  const std::size_t worst = cellforce::largest_force(s).particle;
+  check_error(kStarts, "random start with a pair at r = 0.01: NVE refused", refusal, {worst}, {"[minimize]"});
+  check(kStarts, "the particle named is one of the overlapping pair", "0 or 1", std::to_string(worst), worst <= 1);
+
+  const cellforce::FireResult fire = cellforce::minimize_fire(s, masses, cellforce::FireSettings{}, forces);
+  const ForceResult after = oracle_of(s.config, ff);
+  double largest = 0;
+  for (std::size_t i = 0; i < n; ++i) largest = std::max(largest, force_norm(after, i));
+  check(kStarts, "FIRE (" + std::to_string(fire.steps) + " steps from max |F| " + sci(fire.initial_max_force) +
+                     "): max |F| by the brute force",
+        "< 100", num(largest), fire.converged && largest < 100.0);
+
+  cellforce::initialize_velocities(s, masses, 1.0, 31);
+  cellforce::IntegratorSettings nve;
+  nve.dt = 0.005;
+  auto compute = [&](MdState& st) { forces(st); };
+  compute(s);
+  const double e0 = cellforce::kinetic_energy(s, masses) + r.energy;
+  double drift = 0;
+  for (int k = 0; k < 300; ++k) {
+    cellforce::advance(s, masses, nve, compute);
+    drift = std::max(drift, std::fabs(cellforce::kinetic_energy(s, masses) + r.energy - e0));
+  }
+  drift /= 1.5 * double(n);
+  check(kStarts, "NVE after FIRE (300 steps, dt 0.005): max |E - E0| / (3/2 N kT)", "<= 2e-3", sci(drift),
+        drift <= 2e-3);
+
+  struct Hot {
+    const char* file;
+    double kT;
+    int steps;
+  };
+  for (const Hot& hot : {Hot{"hot_dense_T2.toml", 2.0, 300}, Hot{"hot_dense_T5.toml", 5.0, 600}}) {
+    const cellforce::Scene scene =
+        cellforce::read_scene((std::filesystem::path(CELLFORCE_SOURCE_DIR) / "systems" / hot.file).string());
+    MdState h;
+    h.config = cellforce::build_configuration(scene);
+    const std::size_t m = h.config.size();
+    const std::vector<double> hm(m, scene.masses[0]);
+    ForceField hff = scene.force_field;
+    auto hforces = [&](MdState& st) {
+      engine_->evaluate(st.config.view(), hff, cellforce::Request{}, r);
+      st.forces = r.forces;
+    };
+    cellforce::initialize_velocities(h, hm, scene.initial_temperature, scene.seed);
+    hforces(h);
+    cellforce::IntegratorSettings hs;
+    hs.dt = scene.integrator.dt;
+    std::vector<double> t, e;
+    for (int k = 1; k <= hot.steps; ++k) {
+      cellforce::advance(h, hm, hs, hforces);
+      if (k % 5 == 0 && h.time > 0.5)
+        t.push_back(h.time), e.push_back((cellforce::kinetic_energy(h, hm) + r.energy) / double(m));
+    }
+    const double temperature = 2 * cellforce::kinetic_energy(h, hm) / cellforce::degrees_of_freedom(m, 3);
+    double mt = 0, me = 0;
+    for (std::size_t k = 0; k < t.size(); ++k) mt += t[k] / double(t.size()), me += e[k] / double(t.size());
+    double sxy = 0, sxx = 0, see = 0;
+    for (std::size_t k = 0; k < t.size(); ++k)
+      sxy += (t[k] - mt) * (e[k] - me), sxx += (t[k] - mt) * (t[k] - mt), see += (e[k] - me) * (e[k] - me);
+    const double slope = sxy / sxx, rms = std::sqrt(see / double(t.size()));
+    const std::string what = std::string(hot.file) + " (dt " + num(hs.dt) + ", " + std::to_string(hot.steps) + " steps)";
+    check(kStarts, what + ": kinetic temperature at the end", "within 15% of " + num(hot.kT), num(temperature),
+          std::fabs(temperature - hot.kT) <= 0.15 * hot.kT);
+    check(kStarts, what + ": RMS of E/N after t = 0.5", "< 6e-4", sci(rms), rms < 6e-4);
+    check(kStarts, what + ": drift of E/N per unit time after t = 0.5", "< 3e-4", sci(slope), std::fabs(slope) < 3e-4);
   }
 }
 
