@@ -71,20 +71,31 @@ def parse(stdout: str) -> dict:
         "missed_pairs": grab(r"missed pairs (\d+)", int),
         "repeated_pairs": grab(r"repeated pairs (\d+)", int),
         "engine": grab(r"steps; (.*), precision", str) or "",
+        # per force evaluation, ms: stages 1-3 (cell IDs incl. count, sort, collision cells), traversal
+        "build_ms_per_evaluation": sum(grab(p) or 0.0 for p in (r"cell IDs ([0-9.]+)", r"sort ([0-9.]+)",
+                                                                 r"collision cells ([0-9.]+)")),
+        "traversal_ms_per_evaluation": grab(r"traversal ([0-9.]+)"),
     }
 
 
 def table(rows: list[dict]) -> str:
-    out = ["| backend | precision | N | skin | builds | steps per build | ms per step | speed-up vs skin 0 "
+    out = ["| backend | precision | N | skin | builds | steps per build | stages 1-3, ms per evaluation "
+           "| traversal, ms per evaluation | ms per step | speed-up vs skin 0 "
            "| drift of E/N per unit time | RMS of E/N | missed, repeated pairs |",
-           "|---|---|---|---|---|---|---|---|---|---|---|"]
-    base = {(r["backend"], r["precision"], r["n"]): r["ms_per_step"] for r in rows if r["skin"] == 0}
+           "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    zero: dict = {}
+    for r in rows:
+        if r["skin"] == 0 and r["ms_per_step"]:
+            zero.setdefault((r["backend"], r["precision"], r["n"]), []).append(r["ms_per_step"])
+    base = {k: sum(v) / len(v) for k, v in zero.items()}  # the mean of the skin-0 runs
     for r in rows:
         ref = base.get((r["backend"], r["precision"], r["n"]))
         speed = f"{ref / r['ms_per_step']:.2f}" if ref and r["ms_per_step"] else "-"
         per_build = f"{r['steps'] / max(1, r['builds']):.1f}"
         audit = (f"{r['missed_pairs']}, {r['repeated_pairs']}" if r.get("missed_pairs") is not None else "not audited")
         out.append(f"| {r['backend']} | {r['precision']} | {r['n']} | {r['skin']:g} | {r['builds']} | {per_build} "
+                   f"| {r.get('build_ms_per_evaluation', float('nan')):.3f} "
+                   f"| {r.get('traversal_ms_per_evaluation') or float('nan'):.3f} "
                    f"| {r['ms_per_step']:.3f} | {speed} | {r['drift']:+.2e} | {r['rms']:.2e} | {audit} |")
     return "\n".join(out) + "\n"
 
@@ -101,6 +112,7 @@ def main() -> int:
     parser.add_argument("--device", default="", help="machine label stored in the JSON")
     parser.add_argument("--json", type=Path, required=True)
     parser.add_argument("--md", type=Path, default=None)
+    parser.add_argument("--repeats", type=int, default=1, help="runs of each skin (interleaved), for the spread")
     args = parser.parse_args()
     rows, failed = [], []
     n = 4 * args.cells ** 3
@@ -118,8 +130,8 @@ def main() -> int:
     with tempfile.TemporaryDirectory(prefix="cellforce-skin-") as work:
         for backend in args.backends:
             for precision in args.precisions:
-                for skin in args.skins:
-                    tag = f"{backend}_{precision}_{skin}"
+                for skin in [k for _ in range(args.repeats) for k in args.skins]:
+                    tag = f"{backend}_{precision}_{skin}_{len(rows)}"
                     thermo = Path(work) / f"{tag}.csv"
                     scene = Path(work) / f"{tag}.toml"
                     neighbor = (f"[neighbor]\nskin = {skin}\naudit = {str(args.audit).lower()}" if skin > 0 else "")

@@ -120,7 +120,7 @@ def drift_section(paths: list[Path], png: Path | None) -> list[str]:
            "for every time step. Per particle: drift = least-squares slope of E/N against time, "
            "RMS = fluctuation of E/N about its mean. Each cell: drift / RMS.\n"]
     out += sources + [""]
-    keys = list(OrderedDict.fromkeys((r["device"], r["backend"], r["n"], r["mode"], r["dt"]) for r in rows))
+    keys = sorted(OrderedDict.fromkeys((r["device"], r["backend"], r["n"], r["mode"], r["dt"]) for r in rows))
     out.append("| device | backend | N | cutoff | dt | steps | " + " | ".join(PRECISIONS) + " |")
     out.append("|---|---|---|---|---|---|" + "---|" * len(PRECISIONS))
     for device, backend, n, mode, dt in keys:
@@ -156,10 +156,28 @@ def drift_section(paths: list[Path], png: Path | None) -> list[str]:
     return out
 
 
+def skin_section(paths: list[Path]) -> list[str]:
+    """Item 11's cost and benefit: validation/skin_reuse.py's runs, one table per file."""
+    from skin_reuse import table
+    out = ["## 11. Skin reuse: speed against the skin\n",
+           "`cellforce run` of the LJ liquid (fcc at 0.8442, T0 1.44, rc 2.5 truncated, dt 0.005, NVE) with "
+           "`[neighbor] skin`; times from the run's performance summary (host arrays: each step uploads the "
+           "positions and downloads the forces, and integrates on the host). Stages 1-3 = cell IDs (with the "
+           "count), sort, collision cells, per force evaluation, averaged over the run (reused steps cost "
+           "only the displacement check). Drift and RMS of E/N must not depend on the skin: reuse is exact.\n"]
+    for p in paths:
+        data = json.loads(p.read_text())
+        out.append(f"`{data.get('command', '')}` at {data.get('revision', '?')}, {data.get('device', '')}, "
+                   f"{data.get('date', '')}\n")
+        out.append(table(data["rows"]))
+    return out
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--log", action="append", default=[], help="MACHINE=FILE (JSON lines)")
     parser.add_argument("--drift", type=Path, nargs="*", default=[])
+    parser.add_argument("--skin", type=Path, nargs="*", default=[], help="JSON of validation/skin_reuse.py")
     parser.add_argument("--md", type=Path, required=True)
     parser.add_argument("--png", type=Path, default=None)
     parser.add_argument("--header", type=Path, default=None, help="Markdown put before the tables")
@@ -178,6 +196,8 @@ def main() -> int:
         tables, bad = case_tables(machine, load_log(Path(file)))
         out += tables
         failures += bad
+    if args.skin:
+        out += skin_section(args.skin)
     if args.drift:
         out += drift_section(args.drift, args.png)
     args.md.write_text("\n".join(out) + "\n")

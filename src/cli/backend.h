@@ -34,7 +34,9 @@ class ForceBackend {
   void evaluate(const SystemView& system, const ForceField& ff, const Request& request,
                 ForceResult& result);
   // The last evaluation's stage times; with `counts`, also the candidate and interacting pair
-  // counts (the CUDA engine counts them in an extra pass over the same system).
+  // counts (the CUDA engine counts them in an extra pass over the same system, which with a skin
+  // counts as one more evaluation of the structure: it may rebuild, and it uses up one of
+  // `every`; the build counts it reports are the extra pass's).
   PipelineStats stats(const SystemView& system, const ForceField& ff, bool counts);
 
   const std::string& name() const { return name_; }                // "cpu" or "cuda"

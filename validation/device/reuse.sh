@@ -6,8 +6,9 @@
 #     the whole GoogleTest suite with the stability checks logged, memcheck on the GPU reuse
 #     cases, and (in the background) the CUDA force-shift NVE drift rows at dt 0.002 and 0.01;
 #   bash validation/device/reuse.sh bench [build-dir] [label]
-#     skin reuse against skin 0 (validation/skin_reuse.py, CUDA 32k and 256k, CPU 4k), and the
-#     overlap / hot dense scenes of item 13 on the GPU.
+#     skin reuse against skin 0 (validation/skin_reuse.py, CUDA 32k and 256k, CPU 4k), the
+#     overlap / hot dense scenes of item 13 on the GPU, the stability cases again with their log
+#     (for the report at this commit), and memcheck on one GPU backend's reuse cases.
 # At most 8 files land in $OUT (the device tool's limit): logs are gathered in one tar file.
 set -uo pipefail
 what=${1:?tests or bench}
@@ -56,5 +57,14 @@ else
        --quiet --overwrite > "$scene.log" 2>&1; echo "$scene: exit $?" >> "$scene.log")
     tail -n 12 "$logs/$scene.log"
   done
+  CELLFORCE_STABILITY_LOG="$out/stability.jsonl" OMP_WAIT_POLICY=PASSIVE timeout 240 \
+    "$build/tests/cellforce_tests" --gtest_brief=1 --gtest_filter='Targets/Stability.*:StabilityNaive.*' \
+    > "$logs/stability_tests.log" 2>&1
+  echo "stability cases: exit $?"; tail -n 4 "$logs/stability_tests.log"
+  rc=0
+  timeout 170 compute-sanitizer --tool memcheck --error-exitcode 3 "$build/tests/cellforce_tests" \
+    --gtest_filter='Targets/Stability.SkinReuse/gpuwarp_mixed:Backends/ReuseMd.*/gpuwarp' \
+    > "$logs/sanitizer_memcheck.log" 2>&1 || rc=$?
+  echo "compute-sanitizer memcheck on the gpuwarp reuse cases: exit $rc ($(grep -E 'ERROR SUMMARY' "$logs/sanitizer_memcheck.log" | sort | uniq -c | tr '\n' ' '); $(grep -cE '^\[       OK' "$logs/sanitizer_memcheck.log") tests OK)"
 fi
 tar -C "$logs" -czf "$out/logs-$what.tar.gz" .
