@@ -62,6 +62,10 @@ struct RandomSpec {
 cellforce::Configuration random_configuration(const cellforce::Box& box, std::size_t n,
                                               uint64_t seed, const RandomSpec& spec = {});
 
+// `c` with each particle moved by a random vector (uniform direction) shorter than max_step; no
+// wrap (periodic images are left as they fall).
+cellforce::Configuration moved(const cellforce::Configuration& c, double max_step, uint64_t seed);
+
 // Squared minimum-image distance of particles i and j of a configuration (exactly as a reader of
 // brute_force.h would compute it).
 double distance2(const cellforce::Configuration& c, std::size_t i, std::size_t j);

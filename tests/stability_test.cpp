@@ -640,22 +640,6 @@ TEST_P(Stability, CrowdedAndDilute) {
 // traversal actually lacks (brute-force pairs minus visited pairs), and the forces are wrong.
 // =====================================================================================================
 
-// `c` with each particle moved by a random vector shorter than max_step.
-Configuration moved(const Configuration& c, double max_step, uint64_t seed) {
-  Configuration m = c;
-  const std::size_t dim = std::size_t(c.box.dim);
-  Rng rng(seed);
-  for (std::size_t i = 0; i < c.size(); ++i) {
-    double d[3] = {0, 0, 0}, norm2 = 0;
-    while (norm2 < 1e-6) {
-      norm2 = 0;
-      for (std::size_t a = 0; a < dim; ++a) d[a] = rng.uniform(-1, 1), norm2 += d[a] * d[a];
-    }
-    const double length = max_step * rng.uniform() / std::sqrt(norm2);
-    for (std::size_t a = 0; a < dim; ++a) m.positions[i * dim + a] += length * d[a];
-  }
-  return m;
-}
 
 TEST_P(Stability, SkinReuse) {
   const double skin = 0.4;
