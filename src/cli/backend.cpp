@@ -91,6 +91,20 @@ PipelineStats ForceBackend::stats(const SystemView& system, const ForceField& ff
   return impl_->cpu->stats();  // the CPU engine counts pairs on every evaluation
 }
 
+ReuseState ForceBackend::reuse_state() const {
+#ifdef CELLFORCE_HAVE_CUDA
+  if (impl_->gpu) return impl_->gpu->reuse_state();
+#endif
+  return impl_->cpu->reuse_state();
+}
+
+void ForceBackend::restore_reuse(const SystemView& built_from, const ForceField& ff, int64_t served) {
+#ifdef CELLFORCE_HAVE_CUDA
+  if (impl_->gpu) return impl_->gpu->restore_reuse(built_from, ff, served);
+#endif
+  impl_->cpu->restore_reuse(built_from, ff, served);
+}
+
 std::string ForceBackend::traversal() const {
 #ifdef CELLFORCE_HAVE_CUDA
   if (impl_->gpu) return to_string(impl_->gpu->options().traversal);

@@ -39,6 +39,10 @@ class ForceBackend {
   // `every`; the build counts it reports are the extra pass's).
   PipelineStats stats(const SystemView& system, const ForceField& ff, bool counts);
 
+  // Reuse across a restart (the engines' reuse_state / restore_reuse).
+  ReuseState reuse_state() const;
+  void restore_reuse(const SystemView& built_from, const ForceField& ff, int64_t served);
+
   const std::string& name() const { return name_; }                // "cpu" or "cuda"
   const std::string& description() const { return description_; }  // device, threads, algorithm
   // Per algorithm choice: traversal and sort (CUDA) or "-" (CPU).

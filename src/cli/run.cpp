@@ -265,11 +265,18 @@ int run_md(const RunArgs& args) {
       std::printf("note: %s was written by backend %s, precision %s; this run uses %s, %s: it continues the run, "
                   "but not bit for bit\n", args.restart.c_str(), saved.backend.c_str(), saved.precision.c_str(),
                   checkpoint_info.backend.c_str(), checkpoint_info.precision.c_str());
-    if (scene.backend.reuse.skin > 0)
-      std::printf("note: with a skin ([neighbor] skin %g) the restarted run builds its cell structure at step %lld, "
-                  "where the uninterrupted run may still reuse an older one: the force sums change order, so it "
-                  "continues the run to round-off, not bit for bit\n",
-                  scene.backend.reuse.skin, (long long)state.step);
+    // With a skin, the structure the uninterrupted run was reusing is built again from the
+    // positions it was built from, so that the force sums keep their order (bit for bit).
+    const double skin = scene.backend.reuse.skin;
+    if (skin > 0 && saved.skin == skin && !saved.reuse.build_positions.empty()) {
+      SystemView built = state.config.view();
+      built.positions = saved.reuse.build_positions.data();
+      with_context(args.restart, [&] { engine.restore_reuse(built, ff, saved.reuse.served); });
+    } else if (skin > 0) {
+      std::printf("note: %s holds no cell structure for skin %g: the restarted run builds its own at step %lld, "
+                  "so it continues the run to round-off, not bit for bit\n",
+                  args.restart.c_str(), skin, (long long)state.step);
+    }
   }
 
   with_context(scene.source + ": step " + std::to_string(state.step), [&] {
@@ -366,6 +373,11 @@ int run_md(const RunArgs& args) {
   };
   auto save_checkpoint = [&] {
     const auto t0 = Clock::now();
+    // The structure in use; the restart evaluates this step's forces once more, which serves it
+    // once more: it is saved one evaluation short.
+    checkpoint_info.skin = scene.backend.reuse.skin;
+    checkpoint_info.reuse = engine.reuse_state();
+    if (checkpoint_info.reuse.served > 0) checkpoint_info.reuse.served -= 1;
     write_checkpoint(output.checkpoint, state, checkpoint_info);
     t_output += seconds_since(t0);
   };

@@ -58,6 +58,10 @@ class ReusePolicy {
   // The structure no longer matches the last build (a fresh search overwrote it).
   void invalidate() { valid_ = false; }
   std::size_t builds() const { return builds_; }
+  // Evaluations of the structure in use, its build's included (0 when none is valid); a restart
+  // sets it back to what the uninterrupted run had (set_served, after rebuilding the structure).
+  int64_t served() const { return valid_ ? served_ : 0; }
+  void set_served(int64_t served) { served_ = served; }
 
  private:
   ReuseOptions options_;
@@ -67,6 +71,14 @@ class ReusePolicy {
   double cutoff_ = 0.0;
   int64_t served_ = 0;  // evaluations of the structure in use, its build's included
   std::size_t builds_ = 0;
+};
+
+// What a checkpoint keeps so that a restarted run reuses the structure the uninterrupted run was
+// reusing (same cells, same order of the force sums: a bitwise restart): the positions it was
+// built from (n x dim; empty when there is none) and the evaluations it had served.
+struct ReuseState {
+  std::vector<double> build_positions;
+  int64_t served = 0;
 };
 
 // Largest squared displacement between two position arrays (n x box.dim, minimum image on

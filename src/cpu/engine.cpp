@@ -112,6 +112,18 @@ void CpuEngine::build(const SystemView& system, const ForceField& ff) {
   reuse_.built(system, ff.cutoff);
 }
 
+ReuseState CpuEngine::reuse_state() const {
+  if (reuse_.served() == 0) return {};
+  return {scratch_->build_positions, reuse_.served()};
+}
+
+void CpuEngine::restore_reuse(const SystemView& built_from, const ForceField& ff, int64_t served) {
+  if (!reuse_.enabled()) return;
+  validate_system(built_from, ff);
+  build(built_from, ff);
+  reuse_.set_served(served);
+}
+
 // The audit of a reused structure: pairs closer than rc now that it misses or repeats.
 void CpuEngine::audit(const SystemView& system, const ForceField& ff) {
   if (!options_.reuse.audit || stats_.rebuilt) return;

@@ -44,6 +44,11 @@ class CpuEngine {
   std::vector<std::pair<uint32_t, uint32_t>> visited_pairs(const SystemView& system,
                                                            const ForceField& ff);
 
+  // Reuse across a restart (core/reuse.h): the structure in use, and building it again from the
+  // positions it was built from, with the count of evaluations it had served.
+  ReuseState reuse_state() const;
+  void restore_reuse(const SystemView& built_from, const ForceField& ff, int64_t served);
+
   const PipelineStats& stats() const { return stats_; }
   const CpuOptions& options() const { return options_; }
 

@@ -1,12 +1,15 @@
 // Checkpoints: the state of a run (positions, velocities, step, time) in an HDF5 file, written
 // under a temporary name and renamed when complete. Restarting from one reproduces the
 // uninterrupted run bit for bit on the same backend: the integrators' random numbers depend only
-// on (seed, step, particle, axis), and the forces are recomputed from the stored positions.
+// on (seed, step, particle, axis), and the forces are recomputed from the stored positions (with
+// a skin, by the cell structure rebuilt from the positions it was built from, so that the force
+// sums keep their order).
 #pragma once
 
 #include <cstdint>
 #include <string>
 
+#include "core/reuse.h"
 #include "md/md.h"
 
 namespace cellforce {
@@ -16,6 +19,10 @@ struct CheckpointInfo {
   uint64_t scene_fingerprint = 0;  // of the scene's physics (scene_fingerprint): a restart needs the same
   std::string scene;               // where the scene came from (for messages)
   std::string backend, precision;  // what wrote it: a restart on others continues, but not bit for bit
+  // With a skin ([neighbor]): the cell structure in use at the checkpoint, for the restart to
+  // rebuild it (read back only when the file has it and was written with the same skin).
+  double skin = 0;
+  ReuseState reuse;
 };
 
 void write_checkpoint(const std::string& path, const MdState& state, const CheckpointInfo& info);
