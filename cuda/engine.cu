@@ -424,6 +424,32 @@ void GpuEngine::prepare(const SystemView& system, const ForceField& ff) {
   stats_.builds = reuse_.builds();
 }
 
+ReuseState GpuEngine::reuse_state() const {
+  if (reuse_.served() == 0) return {};
+  const DeviceScope scope(options_.device);
+  Impl& s = *impl_;
+  ReuseState state;
+  state.served = reuse_.served();
+  const std::size_t count = stats_.entries >> stats_.grid.dim;  // particles of the build
+  download(state.build_positions, s.build_positions.data(), count * std::size_t(stats_.grid.dim), s.stream);
+  CF_CUDA_CHECK(cudaStreamSynchronize(s.stream));
+  return state;
+}
+
+void GpuEngine::restore_reuse(const SystemView& built_from, const ForceField& ff, int64_t served) {
+  if (!reuse_.enabled()) return;
+  const DeviceScope scope(options_.device);
+  Impl& s = *impl_;
+  validate_system(built_from, ff);
+  s.upload_system(built_from);
+  s.record(kChecked);
+  reuse_.invalidate();
+  s.build(options_, stats_, built_from, ff);
+  reuse_.built(built_from, ff.cutoff);
+  reuse_.set_served(served);
+  CF_CUDA_CHECK(cudaStreamSynchronize(s.stream));
+}
+
 // The audit of a reused structure: pairs closer than rc now that it misses or repeats.
 void GpuEngine::audit(const SystemView& system, const ForceField& ff) {
   if (!options_.reuse.audit || stats_.rebuilt) return;

@@ -69,6 +69,11 @@ class GpuEngine {
   // storing the pairs (what visited_pairs() sets, for any size of system).
   void count_pairs(const SystemView& system, const ForceField& ff);
 
+  // Reuse across a restart (core/reuse.h): the structure in use, and building it again from the
+  // positions it was built from, with the count of evaluations it had served.
+  ReuseState reuse_state() const;
+  void restore_reuse(const SystemView& built_from, const ForceField& ff, int64_t served);
+
   // Stage times (evaluate) are measured with CUDA events on the engine's stream: stream time from
   // one stage's start to the next, so they include the host round trips that size the next
   // buffers (the valid count, the number of cells). Pair counts come from count_pairs() or
