@@ -402,26 +402,25 @@ void GpuEngine::prepare(const SystemView& system, const ForceField& ff) {
                 std::to_string(system.n) + " particles in " + std::to_string(system.box.dim) +
                 "D make " + std::to_string(entries));
   s.upload_system(system);
-  bool rebuild = reuse_.must_rebuild(system, ff.cutoff);
-  stats_.max_displacement = 0;
-  stats_.missed_pairs = stats_.repeated_pairs = 0;
-  if (!rebuild && reuse_.measures_displacement()) {
-    const double d2 = cuda::max_displacement2(system.box, s.positions.data(), s.build_positions.data(),
-                                              system.n, s.cub, s.stream);
-    stats_.max_displacement = std::sqrt(d2);
-    rebuild = reuse_.too_far(d2);
-  }
+  const bool rebuild = reuse_.decide(system, ff.cutoff, [&] {
+    return cuda::max_displacement2(system.box, s.positions.data(), s.build_positions.data(), system.n, s.cub,
+                                   s.stream);
+  }, stats_);
   s.record(kChecked);
-  stats_.rebuilt = rebuild;
   if (rebuild) {
-    reuse_.invalidate();  // until this build completes
-    s.build(options_, stats_, system, ff);
-    reuse_.built(system, ff.cutoff);
+    build(system, ff);
   } else {
     s.skip_build();
     reuse_.reused();
   }
   stats_.builds = reuse_.builds();
+}
+
+// Stages 1-3 on the uploaded positions, the policy invalid until they complete.
+void GpuEngine::build(const SystemView& system, const ForceField& ff) {
+  reuse_.invalidate();
+  impl_->build(options_, stats_, system, ff);
+  reuse_.built(system, ff.cutoff);
 }
 
 ReuseState GpuEngine::reuse_state() const {
@@ -430,8 +429,8 @@ ReuseState GpuEngine::reuse_state() const {
   Impl& s = *impl_;
   ReuseState state;
   state.served = reuse_.served();
-  const std::size_t count = stats_.entries >> stats_.grid.dim;  // particles of the build
-  download(state.build_positions, s.build_positions.data(), count * std::size_t(stats_.grid.dim), s.stream);
+  download(state.build_positions, s.build_positions.data(), reuse_.particles() * std::size_t(stats_.grid.dim),
+           s.stream);
   CF_CUDA_CHECK(cudaStreamSynchronize(s.stream));
   return state;
 }
@@ -443,9 +442,7 @@ void GpuEngine::restore_reuse(const SystemView& built_from, const ForceField& ff
   validate_system(built_from, ff);
   s.upload_system(built_from);
   s.record(kChecked);
-  reuse_.invalidate();
-  s.build(options_, stats_, built_from, ff);
-  reuse_.built(built_from, ff.cutoff);
+  build(built_from, ff);
   reuse_.set_served(served);
   CF_CUDA_CHECK(cudaStreamSynchronize(s.stream));
 }

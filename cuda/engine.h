@@ -92,6 +92,7 @@ class GpuEngine {
   std::vector<std::pair<uint32_t, uint32_t>> record(const SystemView& system, const ForceField& ff,
                                                     bool keep);
   void prepare(const SystemView& system, const ForceField& ff);
+  void build(const SystemView& system, const ForceField& ff);
   void audit(const SystemView& system, const ForceField& ff);
   GpuOptions options_;
   ReusePolicy reuse_;

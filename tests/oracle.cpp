@@ -445,6 +445,14 @@ std::string lowercase(std::string s) {
   return s;
 }
 
+cellforce::ForceField lj_field(double cutoff, double sigma, cellforce::CutoffMode mode) {
+  cellforce::ForceField ff;
+  ff.cutoff = cutoff;
+  ff.mode = mode;
+  ff.types = {cellforce::ParticleType{"A", sigma, 1.0}};
+  return ff;
+}
+
 Configuration moved(const Configuration& c, double max_step, uint64_t seed) {
   Configuration m = c;
   const std::size_t dim = std::size_t(c.box.dim);

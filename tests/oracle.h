@@ -62,6 +62,10 @@ struct RandomSpec {
 cellforce::Configuration random_configuration(const cellforce::Box& box, std::size_t n,
                                               uint64_t seed, const RandomSpec& spec = {});
 
+// One particle type "A" (sigma, epsilon 1) with this cutoff and mode.
+cellforce::ForceField lj_field(double cutoff, double sigma = 1.0,
+                               cellforce::CutoffMode mode = cellforce::CutoffMode::kTruncate);
+
 // `c` with each particle moved by a random vector (uniform direction) shorter than max_step; no
 // wrap (periodic images are left as they fall).
 cellforce::Configuration moved(const cellforce::Configuration& c, double max_step, uint64_t seed);

@@ -34,14 +34,6 @@ using cellforce::Grid;
 using cellforce::Request;
 using cellforce::ReuseOptions;
 
-ForceField lj_field(double cutoff) {
-  ForceField ff;
-  ff.cutoff = cutoff;
-  ff.types = {cellforce::ParticleType{"A", 1.0, 1.0}};
-  return ff;
-}
-
-
 std::string error_of(const ReuseOptions& reuse) {
   try {
     CpuOptions o;

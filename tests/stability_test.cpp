@@ -127,14 +127,6 @@ Errors errors_against(const ForceResult& ref, const ForceResult& got) {
   return e;
 }
 
-ForceField lj_field(double cutoff, double sigma = 1.0, CutoffMode mode = CutoffMode::kTruncate) {
-  ForceField ff;
-  ff.cutoff = cutoff;
-  ff.mode = mode;
-  ff.types = {cellforce::ParticleType{"A", sigma, 1.0}};
-  return ff;
-}
-
 ForceResult oracle_of(const Configuration& c, const ForceField& ff) {
   ForceResult r;
   cellforce::brute_force(c.view(), ff, cellforce::Request{}, r);

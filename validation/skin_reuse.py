@@ -26,35 +26,8 @@ import tempfile
 from pathlib import Path
 
 import lj
-from nve_drift import drift_and_rms
+from nve_drift import SCENE, drift_and_rms  # the same liquid; [neighbor] is appended
 
-SCENE = """
-[system]
-dimension = 3
-[particles]
-lattice = "fcc"
-cells = [{cells}, {cells}, {cells}]
-density = 0.8442
-[[types]]
-name = "A"
-[interactions]
-cutoff = 2.5
-mode = "truncate"
-[initial]
-temperature = 1.44
-seed = 2026
-[integrator]
-kind = "nve"
-dt = 0.005
-{neighbor}
-[run]
-steps = {steps}
-backend = "{backend}"
-precision = "{precision}"
-[output]
-thermo_every = 20
-thermo_file = "{thermo}"
-"""
 
 
 def parse(stdout: str) -> dict:
@@ -135,9 +108,9 @@ def main() -> int:
                     thermo = Path(work) / f"{tag}.csv"
                     scene = Path(work) / f"{tag}.toml"
                     neighbor = (f"[neighbor]\nskin = {skin}\naudit = {str(args.audit).lower()}" if skin > 0 else "")
-                    scene.write_text(SCENE.format(cells=args.cells, neighbor=neighbor,
-                                                  steps=args.steps, backend=backend, precision=precision,
-                                                  thermo=thermo))
+                    scene.write_text(SCENE.format(cells=args.cells, mode="truncate", dt=0.005, steps=args.steps,
+                                                  backend=backend, precision=precision, thermo=thermo)
+                                     + neighbor + "\n")
                     proc = subprocess.run([args.cellforce, "run", str(scene), "--quiet"],
                                           capture_output=True, text=True)
                     label = f"{backend} {precision} N={n} skin={skin:g}"

@@ -178,7 +178,7 @@ int run_md(const RunArgs& args) {
     else throw Error("--precision '" + args.precision + "': expected single, mixed or double");
   }
   if (!args.thermo_file.empty()) scene.output.thermo_file = args.thermo_file;
-  if (!std::isnan(args.skin) && args.skin >= 0) scene.backend.reuse.skin = args.skin;
+  if (!(args.skin < 0)) scene.backend.reuse.skin = args.skin;  // NaN too: validate_reuse names it
   if (!args.trajectory.empty()) scene.output.trajectory = args.trajectory;
   if (args.trajectory_every > 0) {
     if (scene.output.trajectory.empty()) throw Error("--trajectory-every: the run writes no trajectory (--trajectory)");

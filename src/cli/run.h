@@ -18,7 +18,7 @@ struct RunArgs {
   std::string restart;        // non-empty: continue from this checkpoint (same scene)
   std::string trajectory;     // non-empty: overrides [output] trajectory
   int64_t trajectory_every = 0;  // > 0: overrides [output] trajectory_every
-  double skin = -1;           // >= 0: overrides [neighbor] skin (NaN is refused by the CLI)
+  double skin = -1;           // not < 0: overrides [neighbor] skin (NaN reaches validate_reuse)
   bool quiet = false;         // no thermo lines or progress on the screen (summary only)
   bool overwrite = false;     // a fresh run may replace the outputs of an earlier one
 };

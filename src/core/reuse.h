@@ -13,12 +13,14 @@
 // staged as another image after a long move: missed) or finds more than once (repeated).
 #pragma once
 
+#include <cmath>
 #include <cstddef>
 #include <cstdint>
 #include <utility>
 #include <vector>
 
 #include "core/box.h"
+#include "core/engine_options.h"
 #include "core/grid.h"
 #include "core/system.h"
 
@@ -46,6 +48,24 @@ class ReusePolicy {
   bool enabled() const { return options_.skin > 0.0; }
   // Whether the structure must be rebuilt whatever the displacement.
   bool must_rebuild(const SystemView& system, double cutoff) const;
+  // The decision of one evaluation, shared by the engines: must_rebuild(), else (when measured)
+  // the largest squared displacement since the build, from displacement2() (the engine's own
+  // reduction), against skin / 2. Sets stats.rebuilt and stats.max_displacement and zeroes the
+  // audit's counts.
+  template <class Displacement2>
+  bool decide(const SystemView& system, double cutoff, Displacement2&& displacement2,
+              PipelineStats& stats) const {
+    bool rebuild = must_rebuild(system, cutoff);
+    stats.max_displacement = 0;
+    stats.missed_pairs = stats.repeated_pairs = 0;
+    if (!rebuild && measures_displacement()) {
+      const double d2 = displacement2();
+      stats.max_displacement = std::sqrt(d2);
+      rebuild = too_far(d2);
+    }
+    stats.rebuilt = rebuild;
+    return rebuild;
+  }
   // Whether the displacement since the build (squared, largest over particles) asks for one.
   bool too_far(double max_displacement2) const {
     const double half = 0.5 * options_.skin;
@@ -58,6 +78,7 @@ class ReusePolicy {
   // The structure no longer matches the last build (a fresh search overwrote it).
   void invalidate() { valid_ = false; }
   std::size_t builds() const { return builds_; }
+  std::size_t particles() const { return n_; }  // of the last build
   // Evaluations of the structure in use, its build's included (0 when none is valid); a restart
   // sets it back to what the uninterrupted run had (set_served, after rebuilding the structure).
   int64_t served() const { return valid_ ? served_ : 0; }

@@ -2,7 +2,6 @@
 #include "cpu/engine.h"
 
 #include <chrono>
-#include <cmath>
 
 #include "core/error.h"
 #include "cpu/stages.h"
@@ -53,18 +52,13 @@ CpuEngine::~CpuEngine() = default;
 void CpuEngine::prepare(const SystemView& system, const ForceField& ff) {
   validate_system(system, ff);
   Scratch& s = *scratch_;
-  bool rebuild = reuse_.must_rebuild(system, ff.cutoff);
-  stats_.max_displacement = 0;
   stats_.t_check = 0;
-  stats_.missed_pairs = stats_.repeated_pairs = 0;
-  if (!rebuild && reuse_.measures_displacement()) {
+  const bool rebuild = reuse_.decide(system, ff.cutoff, [&] {
     const auto t = Clock::now();
     const double d2 = max_displacement2(system.box, system.n, system.positions, s.build_positions.data());
-    stats_.max_displacement = std::sqrt(d2);
-    rebuild = reuse_.too_far(d2);
     stats_.t_check = seconds_since(t);
-  }
-  stats_.rebuilt = rebuild;
+    return d2;
+  }, stats_);
   if (rebuild) {
     build(system, ff);
   } else {
