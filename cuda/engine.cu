@@ -61,9 +61,8 @@ double distance2(const SystemView& s, uint32_t i, uint32_t j) {
   double r2 = 0;
   for (int a = 0; a < s.box.dim; ++a) {
     const double inv_length = s.box.periodic[a] ? 1.0 / s.box.length[a] : 0.0;
-    const double d = minimum_image(s.positions[std::size_t(i) * s.box.dim + a] -
-                                       s.positions[std::size_t(j) * s.box.dim + a],
-                                   s.box.length[a], inv_length);
+    const double d = separation(s.positions[std::size_t(i) * s.box.dim + a],
+                                s.positions[std::size_t(j) * s.box.dim + a], s.box.length[a], inv_length);
     r2 += d * d;
   }
   return r2;
@@ -166,6 +165,7 @@ struct GpuEngine::Impl {
     } else {
       st.grid = plan_grid(sys.box, ff.cutoff, sys.positions, sys.n, o.grid, skin);
       check_grid(st.grid, sys.box, ff.cutoff, o.grid.rule, skin);
+      check_staging(st.grid, ff.cutoff, o.precision);
     }
     const Grid& g = st.grid;
     const std::size_t n = sys.n, entries = n << g.dim;

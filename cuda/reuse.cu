@@ -19,7 +19,7 @@ struct Displacement2 {
   __host__ __device__ double operator()(std::size_t i) const {
     double d2 = 0;
     for (int a = 0; a < dim; ++a) {
-      const double d = minimum_image(now[i * dim + a] - then[i * dim + a], length[a], inv_length[a]);
+      const double d = separation(now[i * dim + a], then[i * dim + a], length[a], inv_length[a]);
       d2 += d * d;
     }
     return d2;

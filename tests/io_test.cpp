@@ -398,6 +398,7 @@ TEST_F(ForcesCommand, FileMatchesTheBruteForceInInputOrder) {
       ForcesArgs args;
       args.input = xyz;
       args.out = path("out.h5");
+      args.overwrite = true;  // one file for every backend and dimension
       args.cutoff = 2.5;
       args.mode = CutoffMode::kForceShift;
       args.types = {"A:1.0:1.0", "B:0.88:0.5"};
@@ -474,7 +475,7 @@ TEST_F(ForcesCommand, BadInputNamesTheCauseAndWritesNothing) {
     std::vector<std::string> expected;
   };
   const std::vector<Case> cases = {
-      {"no types for several species", two, {}, {}, 2.5, {"holds species A, B, C", "--type NAME:SIGMA:EPSILON"}},
+      {"no types for several species", two, {}, {}, 2.5, {"holds species 'A', 'B', 'C'", "--type NAME:SIGMA:EPSILON"}},
       {"species without type", two, {"A:1:1", "B:1:1"}, {}, 2.5, {"particle 2 has species 'C'", "no --type"}},
       {"malformed type", two, {"A:1"}, {}, 2.5, {"--type A:1", "NAME:SIGMA:EPSILON"}},
       {"type number", two, {"A:one:1"}, {}, 2.5, {"'one' is not a number"}},
@@ -511,7 +512,8 @@ TEST_F(ForcesCommand, BadInputNamesTheCauseAndWritesNothing) {
   EXPECT_TRUE(cftest::contains_number(msg, 1) && cftest::contains_number(msg, 2)) << msg;
 }
 
-// A failed run leaves an existing output file as it was; --out is checked before any work.
+// A failed run leaves an existing output file as it was, even with --overwrite; --out is checked
+// before any work.
 TEST_F(ForcesCommand, ExistingOutputSurvivesAndBadOutputPathsAreRefusedFirst) {
   const std::string coincident = write("co.xyz", "2\nLattice=\"6 0 0 0 6 0 0 0 6\"\nA 1 1 1\nA 1 1 1\n");
   const std::string precious = write("old.h5", "results of an earlier run");
@@ -520,6 +522,7 @@ TEST_F(ForcesCommand, ExistingOutputSurvivesAndBadOutputPathsAreRefusedFirst) {
   args.out = precious;
   args.backend.backend = "cpu";
   args.quiet = true;
+  args.overwrite = true;
   EXPECT_THAT(error_of([&] { run_forces(args); }), HasSubstr("same position"));
   std::ifstream in(precious);
   const std::string kept((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());

@@ -80,7 +80,7 @@ Configuration random_box(std::size_t n, double density, uint64_t seed) {
 Configuration overlapping_start() {
   Configuration c = random_box(500, 0.8, 2024);
   for (int a = 0; a < 3; ++a) c.positions[3 + std::size_t(a)] = c.positions[std::size_t(a)];
-  c.positions[3] = wrap_coordinate(c.positions[0] + 0.01, c.box.length[0], 1.0 / c.box.length[0]);
+  c.positions[3] = wrap_coordinate(c.positions[0] + 0.01, c.box.length[0]);
   return c;
 }
 
@@ -573,8 +573,7 @@ TEST_F(MinimizeRun, OverlapsAreRefusedBeforeAnyOutputUnlessMinimised) {
   // the same way, and leaves the outputs alone.
   const std::string thermo = cftest::TempFolder::read("thermo.csv");
   for (int a = 0; a < 3; ++a) final_state.config.positions[21 + std::size_t(a)] = final_state.config.positions[9 + std::size_t(a)];
-  final_state.config.positions[21] = wrap_coordinate(final_state.config.positions[9] + 0.02, final_state.config.box.length[0],
-                                                     1.0 / final_state.config.box.length[0]);
+  final_state.config.positions[21] = wrap_coordinate(final_state.config.positions[9] + 0.02, final_state.config.box.length[0]);
   final_state.step = 20;
   write_checkpoint("overlap.h5", final_state, info);
   args.restart = "overlap.h5";

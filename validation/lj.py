@@ -438,7 +438,7 @@ class CellforceError(RuntimeError):
 def cellforce_command(exe, case: Case, backend, precision, out_h5, extra_args=(), repeats=1):
     """Argument list of `cellforce forces` for a case. --frame 0: read_extxyz reads the first
     frame, and cellforce's default is the last one."""
-    args = [str(exe), "forces", str(case.path), "--frame", "0", "--out", str(out_h5),
+    args = [str(exe), "forces", str(case.path), "--frame", "0", "--out", str(out_h5), "--overwrite",
             "--cutoff", repr(float(case.cutoff)), "--cutoff-mode", case.mode,
             "--mixing", case.mixing, "--backend", backend, "--precision", precision,
             "--dim", str(case.dim), "--repeats", str(repeats)]

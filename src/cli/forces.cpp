@@ -9,8 +9,10 @@
 
 #include "cli/options.h"
 #include "core/error.h"
+#include "core/text.h"
 #include "io/configuration_file.h"
 #include "io/forces_file.h"
+#include "io/output_paths.h"
 
 #ifndef CELLFORCE_VERSION
 #define CELLFORCE_VERSION "unknown"
@@ -56,7 +58,7 @@ ForceField make_force_field(const ForcesArgs& args, const ConfigurationFile& inp
   if (ff.types.empty()) {
     if (input.species.size() > 1) {
       std::string list;
-      for (const auto& s : input.species) list += (list.empty() ? "" : ", ") + s;
+      for (const auto& s : input.species) list += (list.empty() ? "" : ", ") + quote_excerpt(s);
       throw Error(input.source + " holds species " + list + ": give --type NAME:SIGMA:EPSILON for each");
     }
     const std::string name = input.species.empty() ? "A" : input.species[0];
@@ -82,8 +84,8 @@ ForceField make_force_field(const ForcesArgs& args, const ConfigurationFile& inp
     if (it == index.end()) {
       std::size_t first = 0;
       while (input.config.types[first] != s) ++first;
-      throw Error(input.source + ": particle " + std::to_string(first) + " has species '" +
-                  input.species[s] + "', which no --type names");
+      throw Error(input.source + ": particle " + std::to_string(first) + " has species " +
+                  quote_excerpt(input.species[s]) + ", which no --type names");
     }
     type_of_species[s] = uint32_t(it->second);
   }
@@ -94,7 +96,8 @@ ForceField make_force_field(const ForcesArgs& args, const ConfigurationFile& inp
 int run_forces(const ForcesArgs& args) {
   if (args.out.empty()) throw Error("forces: --out is required");
   if (args.repeats < 1) throw Error("--repeats must be at least 1, got " + std::to_string(args.repeats));
-  check_output_path(args.out, args.input);
+  check_output_files({{args.out, "--out", args.overwrite}}, {{args.input, "file"}},
+                     "replace it with --overwrite");
   ConfigurationFile input = read_configuration(args.input, args.read);
   std::vector<uint32_t> type_of_species;
   const ForceField ff = make_force_field(args, input, type_of_species);

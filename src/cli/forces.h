@@ -24,6 +24,7 @@ struct ForcesArgs {
   ReadOptions read;                // dimension, frame, H5MD group
   int repeats = 1;                 // evaluations timed; the file holds the last one's results
   bool quiet = false;              // no summary on stdout
+  bool overwrite = false;          // an existing --out file may be replaced (refused otherwise)
 };
 
 // The force field that --cutoff, --cutoff-mode, --type, --pair and --mixing describe, and each

@@ -5,6 +5,7 @@
 // pipeline's counts and its stage times, optionally next to the O(n^2) brute force.
 #include <CLI/CLI.hpp>
 #include <algorithm>
+#include <csignal>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -17,6 +18,7 @@
 #include "cli/options.h"
 #include "cli/run.h"
 #include "core/error.h"
+#include "core/memory.h"
 #include "reference/brute_force.h"
 #include "scene/lattice.h"
 
@@ -40,6 +42,9 @@ struct EvaluateArgs {
 };
 
 int evaluate(const EvaluateArgs& args) {
+  const int ldim = lattice_dimension(args.lattice);
+  check_particle_count(lattice_site_count(args.lattice, {args.cells, args.cells, ldim == 3 ? args.cells : 1}), ldim,
+                       "--cells " + std::to_string(args.cells));
   Configuration config = make_lattice(args.lattice, args.cells, args.density);
   if (args.jitter > 0) jitter(config, args.jitter, args.seed);
   const SystemView sys = config.view();
@@ -233,6 +238,7 @@ int main(int argc, char** argv) {
   forces_cmd->add_option("--repeats", fa.repeats, "Evaluations to time (the file records their median)")
       ->check(CLI::PositiveNumber)->capture_default_str();
   forces_cmd->add_flag("--quiet,-q", fa.quiet, "No summary on stdout");
+  forces_cmd->add_flag("--overwrite", fa.overwrite, "Replace an existing --out file (refused otherwise)");
 
   RunArgs ra;
   CLI::App* run_cmd = app.add_subcommand(
@@ -260,10 +266,18 @@ int main(int argc, char** argv) {
                     "Replace the thermo, trajectory and checkpoint files of an earlier run (refused otherwise)");
 
   CLI11_PARSE(app, argc, argv);
+  // A file that outgrows `ulimit -f` gets an error from the write (EFBIG), not a kill by SIGXFSZ.
+  std::signal(SIGXFSZ, SIG_IGN);
   try {
     if (run_cmd->parsed()) return run_md(ra);
     if (forces_cmd->parsed()) return run_forces(fa);
     if (evaluate_cmd->parsed()) return evaluate(ev);
+  } catch (const std::bad_alloc&) {
+    // The sizes are checked before allocating (core/memory.h); what still runs out names itself
+    // where it can (reporting_bad_alloc), and this is the rest.
+    std::fprintf(stderr, "out of memory (std::bad_alloc) in cellforce %s: the machine has %.3g GB\n",
+                 run_cmd->parsed() ? "run" : forces_cmd->parsed() ? "forces" : "evaluate", double(physical_memory()) / 1e9);
+    return 1;
   } catch (const std::exception& e) {
     std::fprintf(stderr, "%s\n", e.what());
     return 1;

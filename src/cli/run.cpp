@@ -3,17 +3,21 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <cerrno>
 #include <charconv>
 #include <chrono>
 #include <filesystem>
 #include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <fstream>
 #include <memory>
 
 #include "cli/backend.h"
 #include "core/error.h"
+#include "core/text.h"
 #include "io/h5md_writer.h"
+#include "io/output_paths.h"
 #include "md/checkpoint.h"
 #include "md/md.h"
 #include "md/minimize.h"
@@ -124,38 +128,62 @@ struct StageTotals {
   }
 };
 
-// The thermo CSV rows of an earlier run up to `step`, header first; a restart continues them.
-std::vector<std::string> thermo_rows_until(const std::string& path, int64_t step, int64_t every) {
+// The thermo CSV file of an earlier run: its header and its rows with their steps.
+struct ThermoRows {
+  std::string header;
+  std::vector<std::pair<int64_t, std::string>> rows;
+};
+
+ThermoRows read_thermo_rows(const std::string& path) {
   std::ifstream in(path);
-  std::vector<std::string> kept;
+  if (!in) throw Error(path + ": cannot read the thermo file");
+  ThermoRows out;
   long line_no = 0;
   for (std::string line; std::getline(in, line);) {
     ++line_no;
     if (line_no == 1) {
-      kept.push_back(line);
+      out.header = line;
       continue;
     }
     if (line.empty()) continue;
     long long row_step = 0;
     const auto [ptr, ec] = std::from_chars(line.data(), line.data() + line.size(), row_step);
     if (ec != std::errc() || ptr == line.data() + line.size() || *ptr != ',')
-      throw Error(path + ":" + std::to_string(line_no) + ": not a thermo row (step,time,...)");
-    // The row at the checkpoint's step stays only if the uninterrupted run writes one there (a
-    // run also writes a row at its last step).
-    if (row_step < step || (row_step == step && step % every == 0)) kept.push_back(line);
+      throw Error(path + ":" + std::to_string(line_no) + ": not a thermo row (step,time,...): " + quote_excerpt(line));
+    out.rows.emplace_back(int64_t(row_step), line);
   }
-  return kept;
+  return out;
+}
+
+// A restart continues the rows (frames) of an earlier run's file from the checkpoint's step on;
+// the file must then hold that run's rows up to the checkpoint, or the continued file would have
+// a gap (a checkpoint of another, longer run; a file cut short). `steps` are the file's, in order;
+// `every` the run's interval (the file's own, read from its first two entries, when larger).
+void check_covers(const std::vector<int64_t>& steps, int64_t checkpoint_step, int64_t every, const std::string& path,
+                  const std::string& restart, const char* what) {
+  int64_t spacing = every;
+  if (steps.size() >= 2 && steps[1] > steps[0]) spacing = std::max(spacing, steps[1] - steps[0]);
+  int64_t last = -1;
+  for (const int64_t s : steps)
+    if (s <= checkpoint_step) last = std::max(last, s);
+  if (last < 0 || last + spacing <= checkpoint_step)
+    throw Error(restart + ": checkpoint at step " + std::to_string(checkpoint_step) + ", but " + path + " holds " +
+                what + (last < 0 ? " after it only, or none" : " up to step " + std::to_string(last) + " only") +
+                ": continuing would leave a gap (is the checkpoint from another run? --overwrite starts afresh "
+                "instead)");
 }
 
 void write_text_atomically(const std::string& path, const std::vector<std::string>& lines) {
   const std::string tmp = path + ".partial-" + std::to_string(::getpid());
   {
+    errno = 0;
     std::ofstream out(tmp, std::ios::trunc);
     for (const std::string& line : lines) out << line << '\n';
     out.flush();
     if (!out) {
+      const int code = errno;
       std::remove(tmp.c_str());
-      throw Error(path + ": cannot write the thermo file");
+      throw Error(path + ": cannot write the thermo file" + (code ? std::string(": ") + std::strerror(code) : ""));
     }
   }
   if (std::rename(tmp.c_str(), path.c_str()) != 0) {
@@ -187,15 +215,26 @@ int run_md(const RunArgs& args) {
   const bool restart = !args.restart.empty();
   const SceneOutput& output = scene.output;
 
-  // A fresh run does not overwrite the outputs of an earlier one unless asked to.
-  if (!restart && !args.overwrite)
-    for (const std::string& path : {output.thermo_file, output.trajectory, output.checkpoint})
-      if (!path.empty() && std::filesystem::exists(path))
-        throw Error(path + ": exists (an earlier run's output); continue that run with --restart CHECKPOINT, or "
-                    "replace it with --overwrite");
+  // Every output is checked before anything is computed: a fresh run does not replace an earlier
+  // one's outputs unless asked to; no output may be another output or an input.
+  {
+    std::vector<InputFile> inputs;
+    if (!args.scene.empty()) inputs.push_back({args.scene, "scene file"});
+    if (scene.particles.source == ParticleSource::kFile) inputs.push_back({scene.particles.path, "[particles] path"});
+    if (restart) inputs.push_back({args.restart, "--restart checkpoint"});
+    const bool replace = restart || args.overwrite;
+    check_output_files({{output.thermo_file, args.thermo_file.empty() ? "[output] thermo_file" : "--thermo-file", replace},
+                        {output.trajectory, args.trajectory.empty() ? "[output] trajectory" : "--trajectory", replace},
+                        {output.checkpoint, "[output] checkpoint", replace}},
+                       inputs,
+                       "an earlier run's output: continue that run with --restart CHECKPOINT, or replace it with "
+                       "--overwrite",
+                       {{"--restart checkpoint", "[output] checkpoint"}});
+  }
 
   MdState state;
-  state.config = with_context(scene.source, [&] { return build_configuration(scene); });
+  std::size_t wrapped = 0;
+  state.config = with_context(scene.source, [&] { return build_configuration(scene, &wrapped); });
   const std::size_t n = state.config.size();
   const int dim = scene.dim;
   std::vector<double> masses(n);
@@ -300,11 +339,25 @@ int run_md(const RunArgs& args) {
   // Outputs are touched only now that everything that can refuse the run has run. On a restart
   // the thermo rows and trajectory frames beyond the checkpoint are dropped (that part of the run
   // is redone); the thermo file is rewritten under a temporary name.
+  // The earlier files are read (and checked to reach the checkpoint) before either is changed.
+  std::vector<std::string> rows;
+  if (restart && !output.thermo_file.empty() && std::filesystem::exists(output.thermo_file)) {
+    const ThermoRows earlier = read_thermo_rows(output.thermo_file);
+    std::vector<int64_t> steps;
+    for (const auto& [step, line] : earlier.rows) steps.push_back(step);
+    check_covers(steps, state.step, output.thermo_every, output.thermo_file, args.restart, "thermo rows");
+    // The row at the checkpoint's step stays only if the uninterrupted run writes one there (a
+    // run also writes a row at its last step).
+    rows.push_back(earlier.header);
+    for (const auto& [step, line] : earlier.rows)
+      if (step < state.step || (step == state.step && step % output.thermo_every == 0)) rows.push_back(line);
+  }
+  if (restart && !output.trajectory.empty() && std::filesystem::exists(output.trajectory))
+    check_covers(H5mdWriter::stored_steps(output.trajectory), state.step, output.trajectory_every, output.trajectory,
+                 args.restart, "trajectory frames");
+
   std::unique_ptr<std::ofstream> csv;
   if (!output.thermo_file.empty()) {
-    std::vector<std::string> rows;
-    if (restart && std::filesystem::exists(output.thermo_file))
-      rows = thermo_rows_until(output.thermo_file, state.step, output.thermo_every);
     if (rows.empty()) rows.push_back("step,time,temperature,kinetic_energy,potential_energy,total_energy,pressure");
     write_text_atomically(output.thermo_file, rows);
     csv = std::make_unique<std::ofstream>(output.thermo_file, std::ios::app);
@@ -345,6 +398,9 @@ int run_md(const RunArgs& args) {
               (long long)scene.steps, engine.description().c_str(), to_string(scene.backend.precision));
   if (!minimize_line.empty()) std::printf("%s\n", minimize_line.c_str());
   if (restart) std::printf("  restarting from %s at step %lld\n", args.restart.c_str(), (long long)state.step);
+  else if (wrapped > 0)
+    std::printf("  %zu particle(s) of %s lay outside the periodic box: wrapped into it\n", wrapped,
+                scene.particles.path.c_str());
 
   auto report = [&](const MdState& s, bool thermo_line, bool frame, auto& progress) {
     const auto t0 = Clock::now();

@@ -30,18 +30,35 @@ struct Box {
   }
 };
 
-// Wrap x into [0, L). Rounding can turn a tiny negative x into exactly L (x = -1e-8 in float);
-// that value is mapped to 0, which is the same point modulo L.
+// Wrap x into [0, L), exactly for any finite x: the remainder fmod(x, L) is always representable,
+// so a coordinate far outside the box (an unwrapped trajectory; x = 1e16 in a box of 10) lands on
+// the point that the value given is modulo L, not one an inexact quotient x / L picks. Only adding
+// L to a negative remainder rounds, once; rounding can turn a tiny negative remainder into exactly
+// L (x = -1e-8 in float), which is mapped to 0, the same point modulo L. Not-finite x stays so.
 template <class Real>
-CF_HD Real wrap_coordinate(Real x, Real length, Real inv_length) {
-  Real w = x - mul_rn(length, std::floor(x * inv_length));
-  return (w >= length || w < Real(0)) ? Real(0) : w;
+CF_HD Real wrap_coordinate(Real x, Real length) {
+  if (x >= Real(0) && x < length) return x;  // inside already: the common case costs one test
+  if (!(x - x == Real(0))) return x;          // inf or nan: left for the caller's checks to name
+  Real w = std::fmod(x, length);
+  if (w < Real(0)) w += length;
+  return w >= length ? Real(0) : w;
 }
 
 // Minimum image of a separation along one axis; inv_length == 0 marks an open axis (no change).
+// Exact only while dx / L is well below 2^52 / L; separation() holds for any coordinates.
 template <class Real>
 CF_HD Real minimum_image(Real dx, Real length, Real inv_length) {
   return dx - mul_rn(length, std::rint(dx * inv_length));
+}
+
+// Minimum-image separation xi - xj along one axis (inv_length == 0: open, the plain difference).
+// Each coordinate is wrapped exactly first, so coordinates far outside the box (x = 1e16 in a box
+// of 10) give the separation of the points they are modulo L, not a difference that has lost
+// their digits.
+template <class Real>
+CF_HD Real separation(Real xi, Real xj, Real length, Real inv_length) {
+  if (inv_length == Real(0)) return xi - xj;
+  return minimum_image(wrap_coordinate(xi, length) - wrap_coordinate(xj, length), length, inv_length);
 }
 
 }  // namespace cellforce

@@ -4,6 +4,7 @@
 #include <sstream>
 
 #include "core/error.h"
+#include "core/text.h"
 
 namespace cellforce {
 namespace {
@@ -17,7 +18,7 @@ const PairOverride* find_override(const ForceField& ff, std::size_t a, std::size
 void check_lj_value(double v, const std::string& what) {
   if (!std::isfinite(v) || v < 0.0) {
     std::ostringstream s;
-    s << what << " is " << v << "; it must be finite and >= 0";
+    s << what << " is " << format_number(v) << "; it must be finite and >= 0";
     throw Error(s.str());
   }
 }
@@ -38,13 +39,19 @@ double ForceField::pair_epsilon(std::size_t a, std::size_t b) const {
 void ForceField::validate() const {
   if (!std::isfinite(cutoff) || cutoff <= 0.0) {
     std::ostringstream s;
-    s << "cutoff is " << cutoff << "; it must be finite and > 0";
+    s << "cutoff is " << format_number(cutoff) << "; it must be finite and > 0";
     throw Error(s.str());
   }
   if (types.empty()) throw Error("the force field has no particle types");
   for (const auto& t : types) {
-    check_lj_value(t.sigma, "sigma of type '" + t.name + "'");
-    check_lj_value(t.epsilon, "epsilon of type '" + t.name + "'");
+    // Names travel into files (H5MD species, HDF5 attributes) as C strings: no NUL or other
+    // control character may cut them short.
+    if (t.name.empty()) throw Error("a particle type has an empty name");
+    for (const char c : t.name)
+      if (static_cast<unsigned char>(c) < 0x20 || c == 0x7f)
+        throw Error("type name " + quote_excerpt(t.name) + " holds a control character; names must be printable");
+    check_lj_value(t.sigma, "sigma of type " + quote_excerpt(t.name));
+    check_lj_value(t.epsilon, "epsilon of type " + quote_excerpt(t.name));
   }
   for (const auto& o : overrides) {
     if (o.a >= types.size() || o.b >= types.size()) {
@@ -53,7 +60,7 @@ void ForceField::validate() const {
         << types.size() << " types";
       throw Error(s.str());
     }
-    const std::string pair = "pair '" + types[o.a].name + "'-'" + types[o.b].name + "'";
+    const std::string pair = "pair " + quote_excerpt(types[o.a].name) + "-" + quote_excerpt(types[o.b].name);
     check_lj_value(o.sigma, "sigma of " + pair);
     check_lj_value(o.epsilon, "epsilon of " + pair);
   }

@@ -4,15 +4,22 @@
 
 #include <algorithm>
 #include <bit>
+#include <cmath>
 #include <limits>
 #include <sstream>
 
+#include "core/engine_options.h"
 #include "core/error.h"
 
 namespace cellforce {
 namespace {
 
 constexpr const char* kAxisName[kMaxDim] = {"x", "y", "z"};
+
+// The product of the per-axis cell counts, in double: three counts of up to 2^32 overflow a
+// 64-bit integer (2^30 cells per axis wrapped to a grid of 0 cells: no pairs, no error), while
+// the double product is exact up to 2^53 and only compared with the limit beyond that.
+double cell_count(const uint32_t n[kMaxDim]) { return double(n[0]) * double(n[1]) * double(n[2]); }
 
 // Lower corner and extent of the particles along an open axis.
 void bounding_interval(const double* positions, std::size_t n, int dim, int a, double& lo,
@@ -30,13 +37,16 @@ void bounding_interval(const double* positions, std::size_t n, int dim, int a, d
 
 // Fills the derived fields (inverse edges, half-width in cell units, cell count, key width).
 void finish(Grid& g) {
-  uint64_t cells = 1;
   for (int a = 0; a < kMaxDim; ++a) {
     g.inv_cell[a] = 1.0 / g.cell[a];
     g.half_width_cells[a] = a < g.dim ? g.half_width * g.inv_cell[a] : 0.0;
-    cells *= g.n[a];
   }
-  if (cells > kMaxCells) throw Error("grid of " + std::to_string(cells) + " cells exceeds the limit");
+  if (cell_count(g.n) > double(kMaxCells)) {
+    std::ostringstream s;
+    s << "grid of " << g.n[0] << " x " << g.n[1] << " x " << g.n[2] << " cells exceeds the limit of " << kMaxCells;
+    throw Error(s.str());
+  }
+  const uint64_t cells = uint64_t(g.n[0]) * g.n[1] * g.n[2];  // <= 2^30: exact
   g.num_cells = uint32_t(cells);
   // Valid keys are < 2 * num_cells; an invalid entry masked to key_bits is 2^key_bits - 1, which
   // must stay above every valid key so that invalid entries sort last.
@@ -99,8 +109,7 @@ Grid plan_grid(const Box& box, double physical_cutoff, const double* positions,
   }
   // Coarsen the axis with the most cells until the grid fits the key (a dilute scene in a huge
   // open box); a larger cell keeps every condition.
-  auto total = [&] { return uint64_t(n[0]) * n[1] * n[2]; };
-  while (total() > kMaxCells) {
+  while (cell_count(n) > double(kMaxCells)) {
     int a = int(std::max_element(n, n + box.dim) - n);
     uint32_t m = n[a] / 2;
     if (box.periodic[a] && m > 1 && m % 2 == 1) --m;
@@ -124,6 +133,28 @@ Grid make_grid_unchecked(const Box& box, const uint32_t cells[kMaxDim], double h
   }
   finish(g);
   return g;
+}
+
+void check_staging(const Grid& g, double physical_cutoff, Precision precision) {
+  double largest = 0;  // the largest |x - centre| a staged coordinate can have
+  int axis = 0;
+  for (int a = 0; a < g.dim; ++a)
+    if (0.5 * g.cell[a] + g.half_width > largest) largest = 0.5 * g.cell[a] + g.half_width, axis = a;
+  const double rounding = std::nextafter(largest, INFINITY) - largest;  // ulp in double
+  const double resolution =
+      precision == Precision::kDouble
+          ? 256.0 * (std::nextafter(physical_cutoff, INFINITY) - physical_cutoff)
+          : double(std::nextafter(float(physical_cutoff), INFINITY) - float(physical_cutoff));
+  if (rounding <= resolution) return;
+  std::ostringstream s;
+  s.precision(3);
+  s << "the box is too large for the grid: within its limit of " << kMaxCells << " cells, cells are "
+    << g.cell[axis] << " wide along " << kAxisName[axis] << " (" << g.n[0] << " x " << g.n[1] << " x " << g.n[2]
+    << " cells), and positions staged relative to their cell's centre would round each r_ij component by up to "
+    << rounding << ", more than " << to_string(precision) << " pairs resolve at the cutoff (" << resolution
+    << "); shrink the periodic box, or remove particles far from the others on an open axis"
+    << (precision == Precision::kDouble ? ", or use mixed or single precision" : "");
+  throw Error(s.str());
 }
 
 void check_grid(const Grid& g, const Box& box, double physical_cutoff, CellRule rule, double skin) {

@@ -98,9 +98,10 @@ CF_HD double cell_center(const Grid& g, int a, int k) {
 }
 
 // Position of x relative to a point of a cell along axis a, as the image nearest to that point on
-// a periodic axis. Forming r_ij from these keeps the digits a far-from-origin coordinate loses.
+// a periodic axis. Forming r_ij from these keeps the digits a far-from-origin coordinate loses;
+// a coordinate far outside a periodic box is wrapped exactly first (separation()).
 CF_HD double relative_coordinate(const Grid& g, int a, double x, double point) {
-  return minimum_image(x - point, g.length[a], g.inv_length[a]);
+  return separation(x, point, g.length[a], g.inv_length[a]);
 }
 
 // A staged coordinate in the pair precision. Double pairs take the double value. Float pairs
@@ -134,8 +135,7 @@ CF_HD Control bin_particle(const Grid& g, const double x[kMaxDim], uint32_t ids[
   int k[kMaxDim] = {0, 0, 0};
   int step[kMaxDim] = {0, 0, 0};  // -1 or +1: the neighbour the box reaches along the axis
   for (int a = 0; a < g.dim; ++a) {
-    const double xa = g.inv_length[a] != 0.0 ? wrap_coordinate(x[a], g.length[a], g.inv_length[a])
-                                             : x[a];
+    const double xa = g.inv_length[a] != 0.0 ? wrap_coordinate(x[a], g.length[a]) : x[a];
     const double u = (xa - g.origin[a]) * g.inv_cell[a];
     const int n = int(g.n[a]);
     int ka = int(std::floor(u));
@@ -204,6 +204,16 @@ Grid plan_grid(const Box& box, double cutoff, const double* positions, std::size
 // for tests that show what breaks when a condition does not hold.
 Grid make_grid_unchecked(const Box& box, const uint32_t cells[kMaxDim], double half_width,
                          const double* positions, std::size_t n_particles);
+
+// Refuses a grid whose cells are so large that staging positions relative to their cell centres
+// (|x - centre| <= c/2 + h) rounds r_ij by more than the pair precision resolves: coarsening keeps
+// a grid of a huge box (edge 5e9, or one particle 5e9 away on an open axis) within kMaxCells with
+// cells of ~5e6, where each staged coordinate rounds by ~5e-10 in double. Float pairs resolve
+// ulp_float(rc) and take a rounding up to that; double pairs take up to 256 ulp_double(rc) (the
+// double engine's own error is ~1 ulp). Throws cellforce::Error with the cell edge, the rounding
+// and what would help.
+enum class Precision : uint8_t;  // core/engine_options.h (which includes this header)
+void check_staging(const Grid& grid, double physical_cutoff, Precision precision);
 
 // Throws cellforce::Error naming the violated condition (and axis, box, cutoff) when the grid
 // does not satisfy the design note's conditions for this cutoff and rule. With skin > 0 the

@@ -48,7 +48,7 @@ double max_displacement2(const Box& box, std::size_t n, const double* now, const
     double d2 = 0;
     for (int a = 0; a < dim; ++a) {
       const std::size_t k = i * std::size_t(dim) + std::size_t(a);
-      const double d = minimum_image(now[k] - then[k], box.length[a], inv[a]);
+      const double d = separation(now[k], then[k], box.length[a], inv[a]);
       d2 += d * d;
     }
     worst = std::max(worst, d2);
@@ -89,7 +89,7 @@ std::vector<std::pair<uint32_t, uint32_t>> pairs_within(const SystemView& s, dou
     edge[a] = s.box.periodic[a] ? s.box.length[a] / double(m[a]) : std::max(extent[a] / double(m[a]), cutoff);
   auto coordinate = [&](std::size_t i, int a) {
     double x = pos(i, a);
-    if (s.box.periodic[a]) x = wrap_coordinate(x, s.box.length[a], inv_length[a]);
+    if (s.box.periodic[a]) x = wrap_coordinate(x, s.box.length[a]);
     const double k = std::floor((x - origin[a]) / edge[a]);  // clamped before the conversion
     return std::size_t(std::clamp(k, 0.0, double(m[a] - 1)));
   };
@@ -129,7 +129,7 @@ std::vector<std::pair<uint32_t, uint32_t>> pairs_within(const SystemView& s, dou
             if (j <= i) continue;
             double r2 = 0;
             for (int a = 0; a < dim; ++a) {
-              const double d = minimum_image(pos(i, a) - pos(j, a), s.box.length[a], inv_length[a]);
+              const double d = separation(pos(i, a), pos(j, a), s.box.length[a], inv_length[a]);
               r2 += d * d;
             }
             if (r2 < rc2) pairs.emplace_back(uint32_t(i), uint32_t(j));

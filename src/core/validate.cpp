@@ -3,7 +3,9 @@
 #include <sstream>
 
 #include "core/error.h"
+#include "core/memory.h"
 #include "core/system.h"
+#include "core/text.h"
 
 namespace cellforce {
 
@@ -17,25 +19,25 @@ void validate_system(const SystemView& system, const ForceField& ff) {
     const double L = box.length[a];
     if (!std::isfinite(L) || (box.periodic[a] && L <= 0.0)) {
       std::ostringstream s;
-      s << "box edge " << kAxis[a] << " is " << L << "; it must be finite and > 0";
+      s << "box edge " << kAxis[a] << " is " << format_number(L) << "; it must be finite and > 0";
       throw Error(s.str());
     }
     if (box.periodic[a] && !(ff.cutoff <= 0.5 * L)) {
       std::ostringstream s;
-      s << "cutoff " << ff.cutoff << " exceeds half the periodic box edge " << kAxis[a] << " = "
-        << L << " (minimum image needs rc <= L/2)";
+      s << "cutoff " << format_number(ff.cutoff) << " exceeds half the periodic box edge " << kAxis[a]
+        << " = " << format_number(L) << " (minimum image needs rc <= L/2)";
       throw Error(s.str());
     }
   }
   if (system.n > 0 && system.positions == nullptr) throw Error("positions array is null");
-  if (system.n >= (std::size_t(1) << 31))
+  if (system.n > kMaxParticles)
     throw Error("too many particles: " + std::to_string(system.n));
   for (std::size_t i = 0; i < system.n; ++i) {
     for (int a = 0; a < box.dim; ++a) {
       const double x = system.positions[i * box.dim + a];
       if (!std::isfinite(x)) {
         std::ostringstream s;
-        s << "particle " << i << " has a non-finite " << kAxis[a] << " coordinate (" << x << ")";
+        s << "particle " << i << " has a non-finite " << kAxis[a] << " coordinate (" << format_number(x) << ")";
         throw Error(s.str());
       }
     }
@@ -49,21 +51,43 @@ void validate_system(const SystemView& system, const ForceField& ff) {
 }
 
 void throw_close_pair(const SystemView& system, uint32_t i, uint32_t j, double r2) {
-  std::ostringstream s;
-  s.precision(17);
-  if (r2 == 0.0)
-    s << "particles " << i << " and " << j << " are at the same position";
-  else
-    s << "particles " << i << " and " << j << " are too close (r = " << std::sqrt(r2)
-      << "): the Lennard-Jones force is not finite in this precision";
-  const int dim = system.box.dim;
-  s << "; positions";
-  for (uint32_t k : {i, j}) {
-    s << " (";
-    for (int a = 0; a < dim; ++a) s << (a ? ", " : "") << system.positions[std::size_t(k) * dim + a];
-    s << ")";
+  // The distance in double, from the positions wrapped exactly into the box: "the same position"
+  // is said only when the two points are the same; otherwise the working-precision r^2 that made
+  // the force not finite is shown beside the exact distance.
+  const Box& box = system.box;
+  const int dim = box.dim;
+  double exact2 = 0;
+  for (int a = 0; a < dim; ++a) {
+    const double inv = box.periodic[a] ? 1.0 / box.length[a] : 0.0;
+    const double d = separation(system.positions[std::size_t(i) * dim + a],
+                                system.positions[std::size_t(j) * dim + a], box.length[a], inv);
+    exact2 += d * d;
   }
-  throw Error(s.str());
+  std::string s = "particles " + std::to_string(i) + " and " + std::to_string(j);
+  if (exact2 == 0.0) {
+    s += " are at the same position";
+  } else {
+    s += " are too close (r = " + format_number(std::sqrt(exact2));
+    if (r2 != exact2) s += ", " + format_number(std::sqrt(r2)) + " in the working precision";
+    s += "): the Lennard-Jones force is not finite in this precision";
+  }
+  bool outside = false;
+  auto point = [&](uint32_t k, bool wrapped) {
+    std::string p = "(";
+    for (int a = 0; a < dim; ++a) {
+      double x = system.positions[std::size_t(k) * dim + a];
+      if (wrapped && box.periodic[a]) {
+        const double w = wrap_coordinate(x, box.length[a]);
+        outside = outside || w != x;
+        x = w;
+      }
+      p += (a ? ", " : "") + format_number(x);
+    }
+    return p + ")";
+  };
+  s += "; positions in the box " + point(i, true) + " " + point(j, true);
+  if (outside) s += ", given as " + point(i, false) + " " + point(j, false);
+  throw Error(s);
 }
 
 }  // namespace cellforce

@@ -11,6 +11,7 @@
 #include <unordered_map>
 
 #include "core/error.h"
+#include "core/text.h"
 #include "io/configuration_file.h"
 
 namespace cellforce {
@@ -52,7 +53,7 @@ std::map<std::string, std::string> parse_header(const std::string& line, const s
       const char close = line[k] == '[' ? ']' : '}';
       const std::size_t end = line.find(close, k + 1);
       if (end == std::string::npos)
-        throw Error(where + ": unterminated '" + std::string(1, line[k]) + "' in the comment line");
+        throw Error(where + ": unterminated " + quote_excerpt(std::string_view(&line[k], 1)) + " in the comment line");
       t = line.substr(k + 1, end - k - 1);
       std::replace(t.begin(), t.end(), ',', ' ');
       k = end + 1;
@@ -94,7 +95,7 @@ Columns parse_properties(const std::string& spec, const std::string& where) {
   std::stringstream in(spec);
   for (std::string p; std::getline(in, p, ':');) parts.push_back(p);
   if (parts.size() % 3 != 0)
-    throw Error(where + ": Properties=\"" + spec + "\" is not a list of name:type:count");
+    throw Error(where + ": Properties=" + quote_excerpt(spec) + " is not a list of name:type:count");
   Columns c;
   bool have_species = false, have_pos = false;
   for (std::size_t k = 0; k < parts.size(); k += 3) {
@@ -103,7 +104,7 @@ Columns parse_properties(const std::string& spec, const std::string& where) {
     int count = 0;
     auto [ptr, ec] = std::from_chars(parts[k + 2].data(), parts[k + 2].data() + parts[k + 2].size(), count);
     if (ec != std::errc() || ptr != parts[k + 2].data() + parts[k + 2].size() || count < 1)
-      throw Error(where + ": Properties: '" + parts[k + 2] + "' is not a column count");
+      throw Error(where + ": Properties: " + quote_excerpt(parts[k + 2]) + " is not a column count");
     if (name == "species") {
       if (type != "s" || count != 1) throw Error(where + ": Properties: species must be species:S:1");
       c.species = c.total;
@@ -116,7 +117,7 @@ Columns parse_properties(const std::string& spec, const std::string& where) {
     c.total += std::size_t(count);
   }
   if (!have_species || !have_pos)
-    throw Error(where + ": Properties=\"" + spec + "\" needs species:S:1 and pos:R:3");
+    throw Error(where + ": Properties=" + quote_excerpt(spec) + " needs species:S:1 and pos:R:3");
   return c;
 }
 
@@ -133,7 +134,8 @@ std::vector<std::size_t> frame_starts(const std::vector<std::string>& lines, con
     long long count = -1;
     auto [ptr, ec] = std::from_chars(t[0].data(), t[0].data() + t[0].size(), count);
     if (t.size() != 1 || ec != std::errc() || ptr != t[0].data() + t[0].size() || count < 0)
-      throw Error(path + ":" + std::to_string(at + 1) + ": expected a particle count, found '" + lines[at] + "'");
+      throw Error(path + ":" + std::to_string(at + 1) + ": expected a particle count, found " + quote_excerpt(lines[at]) +
+                  (lines[at].rfind("\xEF\xBB\xBF", 0) == 0 ? " (the file starts with a UTF-8 byte-order mark; save it without one)" : ""));
     if (at + 2 + std::size_t(count) > lines.size())
       throw Error(path + ":" + std::to_string(at + 1) + ": the frame declares " + std::to_string(count) +
                   " particles but the file ends after " +
@@ -191,7 +193,7 @@ ConfigurationFile read_extxyz(const std::string& path, const ReadOptions& option
     if (t.size() != 9) throw Error(where2 + ": Lattice needs 9 numbers, found " + std::to_string(t.size()));
     for (int k = 0; k < 9; ++k)
       if (!parse_real(t[std::size_t(k)], lattice[k]) || !std::isfinite(lattice[k]))
-        throw Error(where2 + ": Lattice: '" + t[std::size_t(k)] + "' is not a finite number");
+        throw Error(where2 + ": Lattice: " + quote_excerpt(t[std::size_t(k)]) + " is not a finite number");
     for (int r = 0; r < 3; ++r)
       for (int c = 0; c < 3; ++c)
         if (r != c && lattice[3 * r + c] != 0.0)
@@ -203,7 +205,7 @@ ConfigurationFile read_extxyz(const std::string& path, const ReadOptions& option
   if (auto it = kv.find("pbc"); it != kv.end()) {
     const std::vector<std::string> t = split_ws(it->second);
     if (t.size() != 3 || !parse_flag(t[0], pbc[0]) || !parse_flag(t[1], pbc[1]) || !parse_flag(t[2], pbc[2]))
-      throw Error(where2 + ": pbc=\"" + it->second + "\" must be three of T/F");
+      throw Error(where2 + ": pbc=" + quote_excerpt(it->second) + " must be three of T/F");
   }
   for (int a = 0; a < dim; ++a) {
     box.periodic[a] = pbc[a];
@@ -211,7 +213,7 @@ ConfigurationFile read_extxyz(const std::string& path, const ReadOptions& option
       throw Error(where2 + ": pbc makes axis " + std::string(1, "xyz"[a]) + " periodic but no Lattice gives its length");
     if (pbc[a] && !(lattice[4 * a] > 0))
       throw Error(where2 + ": the periodic axis " + std::string(1, "xyz"[a]) + " has Lattice length " +
-                  std::to_string(lattice[4 * a]) + "; it must be > 0");
+                  format_number(lattice[4 * a]) + "; it must be > 0");
   }
   for (int a = dim; a < kMaxDim; ++a) {
     box.periodic[a] = false;
@@ -232,13 +234,13 @@ ConfigurationFile read_extxyz(const std::string& path, const ReadOptions& option
     double x[3];
     for (int a = 0; a < 3; ++a) {
       if (!parse_real(t[cols.pos + std::size_t(a)], x[a]))
-        throw Error(where + ": '" + t[cols.pos + std::size_t(a)] + "' is not a number");
+        throw Error(where + ": " + quote_excerpt(t[cols.pos + std::size_t(a)]) + " is not a number");
       if (!std::isfinite(x[a]))
-        throw Error(where + ": coordinate " + std::string(1, "xyz"[a]) + " is " + t[cols.pos + std::size_t(a)] +
+        throw Error(where + ": coordinate " + std::string(1, "xyz"[a]) + " is " + format_number(x[a]) +
                     "; coordinates must be finite");
     }
     if (dim == 2 && x[2] != 0.0)
-      throw Error(where + ": z = " + t[cols.pos + 2] + ", but a 2D configuration needs z = 0 exactly");
+      throw Error(where + ": z = " + format_number(x[2]) + ", but a 2D configuration needs z = 0 exactly");
     for (int a = 0; a < dim; ++a) {
       out.config.positions[i * std::size_t(dim) + std::size_t(a)] = x[a];
       lo[a] = std::min(lo[a], x[a]);

@@ -1,23 +1,9 @@
 #include "io/forces_file.h"
 
-#include <filesystem>
-
 #include "core/error.h"
 #include "io/hdf5.h"
 
 namespace cellforce {
-
-namespace fs = std::filesystem;
-
-void check_output_path(const std::string& path, const std::string& input) {
-  std::error_code ec;
-  if (fs::is_directory(path, ec)) throw Error(path + ": is a folder; --out needs a file name");
-  const fs::path folder = fs::path(path).parent_path();
-  if (!folder.empty() && !fs::is_directory(folder, ec))
-    throw Error(path + ": its folder '" + folder.string() + "' does not exist");
-  if (fs::exists(path, ec) && fs::exists(input, ec) && fs::equivalent(path, input, ec))
-    throw Error(path + ": --out names the input file; it would be overwritten");
-}
 
 void write_forces_file(const std::string& path, const ForceResult& result, std::size_t n,
                        const Attributes& attributes, const Series& series) {

@@ -18,10 +18,6 @@ using Attributes = std::vector<std::pair<std::string, AttributeValue>>;
 // can outgrow HDF5's 64 KiB limit on an attribute).
 using Series = std::vector<std::pair<std::string, std::vector<double>>>;
 
-// Throws cellforce::Error, before any work is done, when `path` cannot receive the output: it is
-// a folder, its folder does not exist, or it is the input file itself.
-void check_output_path(const std::string& path, const std::string& input);
-
 // Writes /forces (n x dim, float64, the user's particle order), /energies (n), /energy (scalar),
 // /virial (dim x dim), the series, and the attributes on the root group. The file is written
 // under a fresh temporary name beside `path` and renamed when complete, so that a failed run

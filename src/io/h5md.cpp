@@ -4,6 +4,7 @@
 #include <map>
 
 #include "core/error.h"
+#include "core/text.h"
 #include "io/configuration_file.h"
 #include "io/hdf5.h"
 
@@ -25,9 +26,9 @@ h5::Array<double> element_frame(hid_t group, const std::string& name, long frame
 #endif
   if (status < 0) throw Error(where + ": cannot inspect '" + name + "'");
   if (info.type == H5O_TYPE_DATASET) return h5::read_doubles(group, name, where);
-  h5::Array<double> all = h5::read_doubles(group, name + "/value", where);
-  if (all.shape.empty()) throw Error(where + ": '" + name + "/value' has no frame axis");
-  const std::size_t rows = std::size_t(all.shape[0]);
+  const std::vector<hsize_t> shape = h5::dataset_shape(group, name + "/value", where);
+  if (shape.empty()) throw Error(where + ": '" + name + "/value' has no frame axis");
+  const std::size_t rows = std::size_t(shape[0]);
   std::size_t row = std::size_t(frame);
   if (!position_steps.empty() && h5::exists(group, name + "/step")) {
     const h5::Array<double> steps = h5::read_doubles(group, name + "/step", where);
@@ -42,11 +43,7 @@ h5::Array<double> element_frame(hid_t group, const std::string& name, long frame
                 std::to_string(frames) + ", and no steps say which belong together");
   }
   if (row >= rows) throw Error(where + ": '" + name + "/step' and '" + name + "/value' disagree in length");
-  h5::Array<double> one;
-  one.shape.assign(all.shape.begin() + 1, all.shape.end());
-  const std::size_t per = all.values.size() / rows;
-  one.values.assign(all.values.begin() + long(per * row), all.values.begin() + long(per * (row + 1)));
-  return one;
+  return h5::read_doubles_row(group, name + "/value", hsize_t(row), where);
 }
 
 }  // namespace
@@ -71,16 +68,17 @@ ConfigurationFile read_h5md(const std::string& path, const ReadOptions& options)
   if (!h5::exists(particles.get(), name)) throw Error(where + ": no such group");
   h5::Handle group = h5::open_group(particles.get(), name, path);
 
-  // Positions: frames x n x dim.
-  h5::Array<double> pos = h5::read_doubles(group.get(), "position/value", where);
-  if (pos.shape.size() != 3) throw Error(where + "/position/value must be frames x particles x dimension");
-  const long frames = long(pos.shape[0]);
+  // Positions: frames x n x dim; only the frame asked for is read.
+  const std::vector<hsize_t> pos_shape = h5::dataset_shape(group.get(), "position/value", where);
+  if (pos_shape.size() != 3) throw Error(where + "/position/value must be frames x particles x dimension");
+  const long frames = long(pos_shape[0]);
   const long frame = options.frame < 0 ? frames + options.frame : options.frame;
   if (frame < 0 || frame >= frames)
     throw Error(where + ": frame " + std::to_string(options.frame) + " requested, the file holds " +
                 std::to_string(frames));
-  const std::size_t n = std::size_t(pos.shape[1]);
-  const int dim = int(pos.shape[2]);
+  const std::size_t n = std::size_t(pos_shape[1]);
+  if (pos_shape[2] > 3) throw Error(where + ": dimension must be 2 or 3, found " + std::to_string(pos_shape[2]));
+  const int dim = int(pos_shape[2]);
   std::vector<double> steps;
   if (h5::exists(group.get(), "position/step")) {
     steps = h5::read_doubles(group.get(), "position/step", where).values;
@@ -110,7 +108,7 @@ ConfigurationFile read_h5md(const std::string& path, const ReadOptions& options)
   for (int a = 0; a < dim; ++a) {
     if (boundary[std::size_t(a)] == "periodic") b.periodic[a] = any_periodic = true;
     else if (boundary[std::size_t(a)] == "none") b.periodic[a] = false;
-    else throw Error(where + "/box: boundary '" + boundary[std::size_t(a)] + "' is neither 'periodic' nor 'none'");
+    else throw Error(where + "/box: boundary " + quote_excerpt(boundary[std::size_t(a)]) + " is neither 'periodic' nor 'none'");
   }
   for (int a = dim; a < kMaxDim; ++a) {
     b.periodic[a] = false;
@@ -133,7 +131,7 @@ ConfigurationFile read_h5md(const std::string& path, const ReadOptions& options)
       const double length = edges.values[std::size_t(matrix ? a * dim + a : a)];
       if (b.periodic[a] && !(length > 0 && std::isfinite(length)))
         throw Error(where + "/box/edges: the periodic axis " + std::string(1, "xyz"[a]) + " has length " +
-                    std::to_string(length));
+                    format_number(length));
       // On an open axis the edge only informs; a missing or meaningless one is replaced below.
       b.length[a] = length > 0 && std::isfinite(length) ? length : 0.0;
     }
@@ -141,8 +139,7 @@ ConfigurationFile read_h5md(const std::string& path, const ReadOptions& options)
     throw Error(where + "/box: periodic axes but no edges");
   }
 
-  out.config.positions.assign(pos.values.begin() + long(n) * dim * frame,
-                              pos.values.begin() + long(n) * dim * (frame + 1));
+  out.config.positions = h5::read_doubles_row(group.get(), "position/value", hsize_t(frame), where).values;
   // An open axis without an edge: its length only informs (the particles' extent).
   for (int a = 0; a < dim; ++a) {
     if (b.periodic[a] || b.length[a] > 0) continue;
@@ -165,7 +162,7 @@ ConfigurationFile read_h5md(const std::string& path, const ReadOptions& options)
     for (std::size_t i = 0; i < n; ++i) {
       const double v = s.values[i];
       if (!(v == std::floor(v) && std::abs(v) < 9.0e15))
-        throw Error(where + "/species: particle " + std::to_string(i) + " has species " + std::to_string(v) +
+        throw Error(where + "/species: particle " + std::to_string(i) + " has species " + format_number(v) +
                     ", not an integer species index");
       auto [it, added] = index.try_emplace((long long)v, uint32_t(out.species.size()));
       if (added) out.species.push_back(std::to_string((long long)v));

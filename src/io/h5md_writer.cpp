@@ -331,6 +331,15 @@ void H5mdWriter::write_frame(int64_t step, double time, const double* positions,
   last_time_ = time;
 }
 
+std::vector<int64_t> H5mdWriter::stored_steps(const std::string& path) {
+  h5::File file = h5::File::open_read(path);
+  const std::string steps = kParticles + "/position/step";
+  if (!h5::exists(file.id(), steps)) throw Error(path + ": no /" + steps + " (not a trajectory written by cellforce)");
+  std::vector<int64_t> out = h5::read_ints(file.id(), steps, path).values;
+  file.close();
+  return out;
+}
+
 void H5mdWriter::truncate_after(int64_t step) {
   require_writable();
   if (frames_ == 0 || last_step_ <= step) return;

@@ -90,6 +90,10 @@ class H5mdWriter {
   // The particles group's name: /particles/all.
   static constexpr const char* kGroup = "all";
 
+  // The steps of the frames a trajectory written by this class holds, read without changing the
+  // file (a restart checks them before it truncates anything). Errors name the file.
+  static std::vector<int64_t> stored_steps(const std::string& path);
+
  private:
   void create(const Box& box, const std::vector<uint32_t>& species,
               const std::vector<std::string>& species_names, const H5mdOptions& options);

@@ -3,16 +3,32 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <cerrno>
 #include <cstdio>
+#include <cstdlib>
+#include <cstring>
 #include <filesystem>
 #include <functional>
+#include <limits>
 #include <numeric>
 #include <random>
 
 #include "core/error.h"
+#include "core/memory.h"
+#include "core/text.h"
 
 namespace cellforce::h5 {
 namespace {
+
+// HDF5 closes every file still open when the process exits (an atexit handler). A file whose
+// H5Fclose failed (the disk filled while its last blocks were written) stays registered half-closed,
+// and that handler then crashes inside HDF5 (1.10.8: H5F__close_cb from H5_term_library). cellforce
+// closes each file itself, so the handler has nothing to do; it is switched off before HDF5 is
+// first used (static initialisation, before main).
+const bool kNoAtexit = [] {
+  H5dont_atexit();
+  return true;
+}();
 
 // HDF5 prints its error stack to stderr by default; cellforce reports errors itself.
 void quiet() {
@@ -21,19 +37,53 @@ void quiet() {
     return true;
   }();
   (void)done;
+  (void)kNoAtexit;
 }
 
 [[noreturn]] void fail(const std::string& where, const std::string& what) {
   throw Error(where + ": " + what);
 }
 
+// The operating system's reason for the HDF5 call that just failed, from HDF5's error stack (its
+// POSIX file driver records errno in the message of a failed read, write or truncate: "...,
+// errno = 28, error message = 'No space left on device', ..."); empty when the stack names none.
+std::string system_reason() {
+  int code = 0;
+  H5Ewalk2(
+      H5E_DEFAULT, H5E_WALK_DOWNWARD,
+      [](unsigned, const H5E_error2_t* e, void* data) -> herr_t {
+        int& found = *static_cast<int*>(data);
+        if (found == 0 && e->desc)
+          if (const char* p = std::strstr(e->desc, "errno = ")) found = std::atoi(p + 8);
+        return 0;
+      },
+      &code);
+  if (code == ENOSPC) return "no space left on the device (the disk is full)";
+  if (code == EDQUOT) return "the disk quota is exceeded";
+  if (code == EFBIG) return "the file is larger than the system allows";
+  if (code != 0) return std::strerror(code);
+  return {};
+}
+
+// fail() for an HDF5 call that returned an error: the system's reason is added when HDF5 names one.
+[[noreturn]] void fail_call(const std::string& where, const std::string& what) {
+  const std::string reason = system_reason();
+  fail(where, reason.empty() ? what : what + ": " + reason);
+}
+
 hid_t check(hid_t id, const std::string& where, const std::string& what) {
-  if (id < 0) fail(where, what);
+  if (id < 0) fail_call(where, what);
   return id;
 }
 
 void check_status(herr_t status, const std::string& where, const std::string& what) {
-  if (status < 0) fail(where, what);
+  if (status < 0) fail_call(where, what);
+}
+
+std::string shape_text(const std::vector<hsize_t>& shape) {
+  std::string text;
+  for (const hsize_t e : shape) text += (text.empty() ? "" : " x ") + std::to_string(e);
+  return shape.empty() ? "scalar" : text;
 }
 
 hsize_t element_count(const std::vector<hsize_t>& shape) {
@@ -63,9 +113,12 @@ void write_dataset(hid_t loc, const std::string& name, hid_t file_type, hid_t me
                  "cannot write dataset '" + name + "'");
 }
 
+// Reads a dataset, or with `row` only that index of its first axis (a hyperslab: one frame of a
+// frames x ... dataset is read without the others). The size the file declares is checked first:
+// a damaged or hostile file that declares 10^12 frames gets a message, not a bad_alloc.
 template <class T>
 Array<T> read_dataset(hid_t loc, const std::string& name, hid_t mem_type, H5T_class_t want,
-                      const std::string& where) {
+                      const std::string& where, const hsize_t* row = nullptr) {
   quiet();
   if (!exists(loc, name)) fail(where, "no dataset '" + name + "'");
   Handle set(check(H5Dopen2(loc, name.c_str(), H5P_DEFAULT), where,
@@ -78,13 +131,39 @@ Array<T> read_dataset(hid_t loc, const std::string& name, hid_t mem_type, H5T_cl
   Handle space(check(H5Dget_space(set.get()), where, "cannot read the shape of '" + name + "'"));
   const int rank = H5Sget_simple_extent_ndims(space.get());
   if (rank < 0) fail(where, "cannot read the shape of '" + name + "'");
+  std::vector<hsize_t> shape(static_cast<std::size_t>(rank));
+  if (rank > 0) H5Sget_simple_extent_dims(space.get(), shape.data(), nullptr);
   Array<T> out;
-  out.shape.resize(std::size_t(rank));
-  if (rank > 0) H5Sget_simple_extent_dims(space.get(), out.shape.data(), nullptr);
-  out.values.resize(std::size_t(element_count(out.shape)));
-  if (!out.values.empty())
+  out.shape = shape;
+  std::vector<hsize_t> start(shape.size(), 0), count = shape;
+  if (row) {
+    if (rank < 1 || *row >= shape[0])
+      fail(where, "dataset '" + name + "' has no row " + std::to_string(*row) + " (shape " + shape_text(shape) + ")");
+    start[0] = *row;
+    count[0] = 1;
+    out.shape.erase(out.shape.begin());
+  }
+  // The bytes asked for, in double (a product of declared extents can exceed any integer).
+  double values = 1;
+  for (const hsize_t c : count) values *= double(c);
+  const double bytes = values * double(sizeof(T)), memory = double(physical_memory());
+  if (values > double(std::numeric_limits<std::ptrdiff_t>::max() / sizeof(T)) || (memory > 0 && bytes > memory))
+    fail(where, "dataset '" + name + "' declares shape " + shape_text(shape) + ": reading " +
+                    (row ? "one row" : "it") + " needs " + format_number(bytes) +
+                    " bytes, more than this machine's memory (a damaged file?)");
+  out.values = reporting_bad_alloc("reading dataset '" + name + "' of " + where,
+                                   [&] { return std::vector<T>(std::size_t(values)); });
+  if (out.values.empty()) return out;
+  if (!row) {
     check_status(H5Dread(set.get(), mem_type, H5S_ALL, H5S_ALL, H5P_DEFAULT, out.values.data()),
                  where, "cannot read dataset '" + name + "'");
+    return out;
+  }
+  check_status(H5Sselect_hyperslab(space.get(), H5S_SELECT_SET, start.data(), nullptr, count.data(), nullptr),
+               where, "cannot select row " + std::to_string(*row) + " of dataset '" + name + "'");
+  Handle memspace = make_space(count, where);
+  check_status(H5Dread(set.get(), mem_type, memspace.get(), space.get(), H5P_DEFAULT, out.values.data()),
+               where, "cannot read row " + std::to_string(*row) + " of dataset '" + name + "'");
   return out;
 }
 
@@ -163,8 +242,12 @@ void Handle::reset() {
 File File::create(const std::string& path, bool exclusive, const std::string& where) {
   quiet();
   const hid_t id = H5Fcreate(path.c_str(), exclusive ? H5F_ACC_EXCL : H5F_ACC_TRUNC, H5P_DEFAULT, H5P_DEFAULT);
-  if (id < 0)
-    fail(where.empty() ? path : where, "cannot create the HDF5 file (does its folder exist and is it writable?)");
+  if (id < 0) {
+    const std::string reason = system_reason();
+    fail(where.empty() ? path : where,
+         "cannot create the HDF5 file" +
+             (reason.empty() ? std::string(" (does its folder exist and is it writable?)") : ": " + reason));
+  }
   return File(Handle(id), where.empty() ? path : where);
 }
 
@@ -200,11 +283,15 @@ void File::flush() {
 
 void File::close() {
   if (!handle_.valid()) return;
-  const hid_t id = handle_.get();
-  const herr_t flushed = H5Fflush(id, H5F_SCOPE_GLOBAL);
-  const herr_t closed = H5Fclose(id);
-  handle_ = Handle();  // already closed above
-  if (flushed < 0 || closed < 0) fail(path_, "cannot flush and close the HDF5 file");
+  // The handle gives the id up first: after a failed H5Fclose the id must not be closed again (a
+  // second H5Fclose of a file whose close failed half-way crashed inside HDF5).
+  const hid_t id = handle_.release();
+  if (H5Fflush(id, H5F_SCOPE_GLOBAL) < 0) {
+    const std::string reason = system_reason();
+    H5Fclose(id);  // the file is lost either way; its id is released once
+    fail(path_, "cannot write the HDF5 file" + (reason.empty() ? std::string() : ": " + reason));
+  }
+  check_status(H5Fclose(id), path_, "cannot close the HDF5 file");
 }
 
 void write_file_atomically(const std::string& path, const std::function<void(hid_t root)>& fill) {
@@ -401,6 +488,22 @@ Array<double> read_doubles(hid_t loc, const std::string& name, const std::string
 
 Array<int64_t> read_ints(hid_t loc, const std::string& name, const std::string& where) {
   return read_dataset<int64_t>(loc, name, H5T_NATIVE_INT64, H5T_INTEGER, where);
+}
+
+Array<double> read_doubles_row(hid_t loc, const std::string& name, hsize_t row, const std::string& where) {
+  return read_dataset<double>(loc, name, H5T_NATIVE_DOUBLE, H5T_FLOAT, where, &row);
+}
+
+std::vector<hsize_t> dataset_shape(hid_t loc, const std::string& name, const std::string& where) {
+  quiet();
+  if (!exists(loc, name)) fail(where, "no dataset '" + name + "'");
+  Handle set(check(H5Dopen2(loc, name.c_str(), H5P_DEFAULT), where, "'" + name + "' is not a dataset"));
+  Handle space(check(H5Dget_space(set.get()), where, "cannot read the shape of '" + name + "'"));
+  const int rank = H5Sget_simple_extent_ndims(space.get());
+  if (rank < 0) fail(where, "cannot read the shape of '" + name + "'");
+  std::vector<hsize_t> shape(static_cast<std::size_t>(rank));
+  if (rank > 0) H5Sget_simple_extent_dims(space.get(), shape.data(), nullptr);
+  return shape;
 }
 
 void write_attribute(hid_t obj, const std::string& name, const std::string& value,

@@ -36,6 +36,8 @@ class Handle {
   hid_t get() const { return id_; }
   bool valid() const { return id_ >= 0; }
   void reset();
+  // Gives up ownership: returns the id, which the caller closes, and leaves the handle empty.
+  hid_t release() { return std::exchange(id_, H5I_INVALID_HID); }
 
  private:
   hid_t id_ = H5I_INVALID_HID;
@@ -130,6 +132,11 @@ std::string object_path(hid_t obj);
 
 Array<double> read_doubles(hid_t loc, const std::string& name, const std::string& where);
 Array<int64_t> read_ints(hid_t loc, const std::string& name, const std::string& where);
+// One index `row` of the dataset's first axis (one frame of frames x ...), read by a hyperslab
+// selection without the other rows; the shape returned lacks the first axis.
+Array<double> read_doubles_row(hid_t loc, const std::string& name, hsize_t row, const std::string& where);
+// The dataset's shape, without reading it.
+std::vector<hsize_t> dataset_shape(hid_t loc, const std::string& name, const std::string& where);
 
 void write_attribute(hid_t obj, const std::string& name, const std::string& value,
                      const std::string& where);

@@ -68,6 +68,9 @@ CheckpointInfo read_checkpoint(const std::string& path, MdState& state, const Ch
   state.config.positions = pos.values;
   state.velocities = vel.values;
   state.step = h5::read_int_attribute(root, "step", path);
+  if (state.step < 0)
+    throw Error(path + ": its step is " + std::to_string(state.step) +
+                "; a checkpoint's step is 0 or more (the file is damaged or was not written by cellforce)");
   CheckpointInfo saved = expected;
   saved.scene = h5::read_string_attribute(root, "scene", path).at(0);
   saved.backend = h5::read_string_attribute(root, "backend", path).at(0);

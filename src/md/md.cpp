@@ -5,6 +5,7 @@
 
 #include "core/box.h"
 #include "core/error.h"
+#include "core/text.h"
 
 namespace cellforce {
 namespace {
@@ -20,22 +21,43 @@ double unit_open(uint64_t bits) {  // (0, 1), 53 random bits
   return (double(bits >> 11) + 0.5) * 0x1.0p-53;
 }
 
-// Wraps positions into [0, L) on periodic axes. Positions start each step inside the box, so one
-// that is now more than a box length outside it (or not finite) means the integration diverged.
+[[noreturn]] void throw_diverged(std::size_t i, int axis, double displacement) {
+  throw Error("particle " + std::to_string(i) + " moved more than a box length in one step (" +
+              std::string(1, "xyz"[axis]) + " displacement " + format_number(displacement) +
+              "): the integration diverged; lower dt, or remove overlaps first");
+}
+
+// Moves every particle by h * v. A displacement that is not finite, or longer than `limit` times
+// the box length on a periodic axis, means the integration diverged: the check compares
+// displacements, never raw coordinates, so an unwrapped start is no divergence.
+void drift(MdState& s, double h, double limit) {
+  const Box& box = s.config.box;
+  const int dim = box.dim;
+  const std::size_t n = s.config.size();
+  for (int a = 0; a < dim; ++a) {
+    const double most = box.periodic[a] ? limit * box.length[a] : std::numeric_limits<double>::infinity();
+    for (std::size_t i = 0; i < n; ++i) {
+      const double dx = h * s.velocities[i * dim + a];
+      if (!(std::abs(dx) <= most)) throw_diverged(i, a, dx);  // also catches nan
+      s.config.positions[i * dim + a] += dx;
+    }
+  }
+}
+
+// Wraps positions into [0, L) on periodic axes; a position that is no longer finite (an open axis
+// that ran away) is named.
 void wrap(MdState& s) {
   const Box& box = s.config.box;
   const int dim = box.dim;
   const std::size_t n = s.config.size();
   for (int a = 0; a < dim; ++a) {
-    const double length = box.length[a], inv = 1.0 / length;
     for (std::size_t i = 0; i < n; ++i) {
       double& x = s.config.positions[i * dim + a];
-      const bool lost = !std::isfinite(x) || (box.periodic[a] && (x < -length || x >= 2.0 * length));
-      if (lost)
-        throw Error("particle " + std::to_string(i) + " moved more than a box length in one step (" +
-                    std::string(1, "xyz"[a]) + " = " + std::to_string(x) +
+      if (!std::isfinite(x))
+        throw Error("particle " + std::to_string(i) + " left the finite numbers in one step (" +
+                    std::string(1, "xyz"[a]) + " = " + format_number(x) +
                     "): the integration diverged; lower dt, or remove overlaps first");
-      if (box.periodic[a]) x = wrap_coordinate(x, length, inv);
+      if (box.periodic[a]) x = wrap_coordinate(x, box.length[a]);
     }
   }
 }
@@ -120,12 +142,9 @@ void advance(MdState& s, const std::vector<double>& masses, const IntegratorSett
       for (int a = 0; a < dim; ++a) s.velocities[i * dim + a] += hm * s.forces[i * dim + a];
     }
   };
-  auto drift = [&](double h) {
-    for (std::size_t k = 0; k < n * std::size_t(dim); ++k) s.config.positions[k] += h * s.velocities[k];
-  };
   kick(0.5 * dt);
   if (settings.langevin) {
-    drift(0.5 * dt);
+    drift(s, 0.5 * dt, 0.5);  // two half drifts of at most L / 2: a step of at most L
     const double c1 = std::exp(-settings.friction * dt);
     const double c2 = std::sqrt(1.0 - c1 * c1);
     // stream = step number + 1 (stream 0 draws the initial velocities)
@@ -135,9 +154,9 @@ void advance(MdState& s, const std::vector<double>& masses, const IntegratorSett
       for (int a = 0; a < dim; ++a)
         s.velocities[i * dim + a] = c1 * s.velocities[i * dim + a] + sigma * counter_normal(settings.seed, stream, i * dim + a);
     }
-    drift(0.5 * dt);
+    drift(s, 0.5 * dt, 0.5);
   } else {
-    drift(dt);
+    drift(s, dt, 1.0);
   }
   wrap(s);
   s.step += 1;

@@ -63,7 +63,9 @@ struct IntegratorSettings {
 //   Langevin, BAOAB (Leimkuhler & Matthews): v += dt/2 F/m; x += dt/2 v;
 //     v = c1 v + sqrt((1 - c1^2) kT/m) xi, c1 = exp(-gamma dt); x += dt/2 v; F(x); v += dt/2 F/m
 // Positions are wrapped into the box on periodic axes after the drift. Throws cellforce::Error
-// naming the particle when a position is no longer finite (the integration diverged).
+// naming the particle when its displacement in one step is not finite or longer than the box on a
+// periodic axis, or its position is no longer finite (the integration diverged). Positions given
+// outside the box are no divergence: the check looks at displacements only.
 void advance(MdState& state, const std::vector<double>& masses, const IntegratorSettings& settings,
              const std::function<void(MdState&)>& compute_forces);
 

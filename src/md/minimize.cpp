@@ -48,13 +48,13 @@ void wrap_positions(MdState& s) {
   const int dim = box.dim;
   const std::size_t n = s.config.size();
   for (int a = 0; a < dim; ++a) {
-    const double length = box.length[a], inv = 1.0 / length;
+    const double length = box.length[a];
     for (std::size_t i = 0; i < n; ++i) {
       double& x = s.config.positions[i * std::size_t(dim) + std::size_t(a)];
       if (!std::isfinite(x))
         throw Error("FIRE: particle " + std::to_string(i) + " has a non-finite position (" +
                     std::string(1, "xyz"[a]) + " = " + number(x) + "): its force was not finite");
-      if (box.periodic[a]) x = wrap_coordinate(x, length, inv);
+      if (box.periodic[a]) x = wrap_coordinate(x, length);
     }
   }
 }
@@ -210,8 +210,8 @@ void check_stable_start(const MdState& s, const std::vector<double>& masses, dou
     double r2 = 0;
     for (std::size_t a = 0; a < dim; ++a) {
       const double inv = box.periodic[a] ? 1.0 / box.length[a] : 0.0;
-      const double d = minimum_image(s.config.positions[i * dim + a] - s.config.positions[j * dim + a],
-                                     box.length[a], inv);
+      const double d = separation(s.config.positions[i * dim + a], s.config.positions[j * dim + a],
+                                  box.length[a], inv);
       r2 += d * d;
     }
     if (r2 < nearest2) nearest2 = r2, nearest = j;

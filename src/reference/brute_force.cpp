@@ -28,7 +28,7 @@ struct Geometry {
   double separation(const double* x, std::size_t i, std::size_t j, double d[kMaxDim]) const {
     double r2 = 0;
     for (int a = 0; a < dim; ++a) {
-      d[a] = minimum_image(x[i * dim + a] - x[j * dim + a], length[a], inv_length[a]);
+      d[a] = cellforce::separation(x[i * dim + a], x[j * dim + a], length[a], inv_length[a]);
       r2 += d[a] * d[a];
     }
     return r2;

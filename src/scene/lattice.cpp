@@ -31,6 +31,13 @@ Basis basis_of(Lattice lattice) {
 
 int lattice_dimension(Lattice lattice) { return basis_of(lattice).dim; }
 
+double lattice_site_count(Lattice lattice, std::array<int, 3> cells) {
+  const Basis b = basis_of(lattice);
+  double n = double(b.sites.size());
+  for (int ax = 0; ax < b.dim; ++ax) n *= double(cells[std::size_t(ax)]);
+  return n;
+}
+
 double lattice_constant_for(Lattice lattice, double density) {
   if (!(density > 0) || !std::isfinite(density))
     throw Error("lattice density must be finite and > 0, got " + std::to_string(density));

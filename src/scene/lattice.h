@@ -26,6 +26,9 @@ enum class Lattice : uint8_t { kSimpleCubic, kBcc, kFcc, kSquare, kHexagonal };
 // lattice's extent, all particles type 0. fcc: 4 per cell, bcc: 2, sc and square: 1; hexagonal
 // (2D, triangular): a rectangular cell a x a*sqrt(3) holding 2.
 Configuration make_lattice_cells(Lattice lattice, std::array<int, 3> cells, double a);
+// The particles make_lattice_cells places, as a double (the product of three counts may exceed
+// any integer): checked against the memory before anything is allocated.
+double lattice_site_count(Lattice lattice, std::array<int, 3> cells);
 // The lattice constant that gives the number density (particles per volume, or per area in 2D).
 double lattice_constant_for(Lattice lattice, double density);
 // Lattice dimension: 2 for square and hexagonal, else 3.

@@ -4,6 +4,7 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <limits>
 #include <map>
 #include <optional>
 #include <random>
@@ -12,6 +13,8 @@
 #include <toml++/toml.h>
 
 #include "core/error.h"
+#include "core/memory.h"
+#include "core/text.h"
 #include "io/configuration_file.h"
 
 namespace cellforce {
@@ -50,20 +53,24 @@ class Section {
   }
   double positive(const std::string& key, double fallback) {
     const double v = number(key, fallback);
-    if (!(v > 0) || !std::isfinite(v)) fail(key, "must be a finite number > 0, got " + std::to_string(v));
+    if (!(v > 0) || !std::isfinite(v)) fail(key, "must be a finite number > 0, got " + format_number(v));
     return v;
   }
   double non_negative(const std::string& key, double fallback) {
     const double v = number(key, fallback);
-    if (!(v >= 0) || !std::isfinite(v)) fail(key, "must be a finite number >= 0, got " + std::to_string(v));
+    if (!(v >= 0) || !std::isfinite(v)) fail(key, "must be a finite number >= 0, got " + format_number(v));
     return v;
   }
-  int64_t integer(const std::string& key, int64_t fallback, int64_t min) {
+  // An integer in [min, max]; every caller passes the range of the type it stores the value in,
+  // so that no value wraps (cells = 4294967301 is not 5).
+  int64_t integer(const std::string& key, int64_t fallback, int64_t min,
+                  int64_t max = std::numeric_limits<int64_t>::max()) {
     const toml::node* n = node(key);
     if (!n) return fallback;
     if (!n->is_integer()) fail(key, "expected an integer");
     const int64_t v = *n->value<int64_t>();
     if (v < min) fail(key, "must be at least " + std::to_string(min) + ", got " + std::to_string(v));
+    if (v > max) fail(key, "must be at most " + std::to_string(max) + ", got " + std::to_string(v));
     return v;
   }
   bool boolean(const std::string& key, bool fallback) {
@@ -87,7 +94,7 @@ class Section {
     if (it == names.end()) {
       std::string list;
       for (const auto& [k, v] : names) list += (list.empty() ? "" : ", ") + k;
-      fail(key, "'" + s + "' is not one of " + list);
+      fail(key, quote_excerpt(s) + " is not one of " + list);
     }
     return it->second;
   }
@@ -108,7 +115,12 @@ class Section {
         out[k] = *e.value<bool>();
       } else if constexpr (std::is_integral_v<T>) {
         if (!e.is_integer()) fail(key, "expected integers");
-        out[k] = T(*e.value<int64_t>());
+        const int64_t v = *e.value<int64_t>();
+        if (v < int64_t(std::numeric_limits<T>::min()) || v > int64_t(std::numeric_limits<T>::max()))
+          fail(key, "entry " + std::to_string(k + 1) + " is " + std::to_string(v) + ", outside " +
+                        std::to_string(std::numeric_limits<T>::min()) + " .. " +
+                        std::to_string(std::numeric_limits<T>::max()));
+        out[k] = T(v);
       } else {
         if (!(e.is_integer() || e.is_floating_point())) fail(key, "expected numbers");
         out[k] = T(*e.value<double>());
@@ -212,12 +224,13 @@ Scene parse_scene(const std::string& text, const std::string& name, const std::s
                                                   "neighbor"};
   for (const auto& [key, value] : root)
     if (!kSections.count(std::string(key.str())))
-      throw Error(name + ":" + std::to_string(value.source().begin.line) + ": unknown section or key '" +
-                  std::string(key.str()) + "'");
+      throw Error(name + ":" + std::to_string(value.source().begin.line) + ": unknown section or key " +
+                  quote_excerpt(key.str()));
 
   Section sys = section(root, "system", name);
-  scene.dim = int(sys.integer("dimension", 3, 2));
-  if (scene.dim != 2 && scene.dim != 3) sys.fail("dimension", "must be 2 or 3");
+  const int64_t dimension = sys.integer("dimension", 3, 2);
+  if (dimension != 2 && dimension != 3) sys.fail("dimension", "must be 2 or 3, got " + std::to_string(dimension));
+  scene.dim = int(dimension);
   if (auto p = sys.vector<bool>("periodic", scene.dim)) scene.periodic = *p;
   if (scene.dim == 2) scene.periodic[2] = false;
   sys.finish();
@@ -236,7 +249,7 @@ Scene parse_scene(const std::string& text, const std::string& name, const std::s
     Section ts(t, "types", name, int64_t(t->source().begin.line));
     const std::string type_name = ts.string("name", "");
     if (type_name.empty()) ts.fail("name", "every [[types]] needs a name");
-    if (!type_index.emplace(type_name, ff.types.size()).second) ts.fail("name", "type '" + type_name + "' is defined twice");
+    if (!type_index.emplace(type_name, ff.types.size()).second) ts.fail("name", "type " + quote_excerpt(type_name) + " is defined twice");
     ParticleType pt{type_name, ts.positive("sigma", 1.0), ts.non_negative("epsilon", 1.0)};
     ff.types.push_back(pt);
     scene.masses.push_back(ts.positive("mass", 1.0));
@@ -259,7 +272,7 @@ Scene parse_scene(const std::string& text, const std::string& name, const std::s
       for (std::size_t e = 0; e < 2; ++e) {
         const std::string tn = *names->get(e)->value<std::string>();
         const auto it = type_index.find(tn);
-        if (it == type_index.end()) ps.fail("types", "type '" + tn + "' is not defined in [[types]]");
+        if (it == type_index.end()) ps.fail("types", "type " + quote_excerpt(tn) + " is not defined in [[types]]");
         ab[e] = it->second;
       }
       for (const PairOverride& o : ff.overrides)
@@ -283,8 +296,8 @@ Scene parse_scene(const std::string& text, const std::string& name, const std::s
     for (const auto& [key, value] : *c) {
       const std::string tn(key.str());
       if (!type_index.count(tn))
-        throw Error(name + ":" + std::to_string(value.source().begin.line) + ": [particles] composition: type '" +
-                    tn + "' is not defined in [[types]]");
+        throw Error(name + ":" + std::to_string(value.source().begin.line) + ": [particles] composition: type " +
+                    quote_excerpt(tn) + " is not defined in [[types]]");
       const std::optional<double> f = value.value<double>();
       if (!f || !(*f >= 0) || !std::isfinite(*f))
         throw Error(name + ":" + std::to_string(value.source().begin.line) + ": [particles] composition." + tn +
@@ -305,6 +318,16 @@ Scene parse_scene(const std::string& text, const std::string& name, const std::s
     for (int a = 0; a < dim; ++a)
       if (p.cells[std::size_t(a)] < 1) pa.fail("cells", "needs at least one unit cell per axis");
     if (dim == 2) p.cells[2] = 1;
+    {
+      std::string cells_text;
+      for (int a = 0; a < dim; ++a) cells_text += (a ? ", " : "") + std::to_string(p.cells[std::size_t(a)]);
+      check_particle_count(lattice_site_count(p.lattice, p.cells), dim,
+                           pa.where("cells") + " = [" + cells_text + "] (" + [&] {
+                             for (const auto& [lattice_key, l] : kLatticeNames)
+                               if (l == p.lattice) return lattice_key;
+                             return std::string("lattice");
+                           }() + ")");
+    }
     const bool has_density = pa.node("density") != nullptr, has_constant = pa.node("lattice_constant") != nullptr;
     if (has_density && has_constant) pa.fail("lattice_constant", "give density or lattice_constant, not both");
     p.density = pa.positive("density", 0.8442);
@@ -316,6 +339,7 @@ Scene parse_scene(const std::string& text, const std::string& name, const std::s
   } else if (p.source == ParticleSource::kRandom) {
     p.count = std::size_t(pa.integer("count", 0, 1));
     if (!pa.node("count")) pa.fail("count", "random placement needs count");
+    check_particle_count(double(p.count), dim, pa.where("count") + " = " + std::to_string(p.count));
     auto b = pa.vector<double>("box", dim);
     if (!b) pa.fail("box", "random placement needs box = [Lx, Ly" + std::string(dim == 3 ? ", Lz]" : "]"));
     p.box = *b;
@@ -480,8 +504,32 @@ std::vector<uint32_t> assign_types(const Scene& scene, std::size_t n) {
 
 }  // namespace
 
-Configuration build_configuration(const Scene& scene) {
+namespace {
+
+// Wraps every coordinate on a periodic axis into [0, L), exactly (wrap_coordinate); returns the
+// number of particles that moved.
+std::size_t wrap_into_box(Configuration& c) {
+  const int dim = c.box.dim;
+  std::size_t moved = 0;
+  for (std::size_t i = 0; i < c.size(); ++i) {
+    bool outside = false;
+    for (int a = 0; a < dim; ++a) {
+      if (!c.box.periodic[a]) continue;
+      double& x = c.positions[i * std::size_t(dim) + std::size_t(a)];
+      const double w = wrap_coordinate(x, c.box.length[a]);
+      outside = outside || w != x;
+      x = w;
+    }
+    moved += outside ? 1 : 0;
+  }
+  return moved;
+}
+
+}  // namespace
+
+Configuration build_configuration(const Scene& scene, std::size_t* wrapped) {
   const SceneParticles& p = scene.particles;
+  if (wrapped) *wrapped = 0;
   const int dim = scene.dim;
   Configuration c;
   if (p.source == ParticleSource::kFile) {
@@ -498,7 +546,7 @@ Configuration build_configuration(const Scene& scene) {
         std::size_t first = 0;
         while (f.species[f.config.types[first]] != s) ++first;
         throw Error("[particles] path: particle " + std::to_string(first) + " of " + f.source +
-                    " has species '" + s + "', which no [[types]] names");
+                    " has species " + quote_excerpt(s) + ", which no [[types]] names");
       }
       type_of_species.push_back(it->second);
     }
@@ -507,6 +555,9 @@ Configuration build_configuration(const Scene& scene) {
       if (f.config.box.periodic[a] != scene.periodic[std::size_t(a)])
         throw Error("[system] periodic: axis " + std::string(1, "xyz"[a]) + " is " +
                     (scene.periodic[std::size_t(a)] ? "periodic" : "open") + " in the scene but not in " + f.source);
+    // Not-finite coordinates stay as they are, for validate_system to name the particle.
+    const std::size_t moved = wrap_into_box(f.config);
+    if (wrapped) *wrapped = moved;
     return f.config;
   }
   if (p.source == ParticleSource::kLattice) {
@@ -517,8 +568,8 @@ Configuration build_configuration(const Scene& scene) {
       if (p.box[std::size_t(a)] > 0) {
         if (p.box[std::size_t(a)] < c.box.length[a] * (1 - 1e-12))
           throw Error("[particles] box: axis " + std::string(1, "xyz"[a]) + " is " +
-                      std::to_string(p.box[std::size_t(a)]) + ", smaller than the lattice's " +
-                      std::to_string(c.box.length[a]));
+                      format_number(p.box[std::size_t(a)]) + ", smaller than the lattice's " +
+                      format_number(c.box.length[a]));
         c.box.length[a] = p.box[std::size_t(a)];
       }
     }
@@ -554,12 +605,7 @@ Configuration build_configuration(const Scene& scene) {
   for (int a = 0; a < kMaxDim; ++a) c.box.periodic[a] = a < dim && scene.periodic[std::size_t(a)];
   if (c.size() == 0) throw Error("[particles]: the scene places no particle (sphere_radius too small?)");
   // Periodic axes: every particle in [0, L), as the integrator keeps them.
-  for (int a = 0; a < dim; ++a)
-    if (c.box.periodic[a])
-      for (std::size_t i = 0; i < c.size(); ++i) {
-        double& x = c.positions[i * std::size_t(dim) + std::size_t(a)];
-        x = wrap_coordinate(x, c.box.length[a], 1.0 / c.box.length[a]);
-      }
+  wrap_into_box(c);
   c.types = assign_types(scene, c.size());
   return c;
 }

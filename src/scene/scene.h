@@ -136,6 +136,8 @@ uint64_t scene_fingerprint(const Scene& scene);
 
 // The scene's starting configuration (box, positions, types) and the names of its types.
 // Lattice and random placements are deterministic for the scene's seed.
-Configuration build_configuration(const Scene& scene);
+// Positions on periodic axes are wrapped into [0, L) (a file may hold unwrapped coordinates, as
+// LAMMPS and OpenMM write them); `wrapped`, when given, receives how many particles were moved.
+Configuration build_configuration(const Scene& scene, std::size_t* wrapped = nullptr);
 
 }  // namespace cellforce
