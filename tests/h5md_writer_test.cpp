@@ -519,28 +519,7 @@ TEST_F(H5mdTrajectory, BadArgumentsAreRefusedBeforeTheFileChanges) {
   expect_holds(p, run, 0, 1);
 }
 
-// While alive: files of this process cannot grow beyond `bytes` (writes fail with EFBIG instead
-// of raising SIGXFSZ), which makes HDF5's next write to disk fail.
-class FileSizeLimit {
- public:
-  explicit FileSizeLimit(rlim_t bytes) {
-    ::getrlimit(RLIMIT_FSIZE, &old_);
-    old_handler_ = ::signal(SIGXFSZ, SIG_IGN);
-    rlimit limit = old_;
-    limit.rlim_cur = bytes;
-    ::setrlimit(RLIMIT_FSIZE, &limit);
-  }
-  ~FileSizeLimit() {
-    ::setrlimit(RLIMIT_FSIZE, &old_);
-    ::signal(SIGXFSZ, old_handler_);
-  }
-  FileSizeLimit(const FileSizeLimit&) = delete;
-  FileSizeLimit& operator=(const FileSizeLimit&) = delete;
-
- private:
-  rlimit old_{};
-  void (*old_handler_)(int) = nullptr;
-};
+using cftest::FileSizeLimit;
 
 // A frame whose writing fails (here: the disk refuses to grow the file) is reported and not
 // counted; where HDF5 cannot shrink the datasets back (it cannot, after a failed write of a
@@ -554,7 +533,7 @@ TEST_F(H5mdTrajectory, AFailedWriteFrameLeavesNoFrameBehind) {
   run.write(w, 1);
   {
     const FileSizeLimit limit(fs::file_size(p));
-    EXPECT_THAT(error_of([&] { run.write(w, 2); }), HasSubstr(p + ": cannot flush the HDF5 file"));
+    EXPECT_THAT(error_of([&] { run.write(w, 2); }), HasSubstr(p + ": cannot write the HDF5 file: the file is larger than the system allows"));
     EXPECT_EQ(w.frames(), 2u);
     EXPECT_EQ(w.last_step(), run.step(1));
   }

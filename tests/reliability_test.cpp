@@ -100,35 +100,11 @@ RunArgs quiet_run(const std::string& scene) {
 
 // ---- 1: full disk ---------------------------------------------------------------------------------
 
-// Limits the size of the files this process may write while it lives (the soft limit; restored
-// afterwards), with SIGXFSZ ignored as main() ignores it, so that a write beyond the limit fails
-// with EFBIG like a write to a full disk fails with ENOSPC. The old crash (a second H5Fclose of a
-// file whose close failed) ends the whole test binary with a signal: the test cannot pass then.
-class FileSizeLimit {
- public:
-  explicit FileSizeLimit(rlim_t bytes) {
-    getrlimit(RLIMIT_FSIZE, &saved_);
-    previous_ = std::signal(SIGXFSZ, SIG_IGN);
-    rlimit limit = saved_;
-    limit.rlim_cur = std::min(bytes, saved_.rlim_max);
-    ok_ = setrlimit(RLIMIT_FSIZE, &limit) == 0;
-  }
-  ~FileSizeLimit() {
-    setrlimit(RLIMIT_FSIZE, &saved_);
-    std::signal(SIGXFSZ, previous_);
-  }
-  bool ok() const { return ok_; }
-
- private:
-  rlimit saved_{};
-  void (*previous_)(int) = SIG_DFL;
-  bool ok_ = false;
-};
-
-// The Error message of `command` run under a file-size limit.
+// The Error message of `command` run under a file-size limit. The old crash (a second H5Fclose of
+// a file whose close failed) ends the whole test binary with a signal: the test cannot pass then.
 template <class F>
 std::string error_under_limit(rlim_t bytes, F&& command) {
-  FileSizeLimit limit(bytes);
+  cftest::FileSizeLimit limit(bytes);
   if (!limit.ok()) return "setrlimit failed";
   return error_of(command);
 }
@@ -319,6 +295,22 @@ TEST_F(Folder, CheckpointWithANegativeStepOrBeyondTheOutputsIsRefusedAndChangesN
   // The checkpoint of this run continues it.
   args.restart = "ckpt.h5";
   EXPECT_EQ(run_md(args), 0);
+}
+
+// A file with no entry up to the checkpoint is continued, not refused as a gap: a trajectory
+// added at a restart (its first frame after the checkpoint), then that restart repeated.
+TEST_F(Folder, RestartContinuesAFileThatStartedAfterTheCheckpoint) {
+  std::ofstream("scene.toml") << scene_text("thermo_every = 5\nthermo_file = \"thermo.csv\"\ncheckpoint = \"ckpt.h5\"\n", 10);
+  ASSERT_EQ(run_md(quiet_run("scene.toml")), 0);
+  fs::copy_file("ckpt.h5", "ckpt10.h5");
+  RunArgs args = quiet_run("scene.toml");
+  args.steps = 30;
+  args.restart = "ckpt10.h5";
+  args.trajectory = "t.h5";
+  args.trajectory_every = 100;
+  ASSERT_EQ(run_md(args), 0);
+  ASSERT_TRUE(fs::exists("t.h5"));
+  EXPECT_EQ(run_md(args), 0);  // again from step 10: t.h5 holds nothing up to it
 }
 
 // ---- 6: very large boxes ------------------------------------------------------------------------

@@ -1,8 +1,11 @@
 // Helpers of the tests that read and write files: a fresh folder per test, the message of the
-// cellforce::Error a call throws, and the backends this machine can run.
+// cellforce::Error a call throws, a file-size limit (a full disk without one), and the backends
+// this machine can run.
 #pragma once
 
 #include <gtest/gtest.h>
+#include <signal.h>
+#include <sys/resource.h>
 #include <unistd.h>
 
 #include <filesystem>
@@ -73,6 +76,32 @@ std::string error_of(F&& f) {
   ADD_FAILURE() << "no cellforce::Error was thrown";
   return {};
 }
+
+// While alive: files of this process cannot grow beyond `bytes` (the soft limit; restored
+// afterwards), and a write beyond it fails with EFBIG instead of raising SIGXFSZ (ignored, as
+// cellforce's main() ignores it), as a write to a full disk fails with ENOSPC.
+class FileSizeLimit {
+ public:
+  explicit FileSizeLimit(rlim_t bytes) {
+    ::getrlimit(RLIMIT_FSIZE, &old_);
+    old_handler_ = ::signal(SIGXFSZ, SIG_IGN);
+    rlimit limit = old_;
+    limit.rlim_cur = bytes < old_.rlim_max ? bytes : old_.rlim_max;
+    ok_ = ::setrlimit(RLIMIT_FSIZE, &limit) == 0;
+  }
+  ~FileSizeLimit() {
+    ::setrlimit(RLIMIT_FSIZE, &old_);
+    ::signal(SIGXFSZ, old_handler_);
+  }
+  FileSizeLimit(const FileSizeLimit&) = delete;
+  FileSizeLimit& operator=(const FileSizeLimit&) = delete;
+  bool ok() const { return ok_; }
+
+ private:
+  rlimit old_{};
+  void (*old_handler_)(int) = nullptr;
+  bool ok_ = false;
+};
 
 // "cpu", and "cuda" where a CUDA device can be used.
 inline std::vector<std::string> backends_here() {

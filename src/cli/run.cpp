@@ -156,9 +156,11 @@ ThermoRows read_thermo_rows(const std::string& path) {
 }
 
 // A restart continues the rows (frames) of an earlier run's file from the checkpoint's step on;
-// the file must then hold that run's rows up to the checkpoint, or the continued file would have
-// a gap (a checkpoint of another, longer run; a file cut short). `steps` are the file's, in order;
-// `every` the run's interval (the file's own, read from its first two entries, when larger).
+// where the file holds entries before the checkpoint, they must reach to within one interval of
+// it, or the continued file would have a gap (a checkpoint of another, longer run; a file cut
+// short). A file with no entry up to the checkpoint (started by an earlier restart, or added to
+// the scene since) is continued as it is. `steps` are the file's, in order; `every` the run's
+// interval (the file's own, read from its first two entries, when larger).
 void check_covers(const std::vector<int64_t>& steps, int64_t checkpoint_step, int64_t every, const std::string& path,
                   const std::string& restart, const char* what) {
   int64_t spacing = every;
@@ -166,11 +168,11 @@ void check_covers(const std::vector<int64_t>& steps, int64_t checkpoint_step, in
   int64_t last = -1;
   for (const int64_t s : steps)
     if (s <= checkpoint_step) last = std::max(last, s);
-  if (last < 0 || last + spacing <= checkpoint_step)
+  if (last >= 0 && checkpoint_step - last >= spacing)  // a difference: no overflow near INT64_MAX
     throw Error(restart + ": checkpoint at step " + std::to_string(checkpoint_step) + ", but " + path + " holds " +
-                what + (last < 0 ? " after it only, or none" : " up to step " + std::to_string(last) + " only") +
-                ": continuing would leave a gap (is the checkpoint from another run? --overwrite starts afresh "
-                "instead)");
+                what + " up to step " + std::to_string(last) +
+                " only: continuing would leave a gap (is the checkpoint from another run? --overwrite starts "
+                "afresh instead)");
 }
 
 void write_text_atomically(const std::string& path, const std::vector<std::string>& lines) {

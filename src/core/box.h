@@ -41,7 +41,7 @@ CF_HD Real wrap_coordinate(Real x, Real length) {
   if (!(x - x == Real(0))) return x;          // inf or nan: left for the caller's checks to name
   Real w = std::fmod(x, length);
   if (w < Real(0)) w += length;
-  return w >= length ? Real(0) : w;
+  return w >= length ? Real(0) : w + Real(0);  // + 0: x = -k L gives fmod -0, returned as +0
 }
 
 // Minimum image of a separation along one axis; inv_length == 0 marks an open axis (no change).

@@ -143,7 +143,7 @@ void check_staging(const Grid& g, double physical_cutoff, Precision precision) {
   const double rounding = std::nextafter(largest, INFINITY) - largest;  // ulp in double
   const double resolution =
       precision == Precision::kDouble
-          ? 256.0 * (std::nextafter(physical_cutoff, INFINITY) - physical_cutoff)
+          ? std::ldexp(physical_cutoff, -40)
           : double(std::nextafter(float(physical_cutoff), INFINITY) - float(physical_cutoff));
   if (rounding <= resolution) return;
   std::ostringstream s;

@@ -99,9 +99,12 @@ CF_HD double cell_center(const Grid& g, int a, int k) {
 
 // Position of x relative to a point of a cell along axis a, as the image nearest to that point on
 // a periodic axis. Forming r_ij from these keeps the digits a far-from-origin coordinate loses;
-// a coordinate far outside a periodic box is wrapped exactly first (separation()).
+// a coordinate outside a periodic box is wrapped exactly first (the point, a cell's centre, is
+// inside it), so x = 1e16 in a box of 10 stages as the point it is modulo L. In-box coordinates
+// (every MD step's) take wrap_coordinate's one-compare path and stage bit for bit as before.
 CF_HD double relative_coordinate(const Grid& g, int a, double x, double point) {
-  return separation(x, point, g.length[a], g.inv_length[a]);
+  if (g.inv_length[a] == 0.0) return x - point;
+  return minimum_image(wrap_coordinate(x, g.length[a]) - point, g.length[a], g.inv_length[a]);
 }
 
 // A staged coordinate in the pair precision. Double pairs take the double value. Float pairs
@@ -209,9 +212,9 @@ Grid make_grid_unchecked(const Box& box, const uint32_t cells[kMaxDim], double h
 // (|x - centre| <= c/2 + h) rounds r_ij by more than the pair precision resolves: coarsening keeps
 // a grid of a huge box (edge 5e9, or one particle 5e9 away on an open axis) within kMaxCells with
 // cells of ~5e6, where each staged coordinate rounds by ~5e-10 in double. Float pairs resolve
-// ulp_float(rc) and take a rounding up to that; double pairs take up to 256 ulp_double(rc) (the
-// double engine's own error is ~1 ulp). Throws cellforce::Error with the cell edge, the rounding
-// and what would help.
+// ulp_float(rc) and take a rounding up to that; double pairs take up to 2^-40 rc (~1e-12 rc, cells
+// up to ~8000 rc wide; the double engine's own error is ~1e-16). Throws cellforce::Error with the
+// cell edge, the rounding and what would help.
 enum class Precision : uint8_t;  // core/engine_options.h (which includes this header)
 void check_staging(const Grid& grid, double physical_cutoff, Precision precision);
 

@@ -5,6 +5,7 @@
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
+#include <fstream>
 
 namespace cellforce {
 namespace {
@@ -33,7 +34,15 @@ std::size_t bytes_per_particle(int dim) {
 
 std::size_t physical_memory() {
   const long pages = ::sysconf(_SC_PHYS_PAGES), page = ::sysconf(_SC_PAGE_SIZE);
-  return pages > 0 && page > 0 ? std::size_t(pages) * std::size_t(page) : 0;
+  std::size_t have = pages > 0 && page > 0 ? std::size_t(pages) * std::size_t(page) : 0;
+  // A container's or batch job's limit (cgroup v2, then v1) when it is lower: "max" or a huge v1
+  // value means none.
+  for (const char* file : {"/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory/memory.limit_in_bytes"}) {
+    std::ifstream in(file);
+    unsigned long long limit = 0;
+    if (in >> limit && limit > 0 && (have == 0 || limit < have)) have = std::size_t(limit);
+  }
+  return have;
 }
 
 void check_particle_count(double n, int dim, const std::string& what) {
@@ -44,8 +53,7 @@ void check_particle_count(double n, int dim, const std::string& what) {
   const double need = n * per, have = double(physical_memory());
   if (have > 0 && need > have)
     throw Error(what + " gives " + count_text(n) + " particles, which need at least " + gigabytes(need) + " (" +
-                std::to_string(std::size_t(per)) + " bytes per particle); this machine has " + gigabytes(have) +
-                " of memory");
+                std::to_string(std::size_t(per)) + " bytes per particle); the memory available here is " + gigabytes(have));
 }
 
 }  // namespace cellforce

@@ -17,7 +17,8 @@ inline constexpr std::size_t kMaxParticles = (std::size_t(1) << 31) - 1;
 // working arrays come on top, so a scene refused by this estimate cannot run.
 std::size_t bytes_per_particle(int dim);
 
-// The physical memory of this machine in bytes, or 0 where it cannot be read.
+// The memory this process may use in bytes: the machine's physical memory, or its cgroup's limit
+// (a container, a batch job) when that is lower; 0 where neither can be read.
 std::size_t physical_memory();
 
 // Throws cellforce::Error when `n` particles (a double: products of counts may exceed any

@@ -25,7 +25,9 @@ inline std::string format_number(double x) {
 // kept as they are.
 inline std::string quote_excerpt(std::string_view text, std::size_t max_bytes = 60) {
   std::string out = "'";
-  const std::size_t shown = text.size() > max_bytes ? max_bytes : text.size();
+  std::size_t shown = text.size() > max_bytes ? max_bytes : text.size();
+  // Cut before a UTF-8 continuation byte, never inside a character.
+  while (shown > 0 && shown < text.size() && (static_cast<unsigned char>(text[shown]) & 0xC0) == 0x80) --shown;
   for (std::size_t k = 0; k < shown; ++k) {
     const auto c = static_cast<unsigned char>(text[k]);
     if (text.substr(k, 3) == "\xEF\xBB\xBF") {

@@ -265,8 +265,11 @@ File File::open_read_write(const std::string& path) {
   if (!std::filesystem::exists(path)) fail(path, "no such file");
   if (!is_hdf5(path)) fail(path, "not an HDF5 file");
   const hid_t id = H5Fopen(path.c_str(), H5F_ACC_RDWR, H5P_DEFAULT);
-  if (id < 0)
-    fail(path, "cannot open the HDF5 file for writing (is it read-only, or open in another program?)");
+  if (id < 0) {
+    const std::string reason = system_reason();
+    fail(path, "cannot open the HDF5 file for writing" +
+                   (reason.empty() ? std::string(" (is it read-only, or open in another program?)") : ": " + reason));
+  }
   return File(Handle(id), path);
 }
 
@@ -278,7 +281,7 @@ bool File::is_hdf5(const std::string& path) {
 
 void File::flush() {
   if (!handle_.valid()) fail(path_, "the HDF5 file is closed");
-  if (H5Fflush(handle_.get(), H5F_SCOPE_GLOBAL) < 0) fail(path_, "cannot flush the HDF5 file");
+  if (H5Fflush(handle_.get(), H5F_SCOPE_GLOBAL) < 0) fail_call(path_, "cannot write the HDF5 file");
 }
 
 void File::close() {

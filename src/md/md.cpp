@@ -21,10 +21,11 @@ double unit_open(uint64_t bits) {  // (0, 1), 53 random bits
   return (double(bits >> 11) + 0.5) * 0x1.0p-53;
 }
 
-[[noreturn]] void throw_diverged(std::size_t i, int axis, double displacement) {
-  throw Error("particle " + std::to_string(i) + " moved more than a box length in one step (" +
-              std::string(1, "xyz"[axis]) + " displacement " + format_number(displacement) +
-              "): the integration diverged; lower dt, or remove overlaps first");
+[[noreturn]] void throw_diverged(std::size_t i, int axis, double displacement, double most, double limit) {
+  throw Error("particle " + std::to_string(i) + " moved " + format_number(displacement) + " along " +
+              std::string(1, "xyz"[axis]) + " in one drift, more than " + format_number(most) +
+              (limit == 1.0 ? " (the box edge)" : " (half the box edge, for each of a step's two half drifts)") +
+              ": the integration diverged; lower dt, or remove overlaps first");
 }
 
 // Moves every particle by h * v. A displacement that is not finite, or longer than `limit` times
@@ -38,7 +39,7 @@ void drift(MdState& s, double h, double limit) {
     const double most = box.periodic[a] ? limit * box.length[a] : std::numeric_limits<double>::infinity();
     for (std::size_t i = 0; i < n; ++i) {
       const double dx = h * s.velocities[i * dim + a];
-      if (!(std::abs(dx) <= most)) throw_diverged(i, a, dx);  // also catches nan
+      if (!(std::abs(dx) <= most)) throw_diverged(i, a, dx, most, limit);  // also catches nan
       s.config.positions[i * dim + a] += dx;
     }
   }

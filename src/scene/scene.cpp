@@ -517,7 +517,7 @@ std::size_t wrap_into_box(Configuration& c) {
       if (!c.box.periodic[a]) continue;
       double& x = c.positions[i * std::size_t(dim) + std::size_t(a)];
       const double w = wrap_coordinate(x, c.box.length[a]);
-      outside = outside || w != x;
+      outside = outside || (std::isfinite(x) && w != x);
       x = w;
     }
     moved += outside ? 1 : 0;
