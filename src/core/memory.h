@@ -4,7 +4,10 @@
 #pragma once
 
 #include <cstddef>
+#include <new>
 #include <string>
+
+#include "core/error.h"
 
 namespace cellforce {
 
@@ -23,22 +26,11 @@ std::size_t physical_memory();
 
 // Throws cellforce::Error when `n` particles (a double: products of counts may exceed any
 // integer) are more than kMaxParticles or need more than the physical memory by the estimate
-// above. `what` names where the count comes from ("[particles] cells = [2000, 2000, 2000] (fcc)").
+// above. `what` names where the count comes from ("[particles] cells = [2000, 2000, 2000]").
 void check_particle_count(double n, int dim, const std::string& what);
 
 // Runs `allocate` and turns a std::bad_alloc it throws into a cellforce::Error that says what
 // was being allocated (`what`), for the sizes the estimate lets through.
-template <class F>
-auto reporting_bad_alloc(const std::string& what, F&& allocate) -> decltype(allocate());
-
-}  // namespace cellforce
-
-#include <new>
-
-#include "core/error.h"
-
-namespace cellforce {
-
 template <class F>
 auto reporting_bad_alloc(const std::string& what, F&& allocate) -> decltype(allocate()) {
   try {

@@ -28,32 +28,25 @@ double unit_open(uint64_t bits) {  // (0, 1), 53 random bits
               ": the integration diverged; lower dt, or remove overlaps first");
 }
 
-// Moves every particle by h * v. A displacement that is not finite, or longer than `limit` times
-// the box length on a periodic axis, means the integration diverged: the check compares
-// displacements, never raw coordinates, so an unwrapped start is no divergence.
-void drift(MdState& s, double h, double limit) {
+// Moves every particle by h * v, in one pass over the arrays. A displacement that is not finite,
+// or longer than `limit` times the box length on a periodic axis, means the integration diverged:
+// the check compares displacements, never raw coordinates, so an unwrapped start is no
+// divergence. With `wrap` (a step's last drift) each moved position is then wrapped into [0, L)
+// on periodic axes; one that is no longer finite (an open axis that ran away) is named.
+void drift(MdState& s, double h, double limit, bool wrap) {
   const Box& box = s.config.box;
   const int dim = box.dim;
   const std::size_t n = s.config.size();
-  for (int a = 0; a < dim; ++a) {
-    const double most = box.periodic[a] ? limit * box.length[a] : std::numeric_limits<double>::infinity();
-    for (std::size_t i = 0; i < n; ++i) {
+  double most[kMaxDim];
+  for (int a = 0; a < dim; ++a)
+    most[a] = box.periodic[a] ? limit * box.length[a] : std::numeric_limits<double>::infinity();
+  for (std::size_t i = 0; i < n; ++i) {
+    for (int a = 0; a < dim; ++a) {
       const double dx = h * s.velocities[i * dim + a];
-      if (!(std::abs(dx) <= most)) throw_diverged(i, a, dx, most, limit);  // also catches nan
-      s.config.positions[i * dim + a] += dx;
-    }
-  }
-}
-
-// Wraps positions into [0, L) on periodic axes; a position that is no longer finite (an open axis
-// that ran away) is named.
-void wrap(MdState& s) {
-  const Box& box = s.config.box;
-  const int dim = box.dim;
-  const std::size_t n = s.config.size();
-  for (int a = 0; a < dim; ++a) {
-    for (std::size_t i = 0; i < n; ++i) {
+      if (!(std::abs(dx) <= most[a])) throw_diverged(i, a, dx, most[a], limit);  // also catches nan
       double& x = s.config.positions[i * dim + a];
+      x += dx;
+      if (!wrap) continue;
       if (!std::isfinite(x))
         throw Error("particle " + std::to_string(i) + " left the finite numbers in one step (" +
                     std::string(1, "xyz"[a]) + " = " + format_number(x) +
@@ -145,7 +138,7 @@ void advance(MdState& s, const std::vector<double>& masses, const IntegratorSett
   };
   kick(0.5 * dt);
   if (settings.langevin) {
-    drift(s, 0.5 * dt, 0.5);  // two half drifts of at most L / 2: a step of at most L
+    drift(s, 0.5 * dt, 0.5, false);  // two half drifts of at most L / 2: a step of at most L
     const double c1 = std::exp(-settings.friction * dt);
     const double c2 = std::sqrt(1.0 - c1 * c1);
     // stream = step number + 1 (stream 0 draws the initial velocities)
@@ -155,11 +148,10 @@ void advance(MdState& s, const std::vector<double>& masses, const IntegratorSett
       for (int a = 0; a < dim; ++a)
         s.velocities[i * dim + a] = c1 * s.velocities[i * dim + a] + sigma * counter_normal(settings.seed, stream, i * dim + a);
     }
-    drift(s, 0.5 * dt, 0.5);
+    drift(s, 0.5 * dt, 0.5, true);
   } else {
-    drift(s, dt, 1.0);
+    drift(s, dt, 1.0, true);
   }
-  wrap(s);
   s.step += 1;
   s.time = double(s.step) * dt;  // not summed: the same after a restart
   compute_forces(s);

@@ -318,16 +318,9 @@ Scene parse_scene(const std::string& text, const std::string& name, const std::s
     for (int a = 0; a < dim; ++a)
       if (p.cells[std::size_t(a)] < 1) pa.fail("cells", "needs at least one unit cell per axis");
     if (dim == 2) p.cells[2] = 1;
-    {
-      std::string cells_text;
-      for (int a = 0; a < dim; ++a) cells_text += (a ? ", " : "") + std::to_string(p.cells[std::size_t(a)]);
-      check_particle_count(lattice_site_count(p.lattice, p.cells), dim,
-                           pa.where("cells") + " = [" + cells_text + "] (" + [&] {
-                             for (const auto& [lattice_key, l] : kLatticeNames)
-                               if (l == p.lattice) return lattice_key;
-                             return std::string("lattice");
-                           }() + ")");
-    }
+    std::string cells_text;
+    for (int a = 0; a < dim; ++a) cells_text += (a ? ", " : "") + std::to_string(p.cells[std::size_t(a)]);
+    check_particle_count(lattice_site_count(p.lattice, p.cells), dim, pa.where("cells") + " = [" + cells_text + "]");
     const bool has_density = pa.node("density") != nullptr, has_constant = pa.node("lattice_constant") != nullptr;
     if (has_density && has_constant) pa.fail("lattice_constant", "give density or lattice_constant, not both");
     p.density = pa.positive("density", 0.8442);
