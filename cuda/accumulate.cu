@@ -46,7 +46,29 @@ __global__ void __launch_bounds__(kSumThreads)
   if (threadIdx.x < kCellSums) totals[threadIdx.x] = double(partial[threadIdx.x][0]);
 }
 
+// totals = (energy, w_xx, w_yy, w_zz, w_xy, w_xz, w_yz) to the caller's energy and row-major
+// dim x dim virial (either may be null).
+__global__ void write_totals_kernel(const double* __restrict__ totals, int dim, double* energy,
+                                    double* virial) {
+  if (threadIdx.x != 0) return;
+  if (energy) *energy = totals[0];
+  if (!virial) return;
+  constexpr int kRow[6] = {0, 1, 2, 0, 0, 1}, kCol[6] = {0, 1, 2, 1, 2, 2};
+  for (int k = 0; k < dim * dim; ++k) virial[k] = 0;
+  for (int k = 0; k < 6; ++k) {
+    if (kRow[k] >= dim || kCol[k] >= dim) continue;
+    virial[kRow[k] * dim + kCol[k]] = totals[1 + k];
+    virial[kCol[k] * dim + kRow[k]] = totals[1 + k];
+  }
+}
+
 }  // namespace
+
+void write_totals(const double* totals, int dim, double* energy, double* virial, cudaStream_t stream) {
+  if (!energy && !virial) return;
+  write_totals_kernel<<<1, 32, 0, stream>>>(totals, dim, energy, virial);
+  CF_CUDA_CHECK_LAUNCH();
+}
 
 template <class Accum>
 void sum_slots(const Accum* force_slots, const Accum* energy_slots, int dim, std::size_t n,

@@ -1,4 +1,4 @@
-// Every CUDA call is checked: a failure becomes a cellforce::Error naming the call and the place.
+// Every CUDA call is checked: a failure becomes a cellforce::DeviceError naming the call and the place.
 #pragma once
 
 #include <cuda_runtime.h>
@@ -11,7 +11,7 @@ namespace cellforce::cuda {
 
 inline void check(cudaError_t err, const char* call, const char* file, int line) {
   if (err != cudaSuccess)
-    throw Error(std::string("CUDA error ") + cudaGetErrorName(err) + " (" + cudaGetErrorString(err) +
+    throw DeviceError(std::string("CUDA error ") + cudaGetErrorName(err) + " (" + cudaGetErrorString(err) +
                 ") in " + call + " at " + file + ":" + std::to_string(line));
 }
 

@@ -128,6 +128,8 @@ struct GpuEngine::Impl {
   ~Impl() {
     for (cudaEvent_t e : events)
       if (e) cudaEventDestroy(e);
+    if (joined) cudaEventDestroy(joined);
+    if (finished) cudaEventDestroy(finished);
     if (stream) cudaStreamDestroy(stream);
   }
 
@@ -148,13 +150,44 @@ struct GpuEngine::Impl {
   }
 
   // The positions (and types) of this evaluation, on every evaluation.
-  void upload_system(const SystemView& sys) {
+  // From the host arrays of `sys`, or, when `on_device` is given, from its device arrays (the same
+  // particles).
+  void upload_system(const SystemView& sys, const DeviceSystemView* on_device = nullptr) {
     record(kStart);
-    upload(positions, sys.positions, sys.n * std::size_t(sys.box.dim), stream);
+    const std::size_t nd = sys.n * std::size_t(sys.box.dim);
     has_types = sys.types != nullptr;
-    if (has_types) upload(types, sys.types, sys.n, stream);
+    if (on_device) {
+      positions.reserve(std::max<std::size_t>(nd, 1));
+      if (nd)
+        CF_CUDA_CHECK(cudaMemcpyAsync(positions.data(), on_device->positions, nd * sizeof(double),
+                                      cudaMemcpyDeviceToDevice, stream));
+      if (has_types) {
+        types.reserve(std::max<std::size_t>(sys.n, 1));
+        if (sys.n)
+          CF_CUDA_CHECK(cudaMemcpyAsync(types.data(), on_device->types, sys.n * sizeof(uint32_t),
+                                        cudaMemcpyDeviceToDevice, stream));
+      }
+    } else {
+      upload(positions, sys.positions, nd, stream);
+      if (has_types) upload(types, sys.types, sys.n, stream);
+    }
     record(kUploaded);
   }
+
+  // Throws for a flag the kernels raised (read after the stream has been synchronised).
+  void throw_flags(const cuda::DeviceFlags& f, const SystemView& system) const {
+    if (f.impossible)
+      throw Error("CUDA engine: a traversal kernel met a particle index out of range (an internal "
+                  "error, not bad input)");
+    if (f.bad_pair != ~0ull) {
+      const auto i = uint32_t(f.bad_pair >> 32), j = uint32_t(f.bad_pair & 0xffffffffu);
+      throw_close_pair(system, i, j, distance2(system, i, j));
+    }
+  }
+
+  cudaEvent_t joined = nullptr, finished = nullptr;  // the caller's stream <-> the engine's
+  std::vector<double> host_positions;                 // evaluate_device's host copies
+  std::vector<uint32_t> host_types;
 
   // Stages 1-3 on the uploaded positions: cell IDs, count, sort, collision cells (split by type
   // for Gauss-Seidel). With a skin, keeps the build's positions (and, for the audit, its keys).
@@ -313,17 +346,19 @@ GpuEngine::GpuEngine(GpuOptions options)
     : options_(std::move(options)), reuse_(options_.reuse), impl_(std::make_unique<Impl>()) {
   validate_reuse(options_.reuse);
   const std::string why = unavailable();
-  if (!why.empty()) throw Error("CUDA engine: " + why);
+  if (!why.empty()) throw DeviceError("CUDA engine: " + why);
   int count = 0;
   CF_CUDA_CHECK(cudaGetDeviceCount(&count));
   if (options_.device < 0 || options_.device >= count)
-    throw Error("CUDA engine: device " + std::to_string(options_.device) + " does not exist (" +
+    throw DeviceError("CUDA engine: device " + std::to_string(options_.device) + " does not exist (" +
                 std::to_string(count) + " device(s))");
   const DeviceScope scope(options_.device);
   CF_CUDA_CHECK(cudaStreamCreateWithFlags(&impl_->stream, cudaStreamNonBlocking));
   CF_CUDA_CHECK(cudaDeviceGetAttribute(&impl_->multiprocessors, cudaDevAttrMultiProcessorCount,
                                        options_.device));
   for (cudaEvent_t& e : impl_->events) CF_CUDA_CHECK(cudaEventCreate(&e));
+  CF_CUDA_CHECK(cudaEventCreateWithFlags(&impl_->joined, cudaEventDisableTiming));
+  CF_CUDA_CHECK(cudaEventCreateWithFlags(&impl_->finished, cudaEventDisableTiming));
 }
 
 GpuEngine::~GpuEngine() {
@@ -335,29 +370,29 @@ GpuEngine::~GpuEngine() {
   }
 }
 
-void GpuEngine::evaluate(const SystemView& system, const ForceField& ff, const Request& request,
-                         ForceResult& result) {
-  const DeviceScope scope(options_.device);
+// Traversal and accumulation in the engine's precision, then the kernels' flags (read after a
+// synchronisation): on an error the caller's result is left as it was (as the CPU engine does).
+void GpuEngine::traverse(const SystemView& system, const ForceField& ff, const Request& request) {
   Impl& s = *impl_;
-  prepare(system, ff);
   const Grid& g = stats_.grid;
   switch (options_.precision) {
     case Precision::kSingle: s.traverse_and_sum<float, float>(options_, g, system, ff, request); break;
     case Precision::kMixed: s.traverse_and_sum<float, double>(options_, g, system, ff, request); break;
     case Precision::kDouble: s.traverse_and_sum<double, double>(options_, g, system, ff, request); break;
   }
-
-  // The flags first: on an error the caller's result is left as it was (as the CPU engine does).
   cuda::DeviceFlags flags{};
   CF_CUDA_CHECK(cudaMemcpyAsync(&flags, s.flags.data(), sizeof(flags), cudaMemcpyDeviceToHost, s.stream));
   CF_CUDA_CHECK(cudaStreamSynchronize(s.stream));
-  if (flags.impossible)
-    throw Error("CUDA engine: a traversal kernel met a particle index out of range (an internal "
-                "error, not bad input)");
-  if (flags.bad_pair != ~0ull) {
-    const auto i = uint32_t(flags.bad_pair >> 32), j = uint32_t(flags.bad_pair & 0xffffffffu);
-    throw_close_pair(system, i, j, distance2(system, i, j));
-  }
+  s.throw_flags(flags, system);
+}
+
+void GpuEngine::evaluate(const SystemView& system, const ForceField& ff, const Request& request,
+                         ForceResult& result) {
+  const DeviceScope scope(options_.device);
+  Impl& s = *impl_;
+  prepare(system, ff);
+  traverse(system, ff, request);
+  const Grid& g = stats_.grid;
 
   const std::size_t n = system.n, dim = std::size_t(g.dim);
   result.dim = g.dim;
@@ -373,6 +408,49 @@ void GpuEngine::evaluate(const SystemView& system, const ForceField& ff, const R
   const double no_virial[6] = {};
   set_virial(result, g.dim, request.virial ? totals + 1 : no_virial);
 
+  finish_timing();
+  audit(system, ff);  // after the total: its host search is no part of the engine's time
+}
+
+void GpuEngine::evaluate_device(const DeviceSystemView& dsys, const ForceField& ff,
+                                const DeviceOutputs& out, void* stream) {
+  const DeviceScope scope(options_.device);
+  Impl& s = *impl_;
+  if (dsys.n > 0 && (!dsys.positions || !out.forces))
+    throw Error(std::string(dsys.positions ? "forces" : "positions") + " is a null pointer (" +
+                std::to_string(dsys.n) + " particles)");
+  const auto caller = static_cast<cudaStream_t>(stream);
+  CF_CUDA_CHECK(cudaEventRecord(s.joined, caller));  // the engine starts after the caller's work
+  CF_CUDA_CHECK(cudaStreamWaitEvent(s.stream, s.joined, 0));
+  // Host copies for validation and grid planning (this is where the call waits for the caller).
+  const std::size_t n = dsys.n, dim = std::size_t(dsys.box.dim);
+  download(s.host_positions, dsys.positions, n * dim, s.stream);
+  if (dsys.types) download(s.host_types, dsys.types, n, s.stream);
+  CF_CUDA_CHECK(cudaStreamSynchronize(s.stream));
+  const SystemView system{dsys.box, n, s.host_positions.data(), dsys.types ? s.host_types.data() : nullptr};
+  const Request request{out.energies || out.energy, out.virial != nullptr};
+  prepare(system, ff, &dsys);
+  traverse(system, ff, request);
+  if (n) {
+    CF_CUDA_CHECK(cudaMemcpyAsync(out.forces, s.forces.data(), n * dim * sizeof(double),
+                                  cudaMemcpyDeviceToDevice, s.stream));
+    if (out.energies)
+      CF_CUDA_CHECK(cudaMemcpyAsync(out.energies, s.energies.data(), n * sizeof(double),
+                                    cudaMemcpyDeviceToDevice, s.stream));
+  }
+  if (request.energy || request.virial)  // sum_cells wrote the totals (zeros for no cells)
+    cuda::write_totals(s.totals.data(), int(dim), out.energy, out.virial, s.stream);
+  s.record(kDownloaded);
+  CF_CUDA_CHECK(cudaEventRecord(s.finished, s.stream));
+  CF_CUDA_CHECK(cudaStreamWaitEvent(caller, s.finished, 0));
+  CF_CUDA_CHECK(cudaEventSynchronize(s.events[kDownloaded]));  // for the stage times
+  finish_timing();
+  audit(system, ff);
+}
+
+// The stage times of the evaluation whose events were recorded last (synchronised).
+void GpuEngine::finish_timing() {
+  Impl& s = *impl_;
   // Pair counts come from count_pairs()/visited_pairs(), not from the force kernels.
   stats_.candidate_pairs = stats_.interacting_pairs = stats_.max_occupancy = 0;
   stats_.t_transfer = s.seconds(kStart, kUploaded) + s.seconds(kAccumulated, kDownloaded);
@@ -385,12 +463,11 @@ void GpuEngine::evaluate(const SystemView& system, const ForceField& ff, const R
   stats_.t_accumulate = s.seconds(kTraversed, kAccumulated);
   stats_.t_total = s.seconds(kStart, kDownloaded);
   stats_.buffer_bytes = s.bytes();
-  audit(system, ff);  // after the total: its host search is no part of the engine's time
 }
 
 // Validates the input, uploads it, then rebuilds the structure (stages 1-3) or keeps the last
 // one: shared by evaluate() and the pair recorder.
-void GpuEngine::prepare(const SystemView& system, const ForceField& ff) {
+void GpuEngine::prepare(const SystemView& system, const ForceField& ff, const DeviceSystemView* on_device) {
   Impl& s = *impl_;
   validate_system(system, ff);
   if (ff.num_types() > cuda::kMaxStagedTypes)
@@ -401,7 +478,7 @@ void GpuEngine::prepare(const SystemView& system, const ForceField& ff) {
     throw Error("the CUDA engine takes at most 2^31 - 1 cell-ID entries (N x 2^d): " +
                 std::to_string(system.n) + " particles in " + std::to_string(system.box.dim) +
                 "D make " + std::to_string(entries));
-  s.upload_system(system);
+  s.upload_system(system, on_device);
   const bool rebuild = reuse_.decide(system, ff.cutoff, [&] {
     return cuda::max_displacement2(system.box, s.positions.data(), s.build_positions.data(), system.n, s.cub,
                                    s.stream);
@@ -527,11 +604,5 @@ std::string GpuEngine::unavailable() {
   if (count == 0) return "no CUDA device: cudaGetDeviceCount returned 0";
   return {};
 }
-
-const char* to_string(TraversalForm form) {
-  return form == TraversalForm::kWarpPerCell ? "warp-per-cell" : "thread-per-cell";
-}
-
-const char* to_string(SortMethod sort) { return sort == SortMethod::kCub ? "cub" : "chapter"; }
 
 }  // namespace cellforce

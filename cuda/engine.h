@@ -19,19 +19,6 @@
 
 namespace cellforce {
 
-// How the traversal maps collision cells onto threads.
-enum class TraversalForm : uint8_t {
-  kWarpPerCell,    // cooperative: a warp shares one cell, occupants staged 32 at a time in shared
-                   // memory, partial sums added in a fixed order (the chapter's future work)
-  kThreadPerCell,  // the chapter's: one thread walks one collision cell
-};
-
-// Stage 2's implementation; both are stable and sort only the bits the grid needs.
-enum class SortMethod : uint8_t {
-  kCub,      // CUB's device radix sort
-  kChapter,  // the chapter's three-phase radix sort (tabulate, prefix sums, stable reorder)
-};
-
 struct GpuOptions {
   Precision precision = Precision::kDouble;
   Accumulation accumulation = Accumulation::kJacobi;
@@ -57,6 +44,17 @@ class GpuEngine {
   // naming the particle or parameter, or both particles of a coincident or overflowing pair.
   void evaluate(const SystemView& system, const ForceField& ff, const Request& request,
                 ForceResult& result);
+
+  // Device arrays (core/system.h): the work is ordered after what the caller's `stream` (a
+  // cudaStream_t; null: the legacy default stream) holds, and the results are written on the
+  // engine's stream, which the caller's stream then waits for. Energy and virial are computed when
+  // any of out.energies, out.energy, out.virial is given. For now this call synchronises the
+  // host: it copies the positions (and types) to the host to validate them and plan the grid, and
+  // it reads the counts that size the stage buffers and the kernels' flags, as evaluate() does.
+  // Results are bitwise those of evaluate() on the same input. Throws cellforce::Error as
+  // evaluate() does; the outputs are then left unwritten.
+  void evaluate_device(const DeviceSystemView& system, const ForceField& ff, const DeviceOutputs& out,
+                       void* stream);
 
   // Every pair the traversal finds with r < rc, once per evaluation (a pair found twice appears
   // twice), as (min index, max index), in no particular order. Also sets the candidate and
@@ -91,7 +89,9 @@ class GpuEngine {
  private:
   std::vector<std::pair<uint32_t, uint32_t>> record(const SystemView& system, const ForceField& ff,
                                                     bool keep);
-  void prepare(const SystemView& system, const ForceField& ff);
+  void prepare(const SystemView& system, const ForceField& ff, const DeviceSystemView* on_device = nullptr);
+  void traverse(const SystemView& system, const ForceField& ff, const Request& request);
+  void finish_timing();
   void build(const SystemView& system, const ForceField& ff);
   void audit(const SystemView& system, const ForceField& ff);
   GpuOptions options_;
@@ -99,8 +99,5 @@ class GpuEngine {
   PipelineStats stats_;
   std::unique_ptr<Impl> impl_;
 };
-
-const char* to_string(TraversalForm form);
-const char* to_string(SortMethod sort);
 
 }  // namespace cellforce

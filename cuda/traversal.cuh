@@ -114,4 +114,8 @@ void sum_slots(const Accum* force_slots, const Accum* energy_slots, int dim, std
 template <class Accum>
 void sum_cells(const Accum* cell_sums, std::size_t cells, double* totals, cudaStream_t stream);
 
+// The totals of sum_cells to a device energy (1 double) and row-major dim x dim virial, either
+// of which may be null; the virial's unused entries (dim < 3) are not written.
+void write_totals(const double* totals, int dim, double* energy, double* virial, cudaStream_t stream);
+
 }  // namespace cellforce::cuda

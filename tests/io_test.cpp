@@ -12,6 +12,7 @@
 
 #include "cli/forces.h"
 #include "core/error.h"
+#include "core/names.h"
 #include "io/configuration_file.h"
 #include "io/hdf5.h"
 #include "oracle.h"
@@ -404,7 +405,7 @@ TEST_F(ForcesCommand, FileMatchesTheBruteForceInInputOrder) {
       args.types = {"A:1.0:1.0", "B:0.88:0.5"};
       args.pairs = {"A:B:0.8:1.5"};
       args.read.dim = dim;
-      args.backend.backend = backend;
+      args.backend.backend = *parse_name(backend, kBackendNames);
       args.quiet = true;
       ASSERT_EQ(run_forces(args), 0);
 
@@ -445,7 +446,7 @@ TEST_F(ForcesCommand, SingleSpeciesNeedsNoType) {
   ForcesArgs args;
   args.input = p;
   args.out = path("o.h5");
-  args.backend.backend = "cpu";
+  args.backend.backend = Backend::kCpu;
   args.quiet = true;
   ASSERT_EQ(run_forces(args), 0);
   // Analytic: U(1.2) with sigma = epsilon = 1, truncated at 2.5.
@@ -496,7 +497,7 @@ TEST_F(ForcesCommand, BadInputNamesTheCauseAndWritesNothing) {
     args.types = c.types;
     args.pairs = c.pairs;
     args.cutoff = c.cutoff;
-    args.backend.backend = "cpu";
+    args.backend.backend = Backend::kCpu;
     args.quiet = true;
     const std::string msg = error_of([&] { run_forces(args); });
     for (const std::string& e : c.expected) EXPECT_THAT(msg, HasSubstr(e));
@@ -507,7 +508,7 @@ TEST_F(ForcesCommand, BadInputNamesTheCauseAndWritesNothing) {
   ForcesArgs args;
   args.input = coincident;
   args.out = path("never.h5");
-  args.backend.backend = "cpu";
+  args.backend.backend = Backend::kCpu;
   const std::string msg = error_of([&] { run_forces(args); });
   EXPECT_TRUE(cftest::contains_number(msg, 1) && cftest::contains_number(msg, 2)) << msg;
 }
@@ -520,7 +521,7 @@ TEST_F(ForcesCommand, ExistingOutputSurvivesAndBadOutputPathsAreRefusedFirst) {
   ForcesArgs args;
   args.input = coincident;
   args.out = precious;
-  args.backend.backend = "cpu";
+  args.backend.backend = Backend::kCpu;
   args.quiet = true;
   args.overwrite = true;
   EXPECT_THAT(error_of([&] { run_forces(args); }), HasSubstr("same position"));
@@ -546,7 +547,7 @@ TEST_F(ForcesCommand, RecordsHowTheResultsWereComputed) {
   args.input = p;
   args.out = path("o.h5");
   args.types = {"Argon_with_a_long_name:0.123456789012345678:1.5"};
-  args.backend.backend = "cpu";
+  args.backend.backend = Backend::kCpu;
   args.backend.precision = Precision::kMixed;
   args.mode = CutoffMode::kShift;
   args.repeats = 3;
@@ -571,7 +572,7 @@ TEST_F(ForcesCommand, UnwritableOutputIsAnErrorNamingThePath) {
   ForcesArgs args;
   args.input = p;
   args.out = path("no/such/folder/o.h5");
-  args.backend.backend = "cpu";
+  args.backend.backend = Backend::kCpu;
   args.quiet = true;
   EXPECT_THAT(error_of([&] { run_forces(args); }), HasSubstr("no/such/folder/o.h5"));
 }

@@ -419,7 +419,7 @@ TEST(MinimizeScene, BadValuesNameFileLineAndKey) {
 // The scenes of item 13 ship in systems/: the overlap start with [minimize], the hot dense
 // lattices without (they need none).
 TEST(MinimizeScene, ShippedScenes) {
-  const fs::path dir = fs::path(CELLFORCE_SOURCE_DIR) / "systems";
+  const fs::path dir = cftest::data_dir() / "systems";
   const Scene overlap = read_scene((dir / "overlap_random.toml").string());
   EXPECT_TRUE(overlap.minimize.enabled);
   EXPECT_EQ(overlap.particles.source, ParticleSource::kRandom);
@@ -468,7 +468,7 @@ class MinimizeHotDense : public ::testing::TestWithParam<HotDense> {};
 
 TEST_P(MinimizeHotDense, NveEnergyIsConserved) {
   const HotDense& param = GetParam();
-  const Scene scene = read_scene((fs::path(CELLFORCE_SOURCE_DIR) / "systems" / param.scene).string());
+  const Scene scene = read_scene((cftest::data_dir() / "systems" / param.scene).string());
   MdState s;
   s.config = build_configuration(scene);
   const std::size_t n = s.config.size();

@@ -9,6 +9,7 @@
 
 #include "core/error.h"
 #include "scene/scene.h"
+#include "temp_folder.h"
 
 namespace {
 
@@ -99,7 +100,7 @@ checkpoint_every = 50
   EXPECT_EQ(s.integrator.kind, IntegratorKind::kLangevin);
   EXPECT_EQ(s.integrator.friction, 2.0);
   EXPECT_EQ(s.steps, 123);
-  EXPECT_EQ(s.backend.backend, "cpu");
+  EXPECT_EQ(s.backend.backend, Backend::kCpu);
   EXPECT_EQ(s.backend.precision, Precision::kSingle);
   EXPECT_EQ(s.output.trajectory_every, 11);
   EXPECT_TRUE(s.output.velocities);
@@ -262,7 +263,7 @@ TEST(Scene, LatticesHaveTheirDensity) {
 // A scene can start from a configuration file (path relative to the scene's folder); species must
 // name scene types and the periodicity must agree.
 TEST(Scene, StartsFromAFile) {
-  const std::string folder = std::string(CELLFORCE_SOURCE_DIR) + "/systems";
+  const std::string folder = (cftest::data_dir() / "systems").string();
   const Scene s = parse_scene("[particles]\nsource = \"file\"\npath = \"validation/binary_lb.xyz\"\n"
                               "[[types]]\nname = \"A\"\n[[types]]\nname = \"B\"\nsigma = 0.88\nepsilon = 0.5\n",
                               "file.toml", folder);
@@ -291,7 +292,7 @@ TEST(Scene, StartsFromAFile) {
 
 // Every scene shipped in systems/ is valid and builds its configuration.
 TEST(Scene, SystemsScenesAreValid) {
-  const std::filesystem::path dir = std::filesystem::path(CELLFORCE_SOURCE_DIR) / "systems";
+  const std::filesystem::path dir = cftest::data_dir() / "systems";
   std::map<std::string, std::size_t> sizes;
   for (const auto& entry : std::filesystem::directory_iterator(dir)) {
     if (entry.path().extension() != ".toml") continue;

@@ -347,9 +347,10 @@ TEST_P(Stability, CoincidentParticles) {
   const std::string name = backend_name();
   cellforce::ForcesArgs args;
   args.input = write("co.xyz", "3\nLattice=\"6 0 0 0 6 0 0 0 6\"\nA 0.5 0.5 0.5\nA 3.5 4.5 4.5\nA 3.5 4.5 4.5\n");
-  args.backend.backend = name == "cpu" ? "cpu" : "cuda";
-  args.backend.traversal = name == "gputhread" ? "thread" : "warp";
-  args.backend.sort = name == "gpuchaptersort" ? "chapter" : "cub";
+  args.backend.backend = name == "cpu" ? cellforce::Backend::kCpu : cellforce::Backend::kCuda;
+  args.backend.traversal = name == "gputhread" ? cellforce::TraversalForm::kThreadPerCell
+                                                : cellforce::TraversalForm::kWarpPerCell;
+  args.backend.sort = name == "gpuchaptersort" ? cellforce::SortMethod::kChapter : cellforce::SortMethod::kCub;
   args.backend.precision = GetParam().precision;
   args.quiet = true;
   args.out = path("new.h5");
@@ -795,7 +796,7 @@ TEST_P(Stability, StartsFromOverlapsAndHotDenseStates) {
   };
   for (const Hot& hot : {Hot{"hot_dense_T2.toml", 2.0, 300}, Hot{"hot_dense_T5.toml", 5.0, 600}}) {
     const cellforce::Scene scene =
-        cellforce::read_scene((std::filesystem::path(CELLFORCE_SOURCE_DIR) / "systems" / hot.file).string());
+        cellforce::read_scene((cftest::data_dir() / "systems" / hot.file).string());
     MdState h;
     h.config = cellforce::build_configuration(scene);
     const std::size_t m = h.config.size();

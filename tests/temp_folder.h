@@ -8,7 +8,9 @@
 #include <sys/resource.h>
 #include <unistd.h>
 
+#include <cstdlib>
 #include <filesystem>
+#include <stdexcept>
 #include <fstream>
 #include <sstream>
 #include <string>
@@ -110,6 +112,23 @@ inline std::vector<std::string> backends_here() {
   if (cellforce::GpuEngine::unavailable().empty()) b.push_back("cuda");
 #endif
   return b;
+}
+
+// The project folder that holds systems/ (scene files the tests read): $CELLFORCE_DATA_DIR when
+// set, else the nearest folder above the test binary or the working directory that has systems/
+// and validation/. Nothing of the source tree's location is compiled in, so the binaries run from
+// any folder (the GPU machine's copy of the tree included).
+inline std::filesystem::path data_dir() {
+  namespace fs = std::filesystem;
+  if (const char* env = std::getenv("CELLFORCE_DATA_DIR"); env && *env) return fs::path(env);
+  std::error_code ec;
+  for (fs::path start : {fs::read_symlink("/proc/self/exe", ec).parent_path(), fs::current_path(ec)})
+    for (fs::path p = start; !p.empty(); p = p.parent_path()) {
+      if (fs::is_directory(p / "systems", ec) && fs::is_directory(p / "validation", ec)) return p;
+      if (p == p.parent_path()) break;
+    }
+  throw std::runtime_error("no folder with systems/ and validation/ above the test binary or the working "
+                           "directory: set CELLFORCE_DATA_DIR to the cellforce source folder");
 }
 
 }  // namespace cftest

@@ -7,8 +7,11 @@
 #include <map>
 #include <sstream>
 
+#include <cellforce/cellforce.hpp>
+
 #include "cli/options.h"
 #include "core/error.h"
+#include "core/names.h"
 #include "core/text.h"
 #include "io/configuration_file.h"
 #include "io/forces_file.h"
@@ -93,6 +96,30 @@ ForceField make_force_field(const ForcesArgs& args, const ConfigurationFile& inp
   return ff;
 }
 
+namespace {
+
+// A context for the configuration's box with the force field and the engine choices: what the
+// command asks of the engine goes through the public API (include/cellforce/cellforce.hpp).
+Context make_context(const Box& box, const ForceField& ff, const EngineChoice& engine) {
+  Context ctx(box.dim);
+  const bool periodic[3] = {box.periodic[0], box.periodic[1], box.periodic[2]};
+  ctx.set_box(box.length, periodic);
+  ctx.set_cutoff(ff.cutoff, ff.mode);
+  ctx.set_mixing(ff.mixing);
+  for (const ParticleType& t : ff.types) ctx.add_type(t.name, t.sigma, t.epsilon);
+  for (const PairOverride& o : ff.overrides) ctx.set_pair(uint32_t(o.a), uint32_t(o.b), o.sigma, o.epsilon);
+  ctx.set_backend(engine.backend, engine.device);
+  ctx.set_precision(engine.precision);
+  ctx.set_skin(engine.reuse.skin);
+  ctx.set_option("accumulation", name_of(engine.accumulation, kAccumulationNames));
+  ctx.set_option("cell-rule", name_of(engine.rule, kCellRuleNames));
+  ctx.set_option("traversal", name_of(engine.traversal, kTraversalNames));
+  ctx.set_option("sort", name_of(engine.sort, kSortNames));
+  return ctx;
+}
+
+}  // namespace
+
 int run_forces(const ForcesArgs& args) {
   if (args.out.empty()) throw Error("forces: --out is required");
   if (args.repeats < 1) throw Error("--repeats must be at least 1, got " + std::to_string(args.repeats));
@@ -107,18 +134,25 @@ int run_forces(const ForcesArgs& args) {
   // Before any engine is built: bad input names the particle (and the file).
   with_context(input.source, [&] { validate_system(sys, ff); });
 
-  ForceBackend backend(args.backend);
-  const Request request{true, true};
+  Context ctx = make_context(sys.box, ff, args.backend);
+  const int dim = sys.box.dim;
   ForceResult result;
+  result.dim = dim;
+  result.forces.resize(sys.n * std::size_t(dim));
+  result.energies.resize(sys.n);
+  double virial[kMaxDim * kMaxDim] = {};
+  const Outputs out{result.forces.data(), result.energies.data(), &result.energy, virial};
   std::vector<double> wall, pipeline;
   for (int r = 0; r < args.repeats; ++r) {
     const auto t0 = std::chrono::steady_clock::now();
-    with_context(input.source, [&] { backend.evaluate(sys, ff, request, result); });
+    with_context(input.source, [&] { ctx.compute(sys.n, sys.positions, sys.types, out); });
     wall.push_back(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
-    const PipelineStats s = backend.stats(sys, ff, false);
-    pipeline.push_back(s.t_total - s.t_transfer);
+    pipeline.push_back(ctx.statistics().pipeline_seconds);
   }
-  const PipelineStats counts = backend.stats(sys, ff, true);
+  for (int r = 0; r < dim; ++r)
+    for (int c = 0; c < dim; ++c) result.virial[r][c] = virial[r * dim + c];
+  const PairCounts counts = ctx.count_pairs(sys.n, sys.positions, sys.types);
+  const std::string backend = ctx.backend_name(), description = ctx.description();
 
   std::ostringstream types;  // "A:1:1 B:0.88:0.5 A-B:0.8:1.5", full precision
   types.precision(17);
@@ -129,12 +163,12 @@ int run_forces(const ForcesArgs& args) {
   std::string periodic;  // "T T F", as extended XYZ's pbc
   for (int a = 0; a < sys.box.dim; ++a) periodic += std::string(a ? " " : "") + (sys.box.periodic[a] ? "T" : "F");
   const Attributes attrs = {
-      {"backend", backend.name()},
-      {"engine", backend.description()},
+      {"backend", backend},
+      {"engine", description},
       {"precision", std::string(to_string(args.backend.precision))},
       {"accumulation", std::string(to_string(args.backend.accumulation))},
-      {"traversal", backend.traversal()},
-      {"sort", backend.sort()},
+      {"traversal", ctx.traversal()},
+      {"sort", ctx.sort()},
       {"cutoff", ff.cutoff},
       {"cutoff_mode", std::string(to_string(ff.mode))},
       {"mixing", std::string(to_string(ff.mixing))},
@@ -145,8 +179,8 @@ int run_forces(const ForcesArgs& args) {
       {"repeats", int64_t(args.repeats)},
       {"evaluation_time", median(wall)},
       {"pipeline_time", median(pipeline)},
-      {"pairs_tested", int64_t(counts.candidate_pairs)},
-      {"pairs_within_cutoff", int64_t(counts.interacting_pairs)},
+      {"pairs_tested", int64_t(counts.tested)},
+      {"pairs_within_cutoff", int64_t(counts.within_cutoff)},
       {"input", input.source},
       {"cellforce_version", std::string(CELLFORCE_VERSION)},
   };
@@ -154,7 +188,6 @@ int run_forces(const ForcesArgs& args) {
 
   if (!args.quiet) {
     double fmax = 0;
-    const int dim = sys.box.dim;
     for (std::size_t i = 0; i < sys.n; ++i) {
       double f2 = 0;
       for (int a = 0; a < dim; ++a) f2 += result.forces[i * dim + a] * result.forces[i * dim + a];
@@ -162,8 +195,8 @@ int run_forces(const ForcesArgs& args) {
     }
     std::printf("cellforce forces: %zu particles, %dD, from %s\n", sys.n, dim, input.source.c_str());
     std::printf("  %s; precision %s; cutoff %g (%s); %zu pairs within the cutoff\n",
-                backend.description().c_str(), to_string(args.backend.precision), ff.cutoff,
-                to_string(ff.mode), counts.interacting_pairs);
+                description.c_str(), to_string(args.backend.precision), ff.cutoff,
+                to_string(ff.mode), counts.within_cutoff);
     std::printf("  energy %.12g (%.9f per particle), max |F| %.6g\n", result.energy,
                 sys.n ? result.energy / double(sys.n) : 0.0, fmax);
     std::printf("  time per evaluation, median of %d: %.3f ms (engine pipeline %.3f ms)\n", args.repeats,

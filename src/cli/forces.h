@@ -6,7 +6,7 @@
 #include <string>
 #include <vector>
 
-#include "cli/backend.h"
+#include "backends/force_engine.h"  // EngineChoice
 #include "core/force_field.h"
 #include "io/configuration_file.h"
 
@@ -20,7 +20,7 @@ struct ForcesArgs {
   std::vector<std::string> types;  // NAME:SIGMA:EPSILON, one per species
   std::vector<std::string> pairs;  // A:B:SIGMA:EPSILON, explicit pair values
   Mixing mixing = Mixing::kLorentzBerthelot;
-  BackendChoice backend;           // precision double unless asked otherwise
+  EngineChoice backend;            // cpu, precision double unless asked otherwise
   ReadOptions read;                // dimension, frame, H5MD group
   int repeats = 1;                 // evaluations timed; the file holds the last one's results
   bool quiet = false;              // no summary on stdout

@@ -13,7 +13,7 @@
 #include <nlohmann/json.hpp>
 #include <vector>
 
-#include "cli/backend.h"
+#include "backends/force_engine.h"
 #include "cli/forces.h"
 #include "cli/options.h"
 #include "cli/run.h"
@@ -35,7 +35,7 @@ struct EvaluateArgs {
   uint64_t seed = 1;
   double cutoff = 2.5;
   CutoffMode mode = CutoffMode::kTruncate;
-  BackendChoice engine;  // backend, precision, accumulation, cell rule, traversal, sort
+  EngineChoice engine;  // backend, precision, accumulation, cell rule, traversal, sort
   int repeats = 5;
   bool brute = false;
   std::string json;
@@ -52,9 +52,10 @@ int evaluate(const EvaluateArgs& args) {
   ForceField ff;
   ff.cutoff = args.cutoff;
   ff.mode = args.mode;
-  ForceBackend engine(args.engine);
-  const std::string& backend = engine.name();
-  const std::string& engine_name = engine.description();
+  const std::unique_ptr<ForceEngine> engine_owner = make_force_engine(args.engine);
+  ForceEngine& engine = *engine_owner;
+  const std::string backend = to_string(engine.backend());
+  const std::string engine_name = engine.description();
   const Request request{true, true};
   ForceResult result;
   auto evaluate_once = [&](bool counts) {
@@ -171,9 +172,9 @@ CLI::Validator one_of(const std::map<std::string, T>& names) {
 }
 
 // The options that choose and configure the engine, shared by every command that evaluates.
-void add_backend_options(CLI::App* cmd, BackendChoice& b) {
-  cmd->add_option("--backend", b.backend, "cpu, cuda, or auto (the GPU when one can be used)")
-      ->check(CLI::IsMember({"cpu", "cuda", "auto"}))->capture_default_str();
+void add_backend_options(CLI::App* cmd, EngineChoice& b) {
+  cmd->add_option("--backend", b.backend, "cpu, cuda, or auto (the GPU when one can be used; the default)")
+      ->transform(one_of(cli::kBackends));
   cmd->add_option("--precision", b.precision, "single, mixed or double (default double)")
       ->transform(one_of(cli::kPrecisions));
   cmd->add_option("--accumulation", b.accumulation, "jacobi or gauss-seidel")
@@ -181,9 +182,9 @@ void add_backend_options(CLI::App* cmd, BackendChoice& b) {
   cmd->add_option("--cell-rule", b.rule, "tight (c >= rc + h) or chapter (c >= 3h)")
       ->transform(one_of(cli::kCellRules));
   cmd->add_option("--traversal", b.traversal, "CUDA traversal: warp (a warp per cell) or thread (a thread per cell)")
-      ->check(CLI::IsMember({"warp", "thread"}));
+      ->transform(one_of(cli::kTraversals));
   cmd->add_option("--sort", b.sort, "CUDA sort: cub or chapter (the chapter's radix sort)")
-      ->check(CLI::IsMember({"cub", "chapter"}));
+      ->transform(one_of(cli::kSorts));
 }
 
 }  // namespace

@@ -8,23 +8,19 @@
 #include <vector>
 
 #include "core/force_field.h"
-#include "cpu/engine.h"
+#include "core/names.h"
 #include "scene/lattice.h"
 
 namespace cellforce::cli {
 
-inline const std::map<std::string, CutoffMode> kCutoffModes = {
-    {"truncate", CutoffMode::kTruncate},
-    {"shift", CutoffMode::kShift},
-    {"force-shift", CutoffMode::kForceShift}};
-inline const std::map<std::string, Mixing> kMixings = {
-    {"lorentz-berthelot", Mixing::kLorentzBerthelot}, {"geometric", Mixing::kGeometric}};
-inline const std::map<std::string, Precision> kPrecisions = {
-    {"single", Precision::kSingle}, {"mixed", Precision::kMixed}, {"double", Precision::kDouble}};
-inline const std::map<std::string, Accumulation> kAccumulations = {
-    {"jacobi", Accumulation::kJacobi}, {"gauss-seidel", Accumulation::kGaussSeidel}};
-inline const std::map<std::string, CellRule> kCellRules = {{"tight", CellRule::kTight},
-                                                           {"chapter", CellRule::kChapter}};
+inline const std::map<std::string, CutoffMode> kCutoffModes = name_map(kCutoffModeNames);
+inline const std::map<std::string, Mixing> kMixings = name_map(kMixingNames);
+inline const std::map<std::string, Precision> kPrecisions = name_map(kPrecisionNames);
+inline const std::map<std::string, Accumulation> kAccumulations = name_map(kAccumulationNames);
+inline const std::map<std::string, CellRule> kCellRules = name_map(kCellRuleNames);
+inline const std::map<std::string, Backend> kBackends = name_map(kBackendNames);
+inline const std::map<std::string, TraversalForm> kTraversals = name_map(kTraversalNames);
+inline const std::map<std::string, SortMethod> kSorts = name_map(kSortNames);
 inline const std::map<std::string, Lattice> kLattices = {{"sc", Lattice::kSimpleCubic},
                                                          {"bcc", Lattice::kBcc},
                                                          {"fcc", Lattice::kFcc},

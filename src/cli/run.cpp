@@ -13,7 +13,8 @@
 #include <fstream>
 #include <memory>
 
-#include "cli/backend.h"
+#include "backends/force_engine.h"
+#include "core/names.h"
 #include "core/error.h"
 #include "core/text.h"
 #include "io/h5md_writer.h"
@@ -200,12 +201,16 @@ int run_md(const RunArgs& args) {
   const auto t_setup = Clock::now();
   Scene scene = args.scene.empty() ? default_scene() : read_scene(args.scene);
   if (args.steps >= 0) scene.steps = args.steps;
-  if (!args.backend.empty()) scene.backend.backend = args.backend;
+  if (!args.backend.empty()) {
+    const auto backend = parse_name(args.backend, kBackendNames);
+    if (!backend) throw Error("--backend " + quote_excerpt(args.backend) + ": expected " + name_list(kBackendNames));
+    scene.backend.backend = *backend;
+  }
   if (!args.precision.empty()) {
-    if (args.precision == "single") scene.backend.precision = Precision::kSingle;
-    else if (args.precision == "mixed") scene.backend.precision = Precision::kMixed;
-    else if (args.precision == "double") scene.backend.precision = Precision::kDouble;
-    else throw Error("--precision '" + args.precision + "': expected single, mixed or double");
+    const auto precision = parse_name(args.precision, kPrecisionNames);
+    if (!precision)
+      throw Error("--precision " + quote_excerpt(args.precision) + ": expected " + name_list(kPrecisionNames));
+    scene.backend.precision = *precision;
   }
   if (!args.thermo_file.empty()) scene.output.thermo_file = args.thermo_file;
   if (!(args.skin < 0)) scene.backend.reuse.skin = args.skin;  // NaN too: validate_reuse names it
@@ -244,7 +249,8 @@ int run_md(const RunArgs& args) {
   const ForceField& ff = scene.force_field;
   with_context(scene.source, [&] { validate_system(state.config.view(), ff); });
 
-  ForceBackend engine(scene.backend);
+  const std::unique_ptr<ForceEngine> engine_owner = make_force_engine(scene.backend);
+  ForceEngine& engine = *engine_owner;
   IntegratorSettings integrator;
   integrator.langevin = scene.integrator.kind == IntegratorKind::kLangevin;
   integrator.dt = scene.integrator.dt;
@@ -294,7 +300,7 @@ int run_md(const RunArgs& args) {
   checkpoint_info.seed = scene.seed;
   checkpoint_info.scene_fingerprint = scene_fingerprint(scene);
   checkpoint_info.scene = scene.source;
-  checkpoint_info.backend = engine.name();
+  checkpoint_info.backend = to_string(engine.backend());
   checkpoint_info.precision = to_string(scene.backend.precision);
   if (restart) {
     const CheckpointInfo saved = read_checkpoint(args.restart, state, checkpoint_info);

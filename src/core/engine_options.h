@@ -1,25 +1,33 @@
 // What every force engine (CPU in src/cpu, CUDA in cuda/) is told and what it reports: the
-// precision and accumulation choices and the per-evaluation pipeline statistics.
+// precision, accumulation and algorithm choices and the per-evaluation pipeline statistics.
 #pragma once
 
 #include <cstddef>
 #include <cstdint>
 
+#include <cellforce/options.hpp>  // Precision, Backend
+
 #include "core/grid.h"
 
 namespace cellforce {
-
-// Arithmetic of the narrow phase / accumulation of its results.
-enum class Precision : uint8_t {
-  kSingle,  // float pairs, float sums
-  kMixed,   // float pairs, double sums
-  kDouble,  // double pairs, double sums
-};
 
 // How per-particle results are gathered (spatial-subdivision.md, stage 5).
 enum class Accumulation : uint8_t {
   kJacobi,       // one pass; 2^d output slots per particle (one per cell type), summed at the end
   kGaussSeidel,  // 2^d passes, one per cell type, adding straight into the output
+};
+
+// How the CUDA traversal maps collision cells onto threads.
+enum class TraversalForm : uint8_t {
+  kWarpPerCell,    // cooperative: a warp shares one cell, occupants staged 32 at a time in shared
+                   // memory, partial sums added in a fixed order (the chapter's future work)
+  kThreadPerCell,  // the chapter's: one thread walks one collision cell
+};
+
+// The CUDA pipeline's stage 2; both are stable and sort only the bits the grid needs.
+enum class SortMethod : uint8_t {
+  kCub,      // CUB's device radix sort
+  kChapter,  // the chapter's three-phase radix sort (tabulate, prefix sums, stable reorder)
 };
 
 // Counts and stage times (seconds) of the last evaluation. The CPU folds the valid count into
@@ -64,6 +72,21 @@ inline const char* to_string(Precision precision) {
 
 inline const char* to_string(Accumulation accumulation) {
   return accumulation == Accumulation::kJacobi ? "jacobi" : "gauss-seidel";
+}
+
+inline const char* to_string(TraversalForm form) {
+  return form == TraversalForm::kWarpPerCell ? "warp-per-cell" : "thread-per-cell";
+}
+
+inline const char* to_string(SortMethod sort) { return sort == SortMethod::kCub ? "cub" : "chapter"; }
+
+inline const char* to_string(Backend backend) {
+  switch (backend) {
+    case Backend::kAuto: return "auto";
+    case Backend::kCpu: return "cpu";
+    case Backend::kCuda: return "cuda";
+  }
+  return "?";
 }
 
 }  // namespace cellforce

@@ -6,14 +6,11 @@
 #include <string>
 #include <vector>
 
+#include <cellforce/options.hpp>  // Mixing, CutoffMode
+
 #include "core/lj.h"
 
 namespace cellforce {
-
-enum class Mixing : uint8_t {
-  kLorentzBerthelot,  // sigma_ij = (sigma_i + sigma_j) / 2, eps_ij = sqrt(eps_i eps_j)
-  kGeometric,         // sigma_ij = sqrt(sigma_i sigma_j),   eps_ij = sqrt(eps_i eps_j)
-};
 
 struct ParticleType {
   std::string name;

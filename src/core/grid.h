@@ -8,6 +8,8 @@
 #include <cstddef>
 #include <cstdint>
 
+#include <cellforce/options.hpp>  // Precision
+
 #include "core/box.h"
 #include "core/hd.h"
 
@@ -215,7 +217,6 @@ Grid make_grid_unchecked(const Box& box, const uint32_t cells[kMaxDim], double h
 // ulp_float(rc) and take a rounding up to that; double pairs take up to 2^-40 rc (~1e-12 rc, cells
 // up to ~8000 rc wide; the double engine's own error is ~1e-16). Throws cellforce::Error with the
 // cell edge, the rounding and what would help.
-enum class Precision : uint8_t;  // core/engine_options.h (which includes this header)
 void check_staging(const Grid& grid, double physical_cutoff, Precision precision);
 
 // Throws cellforce::Error naming the violated condition (and axis, box, cutoff) when the grid

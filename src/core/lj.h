@@ -12,11 +12,11 @@
 #include <cmath>
 #include <cstdint>
 
+#include <cellforce/options.hpp>  // CutoffMode (its contract is the one above)
+
 #include "core/hd.h"
 
 namespace cellforce {
-
-enum class CutoffMode : uint8_t { kTruncate, kShift, kForceShift };
 
 // Per type pair: c12 = 4 eps sigma^12, c6 = 4 eps sigma^6, and the constants that the cutoff mode
 // needs (zero where it needs none).

@@ -18,6 +18,24 @@ struct SystemView {
   const uint32_t* types = nullptr;    // n indices into ForceField::types; null means all type 0
 };
 
+// The particles of a device evaluation: device pointers, the caller's order and layout as in
+// SystemView (positions n x dim doubles, types n or null).
+struct DeviceSystemView {
+  Box box;
+  std::size_t n = 0;
+  const double* positions = nullptr;
+  const uint32_t* types = nullptr;
+};
+
+// Where a device evaluation writes: device pointers; forces (n x dim) always, the others when not
+// null: per-particle energies (n), total energy (1), virial (dim x dim, row-major).
+struct DeviceOutputs {
+  double* forces = nullptr;
+  double* energies = nullptr;
+  double* energy = nullptr;
+  double* virial = nullptr;
+};
+
 // Which observables to compute. Forces are always computed; energy and virial cost arithmetic
 // and are left out (at compile time) when nobody reads them.
 struct Request {

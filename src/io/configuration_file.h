@@ -6,7 +6,7 @@
 #include <string>
 #include <vector>
 
-#include "scene/lattice.h"
+#include "state/configuration.h"
 
 namespace cellforce {
 

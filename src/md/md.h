@@ -11,7 +11,7 @@
 #include <vector>
 
 #include "core/system.h"
-#include "scene/lattice.h"
+#include "state/configuration.h"
 
 namespace cellforce {
 

@@ -6,19 +6,9 @@
 #include <vector>
 
 #include "core/box.h"
-#include "core/system.h"
+#include "state/configuration.h"
 
 namespace cellforce {
-
-// Owns what a SystemView points to.
-struct Configuration {
-  Box box;
-  std::vector<double> positions;  // n x box.dim
-  std::vector<uint32_t> types;    // n
-
-  std::size_t size() const { return types.size(); }
-  SystemView view() const { return SystemView{box, types.size(), positions.data(), types.data()}; }
-};
 
 enum class Lattice : uint8_t { kSimpleCubic, kBcc, kFcc, kSquare, kHexagonal };
 

@@ -14,6 +14,7 @@
 
 #include "core/error.h"
 #include "core/memory.h"
+#include "core/names.h"
 #include "core/text.h"
 #include "io/configuration_file.h"
 
@@ -168,15 +169,12 @@ const std::map<std::string, Lattice> kLatticeNames = {{"sc", Lattice::kSimpleCub
                                                       {"hexagonal", Lattice::kHexagonal}};
 const std::map<std::string, ParticleSource> kSources = {
     {"lattice", ParticleSource::kLattice}, {"random", ParticleSource::kRandom}, {"file", ParticleSource::kFile}};
-const std::map<std::string, CutoffMode> kModes = {
-    {"truncate", CutoffMode::kTruncate}, {"shift", CutoffMode::kShift}, {"force-shift", CutoffMode::kForceShift}};
-const std::map<std::string, Mixing> kMixings = {{"lorentz-berthelot", Mixing::kLorentzBerthelot},
-                                                {"geometric", Mixing::kGeometric}};
+const std::map<std::string, CutoffMode> kModes = name_map(kCutoffModeNames);
+const std::map<std::string, Mixing> kMixings = name_map(kMixingNames);
 const std::map<std::string, IntegratorKind> kIntegrators = {{"nve", IntegratorKind::kNve},
                                                             {"langevin", IntegratorKind::kLangevin}};
-const std::map<std::string, Precision> kPrecisionNames = {
-    {"single", Precision::kSingle}, {"mixed", Precision::kMixed}, {"double", Precision::kDouble}};
-const std::map<std::string, std::string> kBackends = {{"auto", "auto"}, {"cpu", "cpu"}, {"cuda", "cuda"}};
+const std::map<std::string, Precision> kPrecisions = name_map(kPrecisionNames);
+const std::map<std::string, Backend> kBackends = name_map(kBackendNames);
 
 // A section of the root table; absent sections read as empty (every key at its default).
 Section section(const toml::table& root, const std::string& name, const std::string& file) {
@@ -203,7 +201,7 @@ Scene default_scene() {
   s.integrator.kind = IntegratorKind::kNve;
   s.integrator.dt = 0.005;
   s.steps = 1000;
-  s.backend.backend = "auto";
+  s.backend.backend = Backend::kAuto;
   s.backend.precision = Precision::kMixed;
   s.output.thermo_every = 100;
   return s;
@@ -406,8 +404,8 @@ Scene parse_scene(const std::string& text, const std::string& name, const std::s
 
   Section run = section(root, "run", name);
   scene.steps = run.integer("steps", 1000, 0);
-  scene.backend.backend = run.choice("backend", std::string("auto"), kBackends);
-  scene.backend.precision = run.choice("precision", Precision::kMixed, kPrecisionNames);
+  scene.backend.backend = run.choice("backend", Backend::kAuto, kBackends);
+  scene.backend.precision = run.choice("precision", Precision::kMixed, kPrecisions);
   run.finish();
 
   Section out = section(root, "output", name);

@@ -45,7 +45,7 @@
 #include <string>
 #include <vector>
 
-#include "cli/backend.h"
+#include "backends/force_engine.h"  // EngineChoice
 #include "core/force_field.h"
 #include "scene/lattice.h"
 
@@ -115,7 +115,7 @@ struct Scene {
   SceneIntegrator integrator;
   SceneMinimize minimize;
   int64_t steps = 1000;
-  BackendChoice backend;
+  EngineChoice backend;  // backend, precision, skin ([run], [neighbor])
   SceneOutput output;
 };
 

@@ -1,0 +1,110 @@
+/* cellforce's C API: Lennard-Jones forces, energies and virial of a particle system by the
+ * spatial-subdivision cutoff search of GPU Gems 3, chapter 32, on the CPU or a CUDA device.
+ *
+ * Every call returns a status; CF_OK is 0. On any other status cf_last_error(ctx) says why, naming
+ * the parameter, particle or option at fault, and the outputs and the context are left as they
+ * were. No call aborts the caller or lets a C++ exception escape. A context is used by one thread
+ * at a time.
+ *
+ * Arrays are in the caller's particle order, row-major: particle i's coordinate a is
+ * positions[i * dim + a]. Units are the caller's: lengths as the positions, energies as epsilon,
+ * forces energy / length.
+ *
+ *   cf_context* ctx;
+ *   const double box[3] = {10, 10, 10};
+ *   const int periodic[3] = {1, 1, 1};
+ *   uint32_t a;
+ *   if (cf_create(&ctx, 3) != CF_OK) ... cf_last_error(NULL) ...
+ *   cf_set_box(ctx, box, periodic);
+ *   cf_set_cutoff(ctx, 2.5, "truncate");
+ *   cf_add_type(ctx, "A", 1.0, 1.0, &a);
+ *   if (cf_compute(ctx, n, positions, NULL, forces, &energy, NULL) != CF_OK)
+ *     fprintf(stderr, "%s\n", cf_last_error(ctx));
+ *   cf_destroy(ctx);
+ */
+#ifndef CELLFORCE_CELLFORCE_H
+#define CELLFORCE_CELLFORCE_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include <cellforce/export.hpp>
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+typedef struct cf_context cf_context;
+
+typedef enum {
+  CF_OK = 0,
+  CF_ERROR_INPUT = 1,    /* a bad argument, option or array value */
+  CF_ERROR_DEVICE = 2,   /* no usable CUDA device, or a CUDA call failed */
+  CF_ERROR_INTERNAL = 3  /* out of memory, or a fault of cellforce itself */
+} cf_status;
+
+/* The library's version, "MAJOR.MINOR.PATCH". */
+CELLFORCE_API const char* cf_version(void);
+
+/* A new context for dim = 2 or 3 in *ctx: no box, cutoff or types yet; defaults: CPU backend,
+ * double precision, truncated cutoff, Lorentz-Berthelot mixing, no skin. On failure *ctx is NULL
+ * (when ctx is not) and cf_last_error(NULL) says why. */
+CELLFORCE_API cf_status cf_create(cf_context** ctx, int dim);
+
+/* lengths[dim], periodic[dim] (non-zero: the axis wraps). A periodic edge must be finite and > 0
+ * (and at least twice the cutoff, checked when computing); the length of an open axis is ignored
+ * and may be 0. */
+CELLFORCE_API cf_status cf_set_box(cf_context* ctx, const double* lengths, const int* periodic);
+
+/* Pairs interact only when r < rc; mode: "truncate", "shift" or "force-shift" (NULL: truncate). */
+CELLFORCE_API cf_status cf_set_cutoff(cf_context* ctx, double rc, const char* mode);
+
+/* A particle type; *index (when index is not NULL) receives its index: 0, 1, ... in the order
+ * added. sigma and epsilon finite and >= 0; the name printable and not added before. */
+CELLFORCE_API cf_status cf_add_type(cf_context* ctx, const char* name, double sigma, double epsilon, uint32_t* index);
+
+/* An explicit pair value replacing the mixing rule for types a and b (either order). */
+CELLFORCE_API cf_status cf_set_pair(cf_context* ctx, uint32_t a, uint32_t b, double sigma, double epsilon);
+
+/* A choice by name:
+ *   backend       cpu | cuda | auto        precision     single | mixed | double
+ *   mixing        lorentz-berthelot | geometric
+ *   cutoff-mode   truncate | shift | force-shift
+ *   skin          a length >= 0 (Verlet skin of the neighbour structure; 0 rebuilds every call)
+ *   device        CUDA device ordinal      accumulation  jacobi | gauss-seidel
+ *   cell-rule     tight | chapter          traversal     warp | thread      sort  cub | chapter */
+CELLFORCE_API cf_status cf_set_option(cf_context* ctx, const char* key, const char* value);
+
+/* Host arrays. positions: n * dim (finite; any periodic image); types: n indices into the types
+ * added, or NULL for all type 0; forces: n * dim, written; energy: 1 (total potential energy) or
+ * NULL; virial: dim * dim row-major (sum over pairs of r_ij (x) f_ij, r_ij = x_i - x_j by minimum
+ * image, f_ij the force on i from j) or NULL. n = 0 is a valid, empty call. Returns when the
+ * results are written. */
+CELLFORCE_API cf_status cf_compute(cf_context* ctx, size_t n, const double* positions, const uint32_t* types,
+                     double* forces, double* energy, double* virial);
+
+/* As cf_compute, with energies: n per-particle energies (half of each pair's energy; they sum to
+ * the total), or NULL. */
+CELLFORCE_API cf_status cf_compute_energies(cf_context* ctx, size_t n, const double* positions, const uint32_t* types,
+                              double* forces, double* energies, double* energy, double* virial);
+
+/* As cf_compute, with every pointer a device pointer on the context's CUDA device (the cuda
+ * backend, or auto with a device) and the work ordered on `stream` (a cudaStream_t; NULL: the
+ * legacy default stream): the results are ready when the stream reaches this call's point. This
+ * version synchronises the host (it reads the positions back to validate them and plan the grid);
+ * the results are bitwise those of cf_compute on the same input. */
+CELLFORCE_API cf_status cf_compute_device(cf_context* ctx, size_t n, const double* positions, const uint32_t* types,
+                            double* forces, double* energy, double* virial, void* stream);
+
+/* Why the last call on ctx failed ("" after a success); with ctx NULL, why the last cf_create of
+ * this thread failed. The text stays valid until the next call on ctx. */
+CELLFORCE_API const char* cf_last_error(const cf_context* ctx);
+
+/* Frees the context; NULL is ignored. */
+CELLFORCE_API void cf_destroy(cf_context* ctx);
+
+#ifdef __cplusplus
+}
+#endif
+
+#endif /* CELLFORCE_CELLFORCE_H */

@@ -1,0 +1,280 @@
+// cellforce::Context (include/cellforce/cellforce.hpp): the physics the caller describes, checked
+// where it enters, and the engine (src/backends) built from the engine choices on first use and
+// again after any of them changes.
+#include <cellforce/cellforce.hpp>
+
+#include <charconv>
+#include <cmath>
+#include <cstring>
+#include <optional>
+#include <sstream>
+
+#include "backends/force_engine.h"
+#include "core/error.h"
+#include "core/force_field.h"
+#include "core/names.h"
+#include "core/system.h"
+#include "core/text.h"
+
+#ifndef CELLFORCE_VERSION
+#define CELLFORCE_VERSION "unknown"
+#endif
+
+namespace cellforce {
+
+const char* version() { return CELLFORCE_VERSION; }
+
+namespace {
+
+constexpr const char* kAxis[3] = {"x", "y", "z"};
+
+template <class E, std::size_t N>
+E parse_option(std::string_view key, std::string_view value, const Named<E> (&table)[N]) {
+  if (const std::optional<E> v = parse_name(value, table)) return *v;
+  throw Error("option " + std::string(key) + ": " + quote_excerpt(std::string(value)) + " is not one of " +
+              name_list(table));
+}
+
+double parse_number(std::string_view key, std::string_view value) {
+  double v = 0;
+  const auto [end, ec] = std::from_chars(value.data(), value.data() + value.size(), v);
+  if (ec != std::errc() || end != value.data() + value.size() || value.empty())
+    throw Error("option " + std::string(key) + ": " + quote_excerpt(std::string(value)) + " is not a number");
+  return v;
+}
+
+int parse_int(std::string_view key, std::string_view value) {
+  int v = 0;
+  const auto [end, ec] = std::from_chars(value.data(), value.data() + value.size(), v);
+  if (ec != std::errc() || end != value.data() + value.size() || value.empty())
+    throw Error("option " + std::string(key) + ": " + quote_excerpt(std::string(value)) + " is not an integer");
+  return v;
+}
+
+void check_output(const void* p, const char* what, std::size_t n) {
+  if (n > 0 && p == nullptr)
+    throw Error(std::string(what) + " is a null pointer (" + std::to_string(n) + " particles)");
+}
+
+}  // namespace
+
+struct Context::Impl {
+  int dim = 3;
+  Box box;
+  bool has_box = false, has_cutoff = false;
+  ForceField ff;
+  EngineChoice choice;
+  std::unique_ptr<ForceEngine> engine;
+  ForceResult result;  // compute()'s staging (the engine's layout), reused across calls
+  Statistics statistics;
+
+  explicit Impl(int d) : dim(d) {
+    if (d != 2 && d != 3) throw Error("dimension " + std::to_string(d) + ": expected 2 or 3");
+    box.dim = d;
+    ff.types.clear();
+    choice.backend = Backend::kCpu;
+    choice.precision = Precision::kDouble;
+  }
+
+  ForceEngine& get_engine() {
+    if (!engine) engine = make_force_engine(choice);
+    return *engine;
+  }
+  void engine_changed() { engine.reset(); }
+
+  // What compute needs before any array is read; the arrays themselves are checked by the engine
+  // (validate_system: non-finite coordinates, type indices, rc against the box).
+  void check_ready() const {
+    if (!has_box) throw Error("no box: call set_box (cf_set_box) before computing");
+    if (!has_cutoff) throw Error("no cutoff: call set_cutoff (cf_set_cutoff) before computing");
+    if (ff.types.empty()) throw Error("no particle types: add one with add_type (cf_add_type) before computing");
+    ff.validate();
+  }
+
+  void record_statistics() {
+    const PipelineStats s = engine->stats(SystemView{}, ff, false);
+    statistics.pipeline_seconds = s.t_total - s.t_transfer;
+    statistics.transfer_seconds = s.t_transfer;
+    statistics.builds = s.builds;
+    statistics.rebuilt = s.rebuilt;
+    statistics.buffer_bytes = s.buffer_bytes;
+  }
+};
+
+Context::Context(int dim) : impl_(std::make_unique<Impl>(dim)) {}
+Context::~Context() = default;
+Context::Context(Context&&) noexcept = default;
+Context& Context::operator=(Context&&) noexcept = default;
+
+void Context::set_box(const double* lengths, const bool* periodic) {
+  if (!lengths) throw Error("box lengths is a null pointer");
+  if (!periodic) throw Error("box periodic is a null pointer");
+  Box box;
+  box.dim = impl_->dim;
+  for (int a = 0; a < box.dim; ++a) {
+    box.periodic[a] = periodic[a];
+    box.length[a] = periodic[a] ? lengths[a] : 0.0;  // an open axis' length is not used
+    if (periodic[a] && (!std::isfinite(lengths[a]) || lengths[a] <= 0.0))
+      throw Error(std::string("box edge ") + kAxis[a] + " is " + format_number(lengths[a]) +
+                  "; a periodic edge must be finite and > 0");
+  }
+  impl_->box = box;
+  impl_->has_box = true;
+}
+
+void Context::set_cutoff(double rc, CutoffMode mode) {
+  if (!std::isfinite(rc) || rc <= 0.0)
+    throw Error("cutoff is " + format_number(rc) + "; it must be finite and > 0");
+  if (mode != CutoffMode::kTruncate && mode != CutoffMode::kShift && mode != CutoffMode::kForceShift)
+    throw Error("cutoff mode " + std::to_string(int(mode)) + " is not a CutoffMode");
+  impl_->ff.cutoff = rc;
+  impl_->ff.mode = mode;
+  impl_->has_cutoff = true;
+}
+
+void Context::set_mixing(Mixing mixing) {
+  if (mixing != Mixing::kLorentzBerthelot && mixing != Mixing::kGeometric)
+    throw Error("mixing " + std::to_string(int(mixing)) + " is not a Mixing");
+  impl_->ff.mixing = mixing;
+}
+
+uint32_t Context::add_type(const std::string& name, double sigma, double epsilon) {
+  for (const ParticleType& t : impl_->ff.types)
+    if (t.name == name) throw Error("type " + quote_excerpt(name) + " is already added");
+  ForceField trial = impl_->ff;
+  trial.types.push_back(ParticleType{name, sigma, epsilon});
+  if (!impl_->has_cutoff) trial.cutoff = 1.0;  // the types are checked here, the cutoff elsewhere
+  trial.validate();
+  impl_->ff.types.push_back(ParticleType{name, sigma, epsilon});
+  return uint32_t(impl_->ff.types.size() - 1);
+}
+
+void Context::set_pair(uint32_t a, uint32_t b, double sigma, double epsilon) {
+  const std::size_t types = impl_->ff.types.size();
+  if (a >= types || b >= types)
+    throw Error("pair (" + std::to_string(a) + ", " + std::to_string(b) + "): type index " +
+                std::to_string(a >= types ? a : b) + " is out of range (" + std::to_string(types) + " types)");
+  ForceField trial = impl_->ff;
+  std::erase_if(trial.overrides, [&](const PairOverride& o) {
+    return (o.a == a && o.b == b) || (o.a == b && o.b == a);
+  });
+  trial.overrides.push_back(PairOverride{a, b, sigma, epsilon});
+  ForceField check = trial;
+  if (!impl_->has_cutoff) check.cutoff = 1.0;
+  check.validate();
+  impl_->ff = std::move(trial);
+}
+
+void Context::set_backend(Backend backend, int device) {
+  if (backend != Backend::kAuto && backend != Backend::kCpu && backend != Backend::kCuda)
+    throw Error("backend " + std::to_string(int(backend)) + " is not a Backend");
+  if (device < 0) throw Error("device " + std::to_string(device) + ": expected an ordinal >= 0");
+  impl_->choice.backend = backend;
+  impl_->choice.device = device;
+  impl_->engine_changed();
+}
+
+void Context::set_precision(Precision precision) {
+  if (precision != Precision::kSingle && precision != Precision::kMixed && precision != Precision::kDouble)
+    throw Error("precision " + std::to_string(int(precision)) + " is not a Precision");
+  impl_->choice.precision = precision;
+  impl_->engine_changed();
+}
+
+void Context::set_skin(double skin) {
+  ReuseOptions reuse = impl_->choice.reuse;
+  reuse.skin = skin;
+  validate_reuse(reuse);
+  impl_->choice.reuse = reuse;
+  impl_->engine_changed();
+}
+
+void Context::set_option(std::string_view key, std::string_view value) {
+  EngineChoice& c = impl_->choice;
+  if (key == "backend") {
+    set_backend(parse_option(key, value, kBackendNames), c.device);
+  } else if (key == "device") {
+    set_backend(c.backend, parse_int(key, value));
+  } else if (key == "precision") {
+    set_precision(parse_option(key, value, kPrecisionNames));
+  } else if (key == "mixing") {
+    set_mixing(parse_option(key, value, kMixingNames));
+  } else if (key == "cutoff-mode") {
+    impl_->ff.mode = parse_option(key, value, kCutoffModeNames);
+  } else if (key == "skin") {
+    set_skin(parse_number(key, value));
+  } else if (key == "accumulation") {
+    c.accumulation = parse_option(key, value, kAccumulationNames);
+    impl_->engine_changed();
+  } else if (key == "cell-rule") {
+    c.rule = parse_option(key, value, kCellRuleNames);
+    impl_->engine_changed();
+  } else if (key == "traversal") {
+    c.traversal = parse_option(key, value, kTraversalNames);
+    impl_->engine_changed();
+  } else if (key == "sort") {
+    c.sort = parse_option(key, value, kSortNames);
+    impl_->engine_changed();
+  } else {
+    throw Error("unknown option " + quote_excerpt(std::string(key)) +
+                "; options: backend, device, precision, mixing, cutoff-mode, skin, accumulation, "
+                "cell-rule, traversal, sort");
+  }
+}
+
+void Context::compute(std::size_t n, const double* positions, const uint32_t* types, const Outputs& out) {
+  Impl& s = *impl_;
+  s.check_ready();
+  check_output(positions, "positions", n);
+  check_output(out.forces, "forces", n);
+  const SystemView system{s.box, n, positions, types};
+  validate_system(system, s.ff);  // before the engine is built: bad input is named either way
+  const Request request{out.energies != nullptr || out.energy != nullptr, out.virial != nullptr};
+  s.get_engine().evaluate(system, s.ff, request, s.result);
+  const std::size_t dim = std::size_t(s.dim);
+  if (n) std::memcpy(out.forces, s.result.forces.data(), n * dim * sizeof(double));
+  if (out.energies && n) std::memcpy(out.energies, s.result.energies.data(), n * sizeof(double));
+  if (out.energy) *out.energy = s.result.energy;
+  if (out.virial)
+    for (std::size_t r = 0; r < dim; ++r)
+      for (std::size_t c = 0; c < dim; ++c) out.virial[r * dim + c] = s.result.virial[r][c];
+  s.record_statistics();
+}
+
+void Context::compute_device(std::size_t n, const double* positions, const uint32_t* types,
+                             const Outputs& out, void* stream) {
+  Impl& s = *impl_;
+  s.check_ready();
+  check_output(positions, "positions", n);
+  check_output(out.forces, "forces", n);
+  ForceEngine& engine = s.get_engine();
+  if (engine.backend() != Backend::kCuda)
+    throw Error("compute_device needs the cuda backend; this context runs on the CPU (set_backend)");
+  engine.evaluate_device(DeviceSystemView{s.box, n, positions, types}, s.ff,
+                         DeviceOutputs{out.forces, out.energies, out.energy, out.virial}, stream);
+  s.record_statistics();
+}
+
+PairCounts Context::count_pairs(std::size_t n, const double* positions, const uint32_t* types) {
+  Impl& s = *impl_;
+  s.check_ready();
+  const SystemView system{s.box, n, positions, types};
+  validate_system(system, s.ff);
+  ForceEngine& engine = s.get_engine();
+  if (engine.backend() == Backend::kCpu) {  // the CPU counts on every evaluation
+    ForceResult scratch;
+    engine.evaluate(system, s.ff, Request{false, false}, scratch);
+  }
+  const PipelineStats stats = engine.stats(system, s.ff, true);
+  return PairCounts{stats.candidate_pairs, stats.interacting_pairs};
+}
+
+Statistics Context::statistics() const { return impl_->statistics; }
+int Context::dim() const { return impl_->dim; }
+std::size_t Context::num_types() const { return impl_->ff.types.size(); }
+std::string Context::backend_name() { return to_string(impl_->get_engine().backend()); }
+std::string Context::description() { return impl_->get_engine().description(); }
+std::string Context::traversal() { return impl_->get_engine().traversal(); }
+std::string Context::sort() { return impl_->get_engine().sort(); }
+
+}  // namespace cellforce

@@ -1,0 +1,77 @@
+// The backends' force job: one interface, implemented by the CPU engine (src/cpu, adapted in
+// src/backends/cpu_force_engine.cpp) and the CUDA engine (cuda/, adapted in
+// cuda/force_engine.cpp). Layers above (the public API in src/api) hold a ForceEngine and never
+// name an engine class or test for CUDA themselves.
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <string>
+
+#include <cellforce/options.hpp>
+
+#include "core/engine_options.h"
+#include "core/force_field.h"
+#include "core/grid.h"
+#include "core/reuse.h"
+#include "core/system.h"
+
+namespace cellforce {
+
+// Everything that chooses and configures an engine, typed and validated where it enters (the API,
+// the scene file, the CLI); names in core/names.h.
+struct EngineChoice {
+  Backend backend = Backend::kAuto;
+  Precision precision = Precision::kDouble;
+  Accumulation accumulation = Accumulation::kJacobi;
+  CellRule rule = CellRule::kTight;
+  TraversalForm traversal = TraversalForm::kWarpPerCell;  // CUDA only
+  SortMethod sort = SortMethod::kCub;                     // CUDA only
+  ReuseOptions reuse;                                     // skin, check, every, audit
+  int device = 0;                                         // CUDA device ordinal
+};
+
+class ForceEngine {
+ public:
+  virtual ~ForceEngine() = default;
+
+  // Host arrays in, host results out; throws cellforce::Error on bad input, naming the particle
+  // or parameter (as CpuEngine::evaluate).
+  virtual void evaluate(const SystemView& system, const ForceField& ff, const Request& request,
+                        ForceResult& result) = 0;
+
+  // Device arrays in and out, work ordered after what `stream` (a cudaStream_t; null: the legacy
+  // default stream) already holds, results ready when the stream reaches the point of the call.
+  // Throws cellforce::Error on a backend without a device.
+  virtual void evaluate_device(const DeviceSystemView& system, const ForceField& ff,
+                               const DeviceOutputs& out, void* stream) = 0;
+
+  // The last evaluation's stage times; with `counts`, also the candidate and interacting pair
+  // counts (the CUDA engine counts them in an extra pass over the same system, which with a skin
+  // counts as one more evaluation of the structure: it may rebuild, and it uses up one of
+  // `every`; the build counts it reports are the extra pass's).
+  virtual PipelineStats stats(const SystemView& system, const ForceField& ff, bool counts) = 0;
+
+  // Reuse across a restart (the engines' reuse_state / restore_reuse).
+  virtual ReuseState reuse_state() const = 0;
+  virtual void restore_reuse(const SystemView& built_from, const ForceField& ff, int64_t served) = 0;
+
+  virtual Backend backend() const = 0;             // kCpu or kCuda, never kAuto
+  virtual std::string description() const = 0;    // device or threads, and the algorithm
+  virtual std::string traversal() const = 0;       // CUDA: the traversal form; CPU: "-"
+  virtual std::string sort() const = 0;            // CUDA: the sort; CPU: "-"
+};
+
+// The engine that `choice` names (kAuto: CUDA when a device can be used, else the CPU). Throws
+// cellforce::Error when the backend cannot be used (no CUDA device, a CPU-only build) or an
+// option is out of range (the skin).
+std::unique_ptr<ForceEngine> make_force_engine(const EngineChoice& choice);
+
+// The backends themselves (make_force_engine picks one).
+std::unique_ptr<ForceEngine> make_cpu_force_engine(const EngineChoice& choice);
+#ifdef CELLFORCE_HAVE_CUDA
+std::unique_ptr<ForceEngine> make_cuda_force_engine(const EngineChoice& choice);
+std::string cuda_unavailable();  // empty when a CUDA device can be used; otherwise why not
+#endif
+
+}  // namespace cellforce

@@ -1,0 +1,496 @@
+// The public API (include/cellforce): the C++ Context and the C functions against the
+// double-precision brute force and analytic pair values, bitwise against `cellforce forces` on the
+// same input, backend and precision, and every bad input of the C API answered with a status and a
+// message naming the parameter or particle. The device-pointer tests need a CUDA device and skip
+// without one.
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+
+#include <cellforce/cellforce.h>
+#include <cellforce/cellforce.hpp>
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <limits>
+#include <string>
+#include <vector>
+
+#ifdef CELLFORCE_HAVE_CUDA
+#include <cuda_runtime.h>
+
+#include "engine.h"  // cuda/engine.h: GpuEngine::unavailable
+#endif
+
+#include "cli/forces.h"
+#include "io/configuration_file.h"
+#include "io/hdf5.h"
+#include "oracle.h"
+#include "reference/brute_force.h"
+#include "temp_folder.h"
+
+namespace {
+
+using ::testing::HasSubstr;
+namespace cf = cellforce;
+
+// A binary Lennard-Jones liquid (A, B; Lorentz-Berthelot with an explicit A-B pair), periodic.
+struct Binary {
+  cf::Configuration config;
+  cf::ForceField ff;
+};
+
+Binary binary_liquid(int dim, std::size_t n, uint64_t seed) {
+  Binary b;
+  const double edge = dim == 3 ? std::cbrt(double(n) / 0.8) : std::sqrt(double(n) / 0.7);
+  cftest::RandomSpec spec;
+  spec.min_distance = 0.8;
+  spec.num_types = 2;
+  b.config = cftest::random_configuration(cftest::cube(dim, edge), n, seed, spec);
+  b.ff.cutoff = 2.5;
+  b.ff.mode = cf::CutoffMode::kForceShift;
+  b.ff.types = {{"A", 1.0, 1.0}, {"B", 0.88, 0.5}};
+  b.ff.overrides = {{0, 1, 0.8, 1.5}};
+  return b;
+}
+
+cf::Context context_for(const Binary& b, cf::Backend backend, cf::Precision precision) {
+  cf::Context ctx(b.config.box.dim);
+  const bool periodic[3] = {b.config.box.periodic[0], b.config.box.periodic[1], b.config.box.periodic[2]};
+  ctx.set_box(b.config.box.length, periodic);
+  ctx.set_cutoff(b.ff.cutoff, b.ff.mode);
+  for (const auto& t : b.ff.types) ctx.add_type(t.name, t.sigma, t.epsilon);
+  for (const auto& o : b.ff.overrides) ctx.set_pair(uint32_t(o.a), uint32_t(o.b), o.sigma, o.epsilon);
+  ctx.set_backend(backend);
+  ctx.set_precision(precision);
+  return ctx;
+}
+
+// compute() into a ForceResult (the oracle's layout).
+cf::ForceResult compute(cf::Context& ctx, const cf::Configuration& c) {
+  cf::ForceResult r;
+  const int dim = std::min(c.box.dim, 3);
+  r.dim = dim;
+  r.forces.assign(c.size() * std::size_t(dim), std::nan(""));
+  r.energies.assign(c.size(), std::nan(""));
+  double w[9] = {};
+  ctx.compute(c.size(), c.positions.data(), c.types.data(), {r.forces.data(), r.energies.data(), &r.energy, w});
+  for (int a = 0; a < dim; ++a)
+    for (int b = 0; b < dim; ++b) r.virial[a][b] = w[a * dim + b];
+  return r;
+}
+
+std::vector<cf::Backend> backends_here() {
+  std::vector<cf::Backend> out = {cf::Backend::kCpu};
+#ifdef CELLFORCE_HAVE_CUDA
+  if (cf::GpuEngine::unavailable().empty()) out.push_back(cf::Backend::kCuda);
+#endif
+  return out;
+}
+
+// Tolerances against the double brute force: double arithmetic agrees to rounding; float pairs
+// to a few float ulps of the largest forces.
+double tolerance(cf::Precision p) { return p == cf::Precision::kDouble ? 1e-11 : 2e-5; }
+
+const cf::Precision kPrecisions[] = {cf::Precision::kDouble, cf::Precision::kMixed, cf::Precision::kSingle};
+
+}  // namespace
+
+// ---- the C++ API ----------------------------------------------------------------------------------
+
+TEST(Api, ComputeMatchesTheBruteForceOnEveryBackendAndPrecision) {
+  for (int dim : {3, 2}) {
+    const Binary b = binary_liquid(dim, 900, 7 + uint64_t(dim));
+    cf::ForceResult ref;
+    cf::brute_force(b.config.view(), b.ff, cf::Request{true, true}, ref);
+    for (cf::Backend backend : backends_here())
+      for (cf::Precision p : kPrecisions) {
+        SCOPED_TRACE(std::string(cf::to_string(backend)) + " " + cf::to_string(p) + " " + std::to_string(dim) + "D");
+        cf::Context ctx = context_for(b, backend, p);
+        const cf::ForceResult got = compute(ctx, b.config);
+        EXPECT_TRUE(cftest::forces_match(ref, got, tolerance(p)));
+        EXPECT_TRUE(cftest::energies_match(ref, got, tolerance(p)));
+        EXPECT_TRUE(cftest::total_energy_matches(ref, got, tolerance(p)));
+        EXPECT_TRUE(cftest::virial_matches(ref, got, tolerance(p)));
+        EXPECT_EQ(ctx.backend_name(), cf::to_string(backend));
+      }
+  }
+}
+
+// Two particles at r = 1.5 (sigma 1.1, epsilon 0.7), truncated: the analytic force, energy and
+// virial, through the C++ and the C API alike.
+TEST(Api, TwoParticlesGiveTheAnalyticPairValues) {
+  const double r = 1.5, sigma = 1.1, eps = 0.7;
+  const double sr6 = std::pow(sigma / r, 6);
+  const double energy = 4 * eps * (sr6 * sr6 - sr6);
+  const double force = 24 * eps * (2 * sr6 * sr6 - sr6) / r;  // on particle 0 along x_0 - x_1
+  const double pos[6] = {2.0, 3.0, 3.0, 3.5, 3.0, 3.0};      // x_0 - x_1 = -1.5 along x
+  const double box[3] = {10, 10, 10};
+  for (cf::Backend backend : backends_here()) {
+    SCOPED_TRACE(cf::to_string(backend));
+    cf::Context ctx(3);
+    const bool periodic[3] = {true, true, true};
+    ctx.set_box(box, periodic);
+    ctx.set_cutoff(3.0);
+    ctx.add_type("A", sigma, eps);
+    ctx.set_backend(backend);
+    double f[6], e = 0, w[9];
+    ctx.compute(2, pos, nullptr, {f, nullptr, &e, w});
+    EXPECT_NEAR(e, energy, 1e-14 * std::abs(energy));
+    EXPECT_NEAR(f[0], -force, 1e-13 * std::abs(force));
+    EXPECT_NEAR(f[3], force, 1e-13 * std::abs(force));
+    EXPECT_EQ(f[1], 0.0);
+    EXPECT_NEAR(w[0], r * force, 1e-13 * std::abs(r * force));  // (-r)(-F) along x
+    EXPECT_EQ(w[4], 0.0);
+
+    cf_context* c = nullptr;
+    ASSERT_EQ(cf_create(&c, 3), CF_OK) << cf_last_error(nullptr);
+    const int pbc[3] = {1, 1, 1};
+    ASSERT_EQ(cf_set_box(c, box, pbc), CF_OK);
+    ASSERT_EQ(cf_set_cutoff(c, 3.0, "truncate"), CF_OK);
+    uint32_t index = 99;
+    ASSERT_EQ(cf_add_type(c, "A", sigma, eps, &index), CF_OK);
+    EXPECT_EQ(index, 0u);
+    ASSERT_EQ(cf_set_option(c, "backend", cf::to_string(backend)), CF_OK) << cf_last_error(c);
+    double fc[6], ec = 0, wc[9];
+    ASSERT_EQ(cf_compute(c, 2, pos, nullptr, fc, &ec, wc), CF_OK) << cf_last_error(c);
+    EXPECT_EQ(std::memcmp(f, fc, sizeof f), 0) << "the C API differs from the C++ API";
+    EXPECT_EQ(std::memcmp(&e, &ec, sizeof e), 0);
+    EXPECT_EQ(std::memcmp(w, wc, sizeof w), 0);
+    EXPECT_STREQ(cf_last_error(c), "");
+    cf_destroy(c);
+  }
+}
+
+// The box, the particle count and the types may change between calls: each call equals a fresh
+// context's, and the brute force.
+TEST(Api, BoxAndParticleCountMayChangeBetweenCalls) {
+  for (cf::Backend backend : backends_here()) {
+    SCOPED_TRACE(cf::to_string(backend));
+    const Binary small = binary_liquid(3, 500, 31), large = binary_liquid(3, 1400, 32);
+    cf::Context ctx = context_for(small, backend, cf::Precision::kDouble);
+    for (const Binary* b : {&small, &large, &small}) {
+      const bool periodic[3] = {true, true, true};
+      ctx.set_box(b->config.box.length, periodic);
+      const cf::ForceResult got = compute(ctx, b->config);
+      cf::Context fresh = context_for(*b, backend, cf::Precision::kDouble);
+      EXPECT_TRUE(cftest::bitwise_equal(compute(fresh, b->config), got));
+      cf::ForceResult ref;
+      cf::brute_force(b->config.view(), b->ff, cf::Request{true, true}, ref);
+      EXPECT_TRUE(cftest::forces_match(ref, got, 1e-11));
+    }
+  }
+}
+
+// Only what is asked for is written; n = 0 is a valid, empty call.
+TEST(Api, OptionalOutputsAndEmptyCalls) {
+  const Binary b = binary_liquid(3, 300, 5);
+  for (cf::Backend backend : backends_here()) {
+    SCOPED_TRACE(cf::to_string(backend));
+    cf::Context ctx = context_for(b, backend, cf::Precision::kDouble);
+    std::vector<double> f(b.config.size() * 3);
+    ctx.compute(b.config.size(), b.config.positions.data(), b.config.types.data(), {f.data()});
+    const cf::ForceResult all = compute(ctx, b.config);
+    EXPECT_EQ(std::memcmp(f.data(), all.forces.data(), f.size() * sizeof(double)), 0);
+    double e = 1.0, w[9];
+    std::fill(std::begin(w), std::end(w), 1.0);
+    ctx.compute(0, nullptr, nullptr, {nullptr, nullptr, &e, w});
+    EXPECT_EQ(e, 0.0);
+    for (double v : w) EXPECT_EQ(v, 0.0);
+  }
+}
+
+// ---- bitwise equal to `cellforce forces` ------------------------------------------------------------
+
+using ApiVsForcesCommand = cftest::TempFolder;
+
+TEST_F(ApiVsForcesCommand, ApiResultsAreBitwiseTheForcesFile) {
+  const Binary b = binary_liquid(3, 800, 11);
+  const std::string xyz = path("in.xyz");
+  cf::write_extxyz(xyz, b.config, {"A", "B"});
+  for (cf::Backend backend : backends_here())
+    for (cf::Precision p : kPrecisions) {
+      SCOPED_TRACE(std::string(cf::to_string(backend)) + " " + cf::to_string(p));
+      cf::ForcesArgs args;
+      args.input = xyz;
+      args.out = path("out.h5");
+      args.overwrite = true;
+      args.cutoff = b.ff.cutoff;
+      args.mode = b.ff.mode;
+      args.types = {"A:1.0:1.0", "B:0.88:0.5"};
+      args.pairs = {"A:B:0.8:1.5"};
+      args.backend.backend = backend;
+      args.backend.precision = p;
+      args.quiet = true;
+      ASSERT_EQ(cf::run_forces(args), 0);
+      cf::h5::File f = cf::h5::File::open_read(args.out);
+      const auto forces = cf::h5::read_doubles(f.id(), "forces", args.out).values;
+      const auto energies = cf::h5::read_doubles(f.id(), "energies", args.out).values;
+      const auto energy = cf::h5::read_doubles(f.id(), "energy", args.out).values;
+      const auto virial = cf::h5::read_doubles(f.id(), "virial", args.out).values;
+
+      // The same input as the file holds it (the API reads the coordinates the XYZ file gives).
+      const cf::ConfigurationFile input = cf::read_configuration(xyz);
+      cf::Context ctx = context_for(b, backend, p);
+      const cf::ForceResult got = compute(ctx, input.config);
+      ASSERT_EQ(forces.size(), got.forces.size());
+      EXPECT_EQ(std::memcmp(forces.data(), got.forces.data(), forces.size() * sizeof(double)), 0);
+      EXPECT_EQ(std::memcmp(energies.data(), got.energies.data(), energies.size() * sizeof(double)), 0);
+      ASSERT_EQ(energy.size(), 1u);
+      EXPECT_EQ(std::memcmp(&energy[0], &got.energy, sizeof(double)), 0);
+      ASSERT_EQ(virial.size(), 9u);
+      for (int r = 0; r < 3; ++r)
+        for (int c = 0; c < 3; ++c) EXPECT_EQ(std::memcmp(&virial[std::size_t(r * 3 + c)], &got.virial[r][c], 8), 0);
+    }
+}
+
+// ---- the C API: every bad input gives a status and a message -----------------------------------------
+
+namespace {
+
+// A ready 3D context (box 8, rc 2.5, one type) on the CPU.
+cf_context* ready_context() {
+  cf_context* c = nullptr;
+  EXPECT_EQ(cf_create(&c, 3), CF_OK);
+  const double box[3] = {8, 8, 8};
+  const int pbc[3] = {1, 1, 1};
+  EXPECT_EQ(cf_set_box(c, box, pbc), CF_OK);
+  EXPECT_EQ(cf_set_cutoff(c, 2.5, nullptr), CF_OK);
+  EXPECT_EQ(cf_add_type(c, "A", 1.0, 1.0, nullptr), CF_OK);
+  return c;
+}
+
+struct Expect {
+  cf_status status;
+  std::string message;  // a piece of cf_last_error
+};
+
+void expect(cf_status got, const cf_context* c, const Expect& e) {
+  EXPECT_EQ(got, e.status) << cf_last_error(c);
+  EXPECT_THAT(std::string(cf_last_error(c)), HasSubstr(e.message));
+}
+
+}  // namespace
+
+TEST(CApi, BadInputGivesAStatusAndAMessageNamingIt) {
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  // Creation.
+  expect(cf_create(nullptr, 3), nullptr, {CF_ERROR_INPUT, "ctx"});
+  cf_context* none = reinterpret_cast<cf_context*>(0x1);
+  expect(cf_create(&none, 4), nullptr, {CF_ERROR_INPUT, "dimension 4"});
+  EXPECT_EQ(none, nullptr);
+  // A null context on every call.
+  expect(cf_set_cutoff(nullptr, 2.5, nullptr), nullptr, {CF_ERROR_INPUT, "context is a null pointer"});
+  expect(cf_compute(nullptr, 0, nullptr, nullptr, nullptr, nullptr, nullptr), nullptr,
+         {CF_ERROR_INPUT, "context is a null pointer"});
+  cf_destroy(nullptr);
+
+  cf_context* c = nullptr;
+  ASSERT_EQ(cf_create(&c, 3), CF_OK);
+  const double pos[12] = {1, 1, 1, 2.2, 1, 1, 5, 5, 5, 6, 6.1, 5};
+  double f[12];
+  // Computing before the physics is complete.
+  expect(cf_compute(c, 4, pos, nullptr, f, nullptr, nullptr), c, {CF_ERROR_INPUT, "no box"});
+  // The box.
+  const int pbc[3] = {1, 1, 1};
+  const double good_box[3] = {8, 8, 8};
+  expect(cf_set_box(c, nullptr, pbc), c, {CF_ERROR_INPUT, "box lengths is a null pointer"});
+  expect(cf_set_box(c, good_box, nullptr), c, {CF_ERROR_INPUT, "box periodic is a null pointer"});
+  const double nan_box[3] = {8, nan, 8};
+  expect(cf_set_box(c, nan_box, pbc), c, {CF_ERROR_INPUT, "box edge y is nan"});
+  const double negative_box[3] = {8, 8, -1};
+  expect(cf_set_box(c, negative_box, pbc), c, {CF_ERROR_INPUT, "box edge z is -1"});
+  const double open_box[3] = {0, 8, 8};
+  const int open_x[3] = {0, 1, 1};
+  EXPECT_EQ(cf_set_box(c, open_box, open_x), CF_OK) << "an open axis' length is ignored";
+  ASSERT_EQ(cf_set_box(c, good_box, pbc), CF_OK);
+  // The cutoff.
+  expect(cf_compute(c, 4, pos, nullptr, f, nullptr, nullptr), c, {CF_ERROR_INPUT, "no cutoff"});
+  expect(cf_set_cutoff(c, nan, nullptr), c, {CF_ERROR_INPUT, "cutoff is nan"});
+  expect(cf_set_cutoff(c, -2.5, nullptr), c, {CF_ERROR_INPUT, "cutoff is -2.5"});
+  expect(cf_set_cutoff(c, 2.5, "smooth"), c, {CF_ERROR_INPUT, "cutoff mode 'smooth' is not one of truncate"});
+  ASSERT_EQ(cf_set_cutoff(c, 2.5, "shift"), CF_OK);
+  // Types.
+  expect(cf_compute(c, 4, pos, nullptr, f, nullptr, nullptr), c, {CF_ERROR_INPUT, "no particle types"});
+  expect(cf_add_type(c, "A", -1.0, 1.0, nullptr), c, {CF_ERROR_INPUT, "sigma of type 'A' is -1"});
+  expect(cf_add_type(c, "A", 1.0, nan, nullptr), c, {CF_ERROR_INPUT, "epsilon of type 'A' is nan"});
+  expect(cf_add_type(c, nullptr, 1.0, 1.0, nullptr), c, {CF_ERROR_INPUT, "type name is a null pointer"});
+  expect(cf_add_type(c, "", 1.0, 1.0, nullptr), c, {CF_ERROR_INPUT, "empty name"});
+  ASSERT_EQ(cf_add_type(c, "A", 1.0, 1.0, nullptr), CF_OK);
+  expect(cf_add_type(c, "A", 1.0, 1.0, nullptr), c, {CF_ERROR_INPUT, "type 'A' is already added"});
+  expect(cf_set_pair(c, 0, 3, 1.0, 1.0), c, {CF_ERROR_INPUT, "type index 3 is out of range (1 types)"});
+  expect(cf_set_pair(c, 0, 0, -0.5, 1.0), c, {CF_ERROR_INPUT, "sigma of pair 'A'-'A' is -0.5"});
+  // Options.
+  expect(cf_set_option(c, "colour", "blue"), c, {CF_ERROR_INPUT, "unknown option 'colour'"});
+  expect(cf_set_option(c, "precision", "quad"), c,
+         {CF_ERROR_INPUT, "option precision: 'quad' is not one of single, mixed or double"});
+  expect(cf_set_option(c, "backend", "opencl"), c, {CF_ERROR_INPUT, "is not one of auto, cpu or cuda"});
+  expect(cf_set_option(c, "skin", "-0.3"), c, {CF_ERROR_INPUT, "skin -0.3"});
+  expect(cf_set_option(c, "skin", "thick"), c, {CF_ERROR_INPUT, "option skin: 'thick' is not a number"});
+  expect(cf_set_option(c, "device", "-1"), c, {CF_ERROR_INPUT, "device -1"});
+  expect(cf_set_option(c, nullptr, "x"), c, {CF_ERROR_INPUT, "option key is a null pointer"});
+  expect(cf_set_option(c, "mixing", nullptr), c, {CF_ERROR_INPUT, "value of option mixing is a null pointer"});
+  ASSERT_EQ(cf_set_option(c, "mixing", "geometric"), CF_OK);
+  // Arrays.
+  double nan_pos[12];
+  std::memcpy(nan_pos, pos, sizeof pos);
+  nan_pos[7] = nan;  // particle 2, y
+  expect(cf_compute(c, 4, nan_pos, nullptr, f, nullptr, nullptr), c, {CF_ERROR_INPUT, "particle 2"});
+  expect(cf_compute(c, 4, nullptr, nullptr, f, nullptr, nullptr), c, {CF_ERROR_INPUT, "positions is a null pointer"});
+  expect(cf_compute(c, 4, pos, nullptr, nullptr, nullptr, nullptr), c, {CF_ERROR_INPUT, "forces is a null pointer"});
+  const uint32_t types[4] = {0, 0, 1, 0};
+  expect(cf_compute(c, 4, pos, types, f, nullptr, nullptr), c, {CF_ERROR_INPUT, "particle 2"});
+  EXPECT_THAT(std::string(cf_last_error(c)), HasSubstr("type"));
+  const double small_box[3] = {8, 4.5, 8};
+  ASSERT_EQ(cf_set_box(c, small_box, pbc), CF_OK);
+  expect(cf_compute(c, 4, pos, nullptr, f, nullptr, nullptr), c, {CF_ERROR_INPUT, "exceeds half the periodic box edge y"});
+  ASSERT_EQ(cf_set_box(c, good_box, pbc), CF_OK);
+  // A coincident pair names both particles.
+  const double same[6] = {1, 1, 1, 1, 1, 1};
+  expect(cf_compute(c, 2, same, nullptr, f, nullptr, nullptr), c, {CF_ERROR_INPUT, "particles 0 and 1"});
+  // Device pointers on the CPU backend.
+  expect(cf_compute_device(c, 4, pos, nullptr, f, nullptr, nullptr, nullptr), c,
+         {CF_ERROR_INPUT, "needs the cuda backend"});
+  // n = 0 is a valid, empty call; a failed call left the outputs alone and the context usable.
+  double e = 5;
+  EXPECT_EQ(cf_compute(c, 0, nullptr, nullptr, nullptr, &e, nullptr), CF_OK) << cf_last_error(c);
+  EXPECT_EQ(e, 0.0);
+  EXPECT_STREQ(cf_last_error(c), "");
+  EXPECT_EQ(cf_compute(c, 4, pos, nullptr, f, &e, nullptr), CF_OK) << cf_last_error(c);
+  EXPECT_TRUE(std::isfinite(e));
+  cf_destroy(c);
+}
+
+TEST(CApi, FailedComputeLeavesTheOutputsUnwritten) {
+  cf_context* c = ready_context();
+  const double pos[6] = {1, 1, 1, std::nan(""), 1, 1};
+  double f[6] = {7, 7, 7, 7, 7, 7}, e = 7, w[9] = {7, 7, 7, 7, 7, 7, 7, 7, 7};
+  EXPECT_EQ(cf_compute(c, 2, pos, nullptr, f, &e, w), CF_ERROR_INPUT);
+  for (double v : f) EXPECT_EQ(v, 7.0);
+  EXPECT_EQ(e, 7.0);
+  for (double v : w) EXPECT_EQ(v, 7.0);
+  cf_destroy(c);
+}
+
+TEST(CApi, TheCudaBackendWithoutADeviceIsADeviceError) {
+#ifdef CELLFORCE_HAVE_CUDA
+  if (cf::GpuEngine::unavailable().empty()) GTEST_SKIP() << "a CUDA device can be used here";
+#endif
+  cf_context* c = ready_context();
+  ASSERT_EQ(cf_set_option(c, "backend", "cuda"), CF_OK);
+  const double pos[3] = {1, 1, 1};
+  double f[3];
+  EXPECT_EQ(cf_compute(c, 1, pos, nullptr, f, nullptr, nullptr), CF_ERROR_DEVICE);
+  EXPECT_THAT(std::string(cf_last_error(c)), ::testing::AnyOf(HasSubstr("without CUDA"), HasSubstr("no CUDA device")));
+  cf_destroy(c);
+}
+
+// ---- device pointers --------------------------------------------------------------------------------
+
+#ifdef CELLFORCE_HAVE_CUDA
+namespace {
+
+template <class T>
+T* device_copy(const std::vector<T>& host, cudaStream_t stream = nullptr) {
+  T* d = nullptr;
+  EXPECT_EQ(cudaMalloc(reinterpret_cast<void**>(&d), std::max<std::size_t>(host.size(), 1) * sizeof(T)), cudaSuccess);
+  EXPECT_EQ(cudaMemcpyAsync(d, host.data(), host.size() * sizeof(T), cudaMemcpyHostToDevice, stream), cudaSuccess);
+  return d;
+}
+
+template <class T>
+std::vector<T> host_copy(const T* d, std::size_t n) {
+  std::vector<T> h(n);
+  EXPECT_EQ(cudaMemcpy(h.data(), d, n * sizeof(T), cudaMemcpyDeviceToHost), cudaSuccess);
+  return h;
+}
+
+}  // namespace
+
+// Device pointers give bitwise what host pointers give, on the default stream and on a user
+// stream whose pending work (the upload of the positions) the call must wait for.
+TEST(ApiDevice, DevicePointersAreBitwiseTheHostResults) {
+  if (!cf::GpuEngine::unavailable().empty()) GTEST_SKIP() << cf::GpuEngine::unavailable();
+  for (int dim : {3, 2})
+    for (cf::Precision p : kPrecisions) {
+      SCOPED_TRACE(std::string(cf::to_string(p)) + " " + std::to_string(dim) + "D");
+      const Binary b = binary_liquid(dim, 2000, 40 + uint64_t(dim));
+      cf::Context ctx = context_for(b, cf::Backend::kCuda, p);
+      const cf::ForceResult host = compute(ctx, b.config);
+      const std::size_t n = b.config.size(), nd = n * std::size_t(dim);
+
+      cudaStream_t stream = nullptr;
+      ASSERT_EQ(cudaStreamCreateWithFlags(&stream, cudaStreamNonBlocking), cudaSuccess);
+      // Pending work on the stream: the positions arrive by an asynchronous copy from pinned
+      // memory queued just before the call.
+      double* pinned = nullptr;
+      ASSERT_EQ(cudaMallocHost(reinterpret_cast<void**>(&pinned), nd * sizeof(double)), cudaSuccess);
+      std::memcpy(pinned, b.config.positions.data(), nd * sizeof(double));
+      double *d_pos = nullptr, *d_f = nullptr, *d_e = nullptr, *d_energy = nullptr, *d_w = nullptr;
+      ASSERT_EQ(cudaMalloc(reinterpret_cast<void**>(&d_pos), nd * sizeof(double)), cudaSuccess);
+      ASSERT_EQ(cudaMemsetAsync(d_pos, 0xff, nd * sizeof(double), stream), cudaSuccess);  // NaNs until the copy
+      ASSERT_EQ(cudaMemcpyAsync(d_pos, pinned, nd * sizeof(double), cudaMemcpyHostToDevice, stream), cudaSuccess);
+      uint32_t* d_types = device_copy(b.config.types, stream);
+      ASSERT_EQ(cudaMalloc(reinterpret_cast<void**>(&d_f), nd * sizeof(double)), cudaSuccess);
+      ASSERT_EQ(cudaMalloc(reinterpret_cast<void**>(&d_e), n * sizeof(double)), cudaSuccess);
+      ASSERT_EQ(cudaMalloc(reinterpret_cast<void**>(&d_energy), sizeof(double)), cudaSuccess);
+      ASSERT_EQ(cudaMalloc(reinterpret_cast<void**>(&d_w), 9 * sizeof(double)), cudaSuccess);
+      ctx.compute_device(n, d_pos, d_types, {d_f, d_e, d_energy, d_w}, stream);
+      ASSERT_EQ(cudaStreamSynchronize(stream), cudaSuccess);
+
+      cf::ForceResult dev;
+      dev.dim = dim;
+      dev.forces = host_copy(d_f, nd);
+      dev.energies = host_copy(d_e, n);
+      dev.energy = host_copy(d_energy, 1)[0];
+      const std::vector<double> w = host_copy(d_w, std::size_t(dim * dim));
+      for (int r = 0; r < dim; ++r)
+        for (int c = 0; c < dim; ++c) dev.virial[r][c] = w[std::size_t(r * dim + c)];
+      EXPECT_TRUE(cftest::bitwise_equal(host, dev));
+
+      // The C API on the default stream.
+      cf_context* c = nullptr;
+      ASSERT_EQ(cf_create(&c, dim), CF_OK);
+      const double lengths[3] = {b.config.box.length[0], b.config.box.length[1], b.config.box.length[2]};
+      const int pbc[3] = {1, 1, 1};
+      ASSERT_EQ(cf_set_box(c, lengths, pbc), CF_OK);
+      ASSERT_EQ(cf_set_cutoff(c, b.ff.cutoff, "force-shift"), CF_OK);
+      ASSERT_EQ(cf_add_type(c, "A", 1.0, 1.0, nullptr), CF_OK);
+      ASSERT_EQ(cf_add_type(c, "B", 0.88, 0.5, nullptr), CF_OK);
+      ASSERT_EQ(cf_set_pair(c, 0, 1, 0.8, 1.5), CF_OK);
+      ASSERT_EQ(cf_set_option(c, "backend", "cuda"), CF_OK);
+      ASSERT_EQ(cf_set_option(c, "precision", cf::to_string(p)), CF_OK);
+      ASSERT_EQ(cudaMemset(d_f, 0, nd * sizeof(double)), cudaSuccess);
+      ASSERT_EQ(cf_compute_device(c, n, d_pos, d_types, d_f, d_energy, d_w, nullptr), CF_OK) << cf_last_error(c);
+      ASSERT_EQ(cudaDeviceSynchronize(), cudaSuccess);
+      const std::vector<double> fc = host_copy(d_f, nd);
+      EXPECT_EQ(std::memcmp(fc.data(), host.forces.data(), nd * sizeof(double)), 0);
+      const double ec = host_copy(d_energy, 1)[0];
+      EXPECT_EQ(std::memcmp(&ec, &host.energy, sizeof ec), 0);
+      cf_destroy(c);
+
+      for (void* ptr : {static_cast<void*>(d_pos), static_cast<void*>(d_types), static_cast<void*>(d_f),
+                        static_cast<void*>(d_e), static_cast<void*>(d_energy), static_cast<void*>(d_w)})
+        cudaFree(ptr);
+      cudaFreeHost(pinned);
+      cudaStreamDestroy(stream);
+    }
+}
+
+// A bad particle in device arrays is named as for host arrays, and the outputs stay unwritten.
+TEST(ApiDevice, BadDeviceInputIsNamed) {
+  if (!cf::GpuEngine::unavailable().empty()) GTEST_SKIP() << cf::GpuEngine::unavailable();
+  cf_context* c = ready_context();
+  ASSERT_EQ(cf_set_option(c, "backend", "cuda"), CF_OK);
+  std::vector<double> pos = {1, 1, 1, 3, 1, 1, 5, 5, std::nan(""), 6, 6, 6};
+  double* d_pos = device_copy(pos);
+  std::vector<double> sevens(12, 7.0);
+  double* d_f = device_copy(sevens);
+  EXPECT_EQ(cf_compute_device(c, 4, d_pos, nullptr, d_f, nullptr, nullptr, nullptr), CF_ERROR_INPUT);
+  EXPECT_THAT(std::string(cf_last_error(c)), HasSubstr("particle 2"));
+  EXPECT_EQ(host_copy(d_f, 12), sevens);
+  cudaFree(d_pos);
+  cudaFree(d_f);
+  cf_destroy(c);
+}
+#endif
