@@ -150,29 +150,33 @@ struct GpuEngine::Impl {
   }
 
   // The positions (and types) of this evaluation, on every evaluation.
-  // From the host arrays of `sys`, or, when `on_device` is given, from its device arrays (the same
-  // particles).
+  // From the host arrays of `sys` (copied), or, when `on_device` is given, its device arrays (the
+  // same particles, borrowed).
   void upload_system(const SystemView& sys, const DeviceSystemView* on_device = nullptr) {
     record(kStart);
     const std::size_t nd = sys.n * std::size_t(sys.box.dim);
-    has_types = sys.types != nullptr;
-    if (on_device) {
-      positions.reserve(std::max<std::size_t>(nd, 1));
-      if (nd)
-        CF_CUDA_CHECK(cudaMemcpyAsync(positions.data(), on_device->positions, nd * sizeof(double),
-                                      cudaMemcpyDeviceToDevice, stream));
-      if (has_types) {
-        types.reserve(std::max<std::size_t>(sys.n, 1));
-        if (sys.n)
-          CF_CUDA_CHECK(cudaMemcpyAsync(types.data(), on_device->types, sys.n * sizeof(uint32_t),
-                                        cudaMemcpyDeviceToDevice, stream));
-      }
+    if (on_device) {  // borrowed: the caller keeps them unchanged until the work is done
+      pos = on_device->positions;
+      typ = on_device->types;
     } else {
       upload(positions, sys.positions, nd, stream);
-      if (has_types) upload(types, sys.types, sys.n, stream);
+      if (sys.types) upload(types, sys.types, sys.n, stream);
+      pos = positions.data();
+      typ = sys.types ? types.data() : nullptr;
     }
+    has_types = typ != nullptr;
     record(kUploaded);
   }
+
+  // The evaluation's device positions and types (the engine's copies of host arrays, or the
+  // caller's device arrays); typ is null for all type 0.
+  const double* pos = nullptr;
+  const uint32_t* typ = nullptr;
+  // Resident evaluations (evaluate_resident): the open axes' bounds of the particles as two corner
+  // points for plan_grid, and flags that accumulate until check_flags() resets them.
+  double corners[2 * kMaxDim] = {};
+  std::size_t corner_count = 0;
+  bool plan_from_corners = false, accumulate_flags = false;
 
   // Throws for a flag the kernels raised (read after the stream has been synchronised).
   void throw_flags(const cuda::DeviceFlags& f, const SystemView& system) const {
@@ -196,7 +200,8 @@ struct GpuEngine::Impl {
     if (o.grid_override) {
       st.grid = *o.grid_override;
     } else {
-      st.grid = plan_grid(sys.box, ff.cutoff, sys.positions, sys.n, o.grid, skin);
+      st.grid = plan_from_corners ? plan_grid(sys.box, ff.cutoff, corners, corner_count, o.grid, skin)
+                                  : plan_grid(sys.box, ff.cutoff, sys.positions, sys.n, o.grid, skin);
       check_grid(st.grid, sys.box, ff.cutoff, o.grid.rule, skin);
       check_staging(st.grid, ff.cutoff, o.precision);
     }
@@ -208,11 +213,11 @@ struct GpuEngine::Impl {
     sorted_keys.reserve(cap);
     sorted_ids.reserve(cap);
     control.reserve(std::max<std::size_t>(n, 1));
-    cuda::build_cell_ids(g, positions.data(), n, keys.data(), object_ids.data(), control.data(), stream);
+    cuda::build_cell_ids(g, pos, n, keys.data(), object_ids.data(), control.data(), stream);
     if (skin > 0) {
       build_positions.reserve(std::max<std::size_t>(n * std::size_t(g.dim), 1));
       if (n)
-        CF_CUDA_CHECK(cudaMemcpyAsync(build_positions.data(), positions.data(), n * g.dim * sizeof(double),
+        CF_CUDA_CHECK(cudaMemcpyAsync(build_positions.data(), pos, n * g.dim * sizeof(double),
                                       cudaMemcpyDeviceToDevice, stream));
       if (o.reuse.audit) {  // before the sort (the chapter's may reuse the input); read after a sync
         download(build_keys, keys.data(), entries, stream);
@@ -255,8 +260,7 @@ struct GpuEngine::Impl {
   cuda::TraversalArgs<Real, Accum> prepare(const Grid& g, const SystemView& sys,
                                            const ForceField& ff, CutoffMode mode) {
     staged.reserve(std::max<std::size_t>(valid, 1) * sizeof(cuda::StagedEntry<Real>));
-    cuda::stage_occupants<Real>(g, sorted_keys.data(), sorted_ids.data(), valid, positions.data(),
-                                has_types ? types.data() : nullptr, control.data(),
+    cuda::stage_occupants<Real>(g, sorted_keys.data(), sorted_ids.data(), valid, pos, typ, control.data(),
                                 as<cuda::StagedEntry<Real>>(staged), stream);
     ForceField f = ff;
     f.mode = mode;
@@ -285,7 +289,7 @@ struct GpuEngine::Impl {
       args.length[a] = w ? Real(g.length[a]) : Real(0);
       args.inv_length[a] = w ? Real(g.inv_length[a]) : Real(0);
     }
-    reset_flags();
+    if (!accumulate_flags) reset_flags();
     args.flags = flags.data();
     return args;
   }
@@ -372,7 +376,7 @@ GpuEngine::~GpuEngine() {
 
 // Traversal and accumulation in the engine's precision, then the kernels' flags (read after a
 // synchronisation): on an error the caller's result is left as it was (as the CPU engine does).
-void GpuEngine::traverse(const SystemView& system, const ForceField& ff, const Request& request) {
+void GpuEngine::traverse(const SystemView& system, const ForceField& ff, const Request& request, bool read_flags) {
   Impl& s = *impl_;
   const Grid& g = stats_.grid;
   switch (options_.precision) {
@@ -380,6 +384,7 @@ void GpuEngine::traverse(const SystemView& system, const ForceField& ff, const R
     case Precision::kMixed: s.traverse_and_sum<float, double>(options_, g, system, ff, request); break;
     case Precision::kDouble: s.traverse_and_sum<double, double>(options_, g, system, ff, request); break;
   }
+  if (!read_flags) return;
   cuda::DeviceFlags flags{};
   CF_CUDA_CHECK(cudaMemcpyAsync(&flags, s.flags.data(), sizeof(flags), cudaMemcpyDeviceToHost, s.stream));
   CF_CUDA_CHECK(cudaStreamSynchronize(s.stream));
@@ -448,6 +453,62 @@ void GpuEngine::evaluate_device(const DeviceSystemView& dsys, const ForceField& 
   audit(system, ff);
 }
 
+void GpuEngine::evaluate_resident(const Box& box, std::size_t n, const double* positions, const uint32_t* types,
+                                  const ForceField& ff, const Request& request) {
+  const DeviceScope scope(options_.device);
+  Impl& s = *impl_;
+  if (!s.accumulate_flags) {  // the first resident evaluation: flags from here on accumulate
+    s.reset_flags();
+    s.accumulate_flags = true;
+  }
+  const SystemView system{box, n, nullptr, nullptr};  // no host arrays: nothing reads them
+  const DeviceSystemView on_device{box, n, positions, types};
+  // The grid of an open axis spans the particles: their bounds, when a build may need them (this
+  // reads 2 x dim numbers back; periodic axes need none).
+  s.plan_from_corners = true;
+  s.corner_count = 0;
+  bool open = false;
+  for (int a = 0; a < box.dim; ++a) open = open || !box.periodic[a];
+  if (open) {
+    double lo[kMaxDim], hi[kMaxDim];
+    cuda::bounding_box(positions, n, box.dim, lo, hi, s.cub, s.stream);
+    for (int a = 0; a < box.dim; ++a) {
+      s.corners[a] = lo[a];
+      s.corners[box.dim + a] = hi[a];
+    }
+    s.corner_count = n ? 2 : 0;
+  }
+  prepare_resident(system, ff, on_device);
+  traverse(system, ff, request, false);
+  s.record(kDownloaded);
+}
+
+void GpuEngine::check_flags(const Box& box, std::size_t n, const double* positions, const ForceField& ff) {
+  const DeviceScope scope(options_.device);
+  Impl& s = *impl_;
+  if (!s.accumulate_flags) return;
+  cuda::DeviceFlags flags{};
+  CF_CUDA_CHECK(cudaMemcpyAsync(&flags, s.flags.data(), sizeof(flags), cudaMemcpyDeviceToHost, s.stream));
+  CF_CUDA_CHECK(cudaStreamSynchronize(s.stream));
+  s.reset_flags();
+  if (!flags.impossible && flags.bad_pair == ~0ull) return;
+  // The error path only: the positions come to the host for the message.
+  std::vector<double> host;
+  download(host, positions, n * std::size_t(box.dim), s.stream);
+  CF_CUDA_CHECK(cudaStreamSynchronize(s.stream));
+  (void)ff;
+  s.throw_flags(flags, SystemView{box, n, host.data(), nullptr});
+}
+
+const double* GpuEngine::device_forces() const { return impl_->forces.data(); }
+const double* GpuEngine::device_totals() const { return impl_->totals.data(); }
+void* GpuEngine::stream() const { return impl_->stream; }
+void GpuEngine::collect_timing() {
+  const DeviceScope scope(options_.device);
+  CF_CUDA_CHECK(cudaEventSynchronize(impl_->events[kDownloaded]));
+  finish_timing();
+}
+
 // The stage times of the evaluation whose events were recorded last (synchronised).
 void GpuEngine::finish_timing() {
   Impl& s = *impl_;
@@ -480,8 +541,26 @@ void GpuEngine::prepare(const SystemView& system, const ForceField& ff, const De
                 "D make " + std::to_string(entries));
   s.upload_system(system, on_device);
   const bool rebuild = reuse_.decide(system, ff.cutoff, [&] {
-    return cuda::max_displacement2(system.box, s.positions.data(), s.build_positions.data(), system.n, s.cub,
+    return cuda::max_displacement2(system.box, s.pos, s.build_positions.data(), system.n, s.cub,
                                    s.stream);
+  }, stats_);
+  s.record(kChecked);
+  if (rebuild) {
+    build(system, ff);
+  } else {
+    s.skip_build();
+    reuse_.reused();
+  }
+  stats_.builds = reuse_.builds();
+}
+
+// prepare() for resident evaluations: the caller validated the arrays (at the start of its run;
+// drifts are checked on the device), so nothing here reads them on the host.
+void GpuEngine::prepare_resident(const SystemView& system, const ForceField& ff, const DeviceSystemView& on_device) {
+  Impl& s = *impl_;
+  s.upload_system(system, &on_device);
+  const bool rebuild = reuse_.decide(system, ff.cutoff, [&] {
+    return cuda::max_displacement2(system.box, s.pos, s.build_positions.data(), system.n, s.cub, s.stream);
   }, stats_);
   s.record(kChecked);
   if (rebuild) {

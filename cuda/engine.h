@@ -56,6 +56,26 @@ class GpuEngine {
   void evaluate_device(const DeviceSystemView& system, const ForceField& ff, const DeviceOutputs& out,
                        void* stream);
 
+  // Resident evaluation, for an MD loop whose state stays on the device (cuda/md_engine.cu):
+  // positions (n x dim, wrapped on periodic axes) and types (n, or null) are the caller's device
+  // arrays, validated by the caller before its run. The work is queued on the engine's stream()
+  // and the host waits only for the counts that size the stage buffers (valid entries, collision
+  // cells) and, with an open axis, the particles' bounds (2 x dim numbers). Forces stay on the
+  // device (device_forces(), n x dim); with `request`, so do the energy and virial totals
+  // (device_totals(): energy, then w_xx, w_yy, w_zz, w_xy, w_xz, w_yz). The kernels' flags are
+  // not read: they accumulate until check_flags(). Stage times are not read either
+  // (collect_timing() reads the last evaluation's). The reuse audit does not run here.
+  void evaluate_resident(const Box& box, std::size_t n, const double* positions, const uint32_t* types,
+                         const ForceField& ff, const Request& request);
+  // Reads the flags raised since the last check (synchronises the stream) and clears them; throws
+  // cellforce::Error naming both particles of a pair whose force was not finite (the positions
+  // come to the host only then, for the message).
+  void check_flags(const Box& box, std::size_t n, const double* positions, const ForceField& ff);
+  const double* device_forces() const;
+  const double* device_totals() const;
+  void* stream() const;   // the engine's cudaStream_t
+  void collect_timing();  // stats() gets the stage times of the last evaluation (synchronises)
+
   // Every pair the traversal finds with r < rc, once per evaluation (a pair found twice appears
   // twice), as (min index, max index), in no particular order. Also sets the candidate and
   // interacting pair counts and the largest occupancy in stats(). With a skin, the structure is
@@ -90,7 +110,8 @@ class GpuEngine {
   std::vector<std::pair<uint32_t, uint32_t>> record(const SystemView& system, const ForceField& ff,
                                                     bool keep);
   void prepare(const SystemView& system, const ForceField& ff, const DeviceSystemView* on_device = nullptr);
-  void traverse(const SystemView& system, const ForceField& ff, const Request& request);
+  void traverse(const SystemView& system, const ForceField& ff, const Request& request, bool read_flags = true);
+  void prepare_resident(const SystemView& system, const ForceField& ff, const DeviceSystemView& on_device);
   void finish_timing();
   void build(const SystemView& system, const ForceField& ff);
   void audit(const SystemView& system, const ForceField& ff);

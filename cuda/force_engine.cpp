@@ -1,71 +1,68 @@
-// The CUDA backend's force job: GpuEngine (cuda/engine.h) behind the ForceEngine interface. Plain
-// C++: GpuEngine keeps the CUDA headers to itself.
-#include "backends/force_engine.h"
-#include "engine.h"  // cuda/engine.h
+// The CUDA backend's force job: GpuEngine (cuda/engine.h) behind the ForceEngine interface.
+#include "force_engine.h"  // cuda/force_engine.h
 
 namespace cellforce {
 namespace {
 
-class CudaForceEngine final : public ForceEngine {
- public:
-  explicit CudaForceEngine(const EngineChoice& choice) : engine_(options(choice)) {}
-
-  void evaluate(const SystemView& system, const ForceField& ff, const Request& request,
-                ForceResult& result) override {
-    engine_.evaluate(system, ff, request, result);
-  }
-  void evaluate_device(const DeviceSystemView& system, const ForceField& ff, const DeviceOutputs& out,
-                       void* stream) override {
-    engine_.evaluate_device(system, ff, out, stream);
-  }
-  PipelineStats stats(const SystemView& system, const ForceField& ff, bool counts) override {
-    const PipelineStats timing = engine_.stats();
-    if (!counts) return timing;
-    engine_.count_pairs(system, ff);  // candidate and interacting counts, no stage times
-    PipelineStats merged = engine_.stats();  // the extra pass's counts and build ...
-    merged.t_cell_ids = timing.t_cell_ids;     // ... with the evaluation's times and reuse figures
-    merged.t_count = timing.t_count;
-    merged.t_sort = timing.t_sort;
-    merged.t_collision_cells = timing.t_collision_cells;
-    merged.t_traversal = timing.t_traversal;
-    merged.t_accumulate = timing.t_accumulate;
-    merged.t_transfer = timing.t_transfer;
-    merged.t_total = timing.t_total;
-    merged.t_check = timing.t_check;
-    merged.rebuilt = timing.rebuilt;
-    merged.max_displacement = timing.max_displacement;
-    merged.missed_pairs = timing.missed_pairs;
-    merged.repeated_pairs = timing.repeated_pairs;
-    return merged;
-  }
-  ReuseState reuse_state() const override { return engine_.reuse_state(); }
-  void restore_reuse(const SystemView& built_from, const ForceField& ff, int64_t served) override {
-    engine_.restore_reuse(built_from, ff, served);
-  }
-  Backend backend() const override { return Backend::kCuda; }
-  std::string description() const override {
-    return "CUDA on " + engine_.device_name() + ", " + to_string(engine_.options().traversal) + ", " +
-           to_string(engine_.options().sort) + " sort";
-  }
-  std::string traversal() const override { return to_string(engine_.options().traversal); }
-  std::string sort() const override { return to_string(engine_.options().sort); }
-
- private:
-  static GpuOptions options(const EngineChoice& choice) {
-    GpuOptions o;
-    o.precision = choice.precision;
-    o.accumulation = choice.accumulation;
-    o.grid.rule = choice.rule;
-    o.traversal = choice.traversal;
-    o.sort = choice.sort;
-    o.reuse = choice.reuse;
-    o.device = choice.device;
-    return o;
-  }
-  GpuEngine engine_;
-};
+GpuOptions options(const EngineChoice& choice) {
+  GpuOptions o;
+  o.precision = choice.precision;
+  o.accumulation = choice.accumulation;
+  o.grid.rule = choice.rule;
+  o.traversal = choice.traversal;
+  o.sort = choice.sort;
+  o.reuse = choice.reuse;
+  o.device = choice.device;
+  return o;
+}
 
 }  // namespace
+
+CudaForceEngine::CudaForceEngine(const EngineChoice& choice) : engine_(options(choice)) {}
+
+void CudaForceEngine::evaluate(const SystemView& system, const ForceField& ff, const Request& request,
+                               ForceResult& result) {
+  engine_.evaluate(system, ff, request, result);
+}
+
+void CudaForceEngine::evaluate_device(const DeviceSystemView& system, const ForceField& ff,
+                                      const DeviceOutputs& out, void* stream) {
+  engine_.evaluate_device(system, ff, out, stream);
+}
+
+PipelineStats CudaForceEngine::stats(const SystemView& system, const ForceField& ff, bool counts) {
+  const PipelineStats timing = engine_.stats();
+  if (!counts) return timing;
+  engine_.count_pairs(system, ff);  // candidate and interacting counts, no stage times
+  PipelineStats merged = engine_.stats();  // the extra pass's counts and build ...
+  merged.t_cell_ids = timing.t_cell_ids;   // ... with the evaluation's times and reuse figures
+  merged.t_count = timing.t_count;
+  merged.t_sort = timing.t_sort;
+  merged.t_collision_cells = timing.t_collision_cells;
+  merged.t_traversal = timing.t_traversal;
+  merged.t_accumulate = timing.t_accumulate;
+  merged.t_transfer = timing.t_transfer;
+  merged.t_total = timing.t_total;
+  merged.t_check = timing.t_check;
+  merged.rebuilt = timing.rebuilt;
+  merged.max_displacement = timing.max_displacement;
+  merged.missed_pairs = timing.missed_pairs;
+  merged.repeated_pairs = timing.repeated_pairs;
+  return merged;
+}
+
+ReuseState CudaForceEngine::reuse_state() const { return engine_.reuse_state(); }
+
+void CudaForceEngine::restore_reuse(const SystemView& built_from, const ForceField& ff, int64_t served) {
+  engine_.restore_reuse(built_from, ff, served);
+}
+
+std::string CudaForceEngine::description() const {
+  return "CUDA on " + engine_.device_name() + ", " + to_string(engine_.options().traversal) + ", " +
+         to_string(engine_.options().sort) + " sort";
+}
+std::string CudaForceEngine::traversal() const { return to_string(engine_.options().traversal); }
+std::string CudaForceEngine::sort() const { return to_string(engine_.options().sort); }
 
 std::unique_ptr<ForceEngine> make_cuda_force_engine(const EngineChoice& choice) {
   return std::make_unique<CudaForceEngine>(choice);

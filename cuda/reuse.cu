@@ -51,3 +51,43 @@ double max_displacement2(const Box& box, const double* now, const double* then, 
 }
 
 }  // namespace cellforce::cuda
+
+// ---- the particles' bounds (grid planning of open axes in resident evaluations) ----------------
+namespace cellforce::cuda {
+namespace {
+
+struct Coordinate {
+  const double* positions;
+  int dim, axis;
+  __host__ __device__ double operator()(std::size_t i) const { return positions[i * dim + axis]; }
+};
+
+}  // namespace
+
+void bounding_box(const double* positions, std::size_t n, int dim, double lo[], double hi[],
+                  DeviceBuffer<std::byte>& scratch, cudaStream_t stream) {
+  for (int a = 0; a < dim; ++a) lo[a] = hi[a] = 0.0;
+  if (n == 0) return;
+  constexpr std::size_t kResultBytes = 256;  // 2 x dim results first, CUB's temporaries after them
+  std::size_t bytes = 0;
+  auto first = thrust::make_transform_iterator(thrust::counting_iterator<std::size_t>(0), Coordinate{positions, dim, 0});
+  CF_CUDA_CHECK(cub::DeviceReduce::Min(nullptr, bytes, first, static_cast<double*>(nullptr), n, stream));
+  scratch.reserve(kResultBytes + bytes);
+  auto* result = reinterpret_cast<double*>(scratch.data());
+  for (int a = 0; a < dim; ++a) {
+    auto x = thrust::make_transform_iterator(thrust::counting_iterator<std::size_t>(0), Coordinate{positions, dim, a});
+    std::size_t b = bytes;
+    CF_CUDA_CHECK(cub::DeviceReduce::Min(scratch.data() + kResultBytes, b, x, result + a, n, stream));
+    b = bytes;
+    CF_CUDA_CHECK(cub::DeviceReduce::Max(scratch.data() + kResultBytes, b, x, result + dim + a, n, stream));
+  }
+  double host[2 * kMaxDim] = {};
+  CF_CUDA_CHECK(cudaMemcpyAsync(host, result, 2 * std::size_t(dim) * sizeof(double), cudaMemcpyDeviceToHost, stream));
+  CF_CUDA_CHECK(cudaStreamSynchronize(stream));
+  for (int a = 0; a < dim; ++a) {
+    lo[a] = host[a];
+    hi[a] = host[dim + a];
+  }
+}
+
+}  // namespace cellforce::cuda

@@ -77,4 +77,9 @@ void split_by_type(const Grid& grid, DeviceBuffer<CollisionCell>& cells, std::si
 double max_displacement2(const Box& box, const double* now, const double* then, std::size_t n,
                          DeviceBuffer<std::byte>& scratch, cudaStream_t stream);
 
+// The smallest and largest coordinate along each axis of n x dim device positions (lo[dim],
+// hi[dim]; 0 for n = 0). Synchronises the stream to return them: what plans an open axis' cells.
+void bounding_box(const double* positions, std::size_t n, int dim, double lo[], double hi[],
+                  DeviceBuffer<std::byte>& scratch, cudaStream_t stream);
+
 }  // namespace cellforce::cuda

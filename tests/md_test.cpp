@@ -53,7 +53,7 @@ Trace simulate(Precision precision, bool langevin, double dt, int64_t steps, int
     observe = k % every == 0;
     advance(s, masses, settings, compute);
     if (observe) {
-      const Thermo t = thermo(s, masses, result, !langevin);
+      const ThermoValues t = thermo(s, masses, result, !langevin);
       run.times.push_back(s.time);
       run.energies.push_back(t.total / double(n));
       run.temperatures.push_back(t.temperature);

@@ -23,6 +23,7 @@
 #include <memory>
 #include <string>
 #include <string_view>
+#include <vector>
 
 #include <cellforce/error.hpp>
 #include <cellforce/export.hpp>
@@ -59,6 +60,70 @@ struct Statistics {
   std::size_t builds = 0;       // neighbour structures built so far (stages 1-3)
   bool rebuilt = true;          // whether the last call built one (false: reused, skin > 0)
   std::size_t buffer_bytes = 0; // memory the engine holds for its stages (device memory on CUDA)
+};
+
+// ---- molecular dynamics ----
+
+enum class Integrator : uint8_t {
+  kVerlet,    // NVE, velocity Verlet: v += dt/2 F/m; x += dt v; F(x); v += dt/2 F/m
+  kLangevin,  // NVT, BAOAB (Leimkuhler & Matthews): v += dt/2 F/m; x += dt/2 v;
+              // v = c1 v + sqrt((1 - c1^2) kT/m) xi, c1 = exp(-gamma dt); x += dt/2 v; F(x); v += dt/2 F/m
+};
+
+struct IntegratorOptions {
+  Integrator kind = Integrator::kVerlet;
+  double dt = 0.005;         // time units
+  double temperature = 1.0;  // Langevin: kT (energy units)
+  double friction = 1.0;     // Langevin: gamma (1 / time)
+  uint64_t seed = 1;         // Langevin noise: counter-based, keyed by (seed, step, particle, axis)
+};
+
+// Thermodynamics at the current step.
+struct Thermo {
+  double kinetic = 0, potential = 0, total = 0;
+  double temperature = 0;  // 2 KE / degrees of freedom: dim (n - 1) for Verlet (momentum
+                           // conserved), dim n for Langevin
+  double pressure = 0;     // (2 KE + trace W) / (dim V); NaN when an axis is open
+  double virial[9] = {};   // dim x dim, row-major (as Outputs::virial)
+};
+
+// FIRE energy minimisation (Bitzek et al. 2006) of the state's positions.
+struct MinimizeOptions {
+  double force_tolerance = 100.0;  // converged when every |F_i| < this
+  int64_t max_steps = 10000;
+  double dt = 0.001, dt_max = 0.01;
+  double max_displacement = 0.1;   // per step and particle
+};
+struct MinimizeResult {
+  int64_t steps = 0;
+  double initial_energy = 0, final_energy = 0;
+  double initial_max_force = 0, final_max_force = 0;
+  std::size_t final_max_force_particle = 0;
+};
+
+// Where the time of the steps went, and what crossed between host and device, since the state was
+// set or reset_run_statistics() ran.
+struct RunStatistics {
+  int64_t steps = 0, evaluations = 0;
+  double force_seconds = 0;        // force evaluations (CUDA: device time)
+  double integration_seconds = 0;  // kicks, drifts, thermostat (CUDA: device time)
+  double step_call_seconds = 0;    // wall time inside step()
+  std::size_t bytes_to_host = 0, bytes_to_device = 0;  // particle data and results (CUDA)
+  // Per evaluation, averaged over `stage_samples` evaluations (CUDA: the last of each step() call):
+  // stage times in seconds.
+  int64_t stage_samples = 0;
+  double cell_ids = 0, sort = 0, collision_cells = 0, traversal = 0, accumulate = 0, check = 0, total = 0;
+  // Neighbour structure (skin > 0): builds over all evaluations, the largest displacement a reused
+  // structure served.
+  int64_t builds = 0;
+  double largest_served_displacement = 0;
+};
+
+// The neighbour structure in use (skin > 0), for a bitwise restart: the positions it was built
+// from (n x dim; empty when none) and the evaluations it has served.
+struct NeighborState {
+  std::vector<double> build_positions;
+  int64_t served = 0;
 };
 
 class CELLFORCE_API Context {
@@ -99,6 +164,9 @@ class CELLFORCE_API Context {
   //   mixing        lorentz-berthelot | geometric
   //   cutoff-mode   truncate | shift | force-shift
   //   skin          a length >= 0
+  //   neighbor-check  true | false (rebuild when a particle moved more than skin / 2; default true)
+  //   neighbor-every  N >= 0 (a structure serves at most N evaluations; 0: no limit)
+  //   neighbor-audit  true | false (count pairs a reused structure misses; slow, CPU diagnostics)
   //   accumulation  jacobi | gauss-seidel
   //   cell-rule     tight | chapter
   //   traversal     warp | thread            (CUDA)
@@ -123,6 +191,36 @@ class CELLFORCE_API Context {
   // more use of a reused structure).
   PairCounts count_pairs(std::size_t n, const double* positions, const uint32_t* types);
   Statistics statistics() const;
+
+  // ---- molecular dynamics (the state stays where the backend computes: on the GPU with cuda) ----
+  void set_integrator(const IntegratorOptions& options);
+  // Host arrays: positions and velocities n x dim (velocities may be null: all zero), types n (or
+  // null: all type 0), masses n (finite, > 0). Positions on periodic axes are wrapped into the box.
+  // Uploads the state, evaluates the forces at it, and sets the step counter (time = step x dt).
+  // The physics (box, cutoff, types) is taken as it is now; change it, and set the state again.
+  void set_state(std::size_t n, const double* positions, const double* velocities, const uint32_t* types,
+                 const double* masses, int64_t step = 0);
+  // Advances `count` steps. With the cuda backend the host queues them and waits only for the
+  // counts that size the neighbour search's buffers; the device's flags are read once at the end,
+  // and a diverged integration or a force that is not finite throws naming the particle and the
+  // steps of this call. `observe`: the last step also computes energy and virial (for thermo()).
+  void step(int64_t count, bool observe = true);
+  int64_t current_step() const;
+  // The state now into host arrays (n x dim each; any may be null); a download with cuda.
+  void get_state(double* positions, double* velocities, double* forces);
+  // Thermodynamics now: a reduction on the device and 8 numbers copied back with cuda (one more
+  // force evaluation when the last step did not observe).
+  Thermo thermo();
+  // FIRE on the state's positions (velocities are left zero); throws naming the particle with the
+  // largest force when it does not converge within max_steps. Runs on the host for now, its
+  // forces from the backend.
+  MinimizeResult minimize(const MinimizeOptions& options);
+  NeighborState neighbor_state();
+  // After set_state: rebuild the structure from the positions it was built from, set its count,
+  // and evaluate the current forces with it (as the uninterrupted run had them: a bitwise restart).
+  void restore_neighbor_state(const NeighborState& state);
+  RunStatistics run_statistics() const;
+  void reset_run_statistics();
 
   // ---- what the context is ----
   int dim() const;

@@ -10,6 +10,8 @@
 #include <sstream>
 
 #include "backends/force_engine.h"
+#include "backends/md_engine.h"
+#include "md/minimize.h"
 #include "core/error.h"
 #include "core/force_field.h"
 #include "core/names.h"
@@ -67,6 +69,13 @@ struct Context::Impl {
   std::unique_ptr<ForceEngine> engine;
   ForceResult result;  // compute()'s staging (the engine's layout), reused across calls
   Statistics statistics;
+  // Molecular dynamics: the engine holding the state, and what set_state gave it.
+  std::unique_ptr<MdEngine> md;
+  IntegratorOptions integrator;
+  Box md_box;
+  ForceField md_ff;
+  std::vector<double> masses;
+  std::vector<uint32_t> types;
 
   explicit Impl(int d) : dim(d) {
     if (d != 2 && d != 3) throw Error("dimension " + std::to_string(d) + ": expected 2 or 3");
@@ -80,7 +89,25 @@ struct Context::Impl {
     if (!engine) engine = make_force_engine(choice);
     return *engine;
   }
-  void engine_changed() { engine.reset(); }
+  void engine_changed() {
+    engine.reset();
+    md.reset();  // the state must be set again
+  }
+
+  MdEngine& get_md() {
+    if (!md) throw Error("no MD state: call set_state first (after any change of backend, precision or skin)");
+    return *md;
+  }
+
+  IntegratorSettings settings() const {
+    IntegratorSettings s;
+    s.langevin = integrator.kind == Integrator::kLangevin;
+    s.dt = integrator.dt;
+    s.kT = integrator.temperature;
+    s.friction = integrator.friction;
+    s.seed = integrator.seed;
+    return s;
+  }
 
   // What compute needs before any array is read; the arrays themselves are checked by the engine
   // (validate_system: non-finite coordinates, type indices, rc against the box).
@@ -203,6 +230,22 @@ void Context::set_option(std::string_view key, std::string_view value) {
     impl_->ff.mode = parse_option(key, value, kCutoffModeNames);
   } else if (key == "skin") {
     set_skin(parse_number(key, value));
+  } else if (key == "neighbor-check" || key == "neighbor-audit") {
+    bool v = false;
+    if (value == "true") v = true;
+    else if (value != "false")
+      throw Error("option " + std::string(key) + ": " + quote_excerpt(std::string(value)) + " is not true or false");
+    ReuseOptions reuse = c.reuse;
+    (key == "neighbor-check" ? reuse.check : reuse.audit) = v;
+    validate_reuse(reuse);
+    c.reuse = reuse;
+    impl_->engine_changed();
+  } else if (key == "neighbor-every") {
+    ReuseOptions reuse = c.reuse;
+    reuse.every = parse_int(key, value);
+    validate_reuse(reuse);
+    c.reuse = reuse;
+    impl_->engine_changed();
   } else if (key == "accumulation") {
     c.accumulation = parse_option(key, value, kAccumulationNames);
     impl_->engine_changed();
@@ -217,8 +260,8 @@ void Context::set_option(std::string_view key, std::string_view value) {
     impl_->engine_changed();
   } else {
     throw Error("unknown option " + quote_excerpt(std::string(key)) +
-                "; options: backend, device, precision, mixing, cutoff-mode, skin, accumulation, "
-                "cell-rule, traversal, sort");
+                "; options: backend, device, precision, mixing, cutoff-mode, skin, neighbor-check, "
+                "neighbor-every, neighbor-audit, accumulation, cell-rule, traversal, sort");
   }
 }
 
@@ -270,6 +313,166 @@ PairCounts Context::count_pairs(std::size_t n, const double* positions, const ui
 }
 
 Statistics Context::statistics() const { return impl_->statistics; }
+
+void Context::set_integrator(const IntegratorOptions& o) {
+  if (o.kind != Integrator::kVerlet && o.kind != Integrator::kLangevin)
+    throw Error("integrator " + std::to_string(int(o.kind)) + " is not an Integrator");
+  if (!std::isfinite(o.dt) || o.dt <= 0) throw Error("dt is " + format_number(o.dt) + "; it must be finite and > 0");
+  if (o.kind == Integrator::kLangevin) {
+    if (!std::isfinite(o.temperature) || o.temperature < 0)
+      throw Error("temperature is " + format_number(o.temperature) + "; it must be finite and >= 0");
+    if (!std::isfinite(o.friction) || o.friction <= 0)
+      throw Error("friction is " + format_number(o.friction) + "; it must be finite and > 0");
+  }
+  impl_->integrator = o;
+}
+
+void Context::set_state(std::size_t n, const double* positions, const double* velocities, const uint32_t* types,
+                        const double* masses, int64_t step) {
+  Impl& s = *impl_;
+  s.check_ready();
+  check_output(positions, "positions", n);
+  check_output(masses, "masses", n);
+  if (step < 0) throw Error("step " + std::to_string(step) + ": expected a step >= 0");
+  const std::size_t dim = std::size_t(s.dim);
+  MdState state;
+  state.config.box = s.box;
+  state.config.positions.assign(positions, positions + n * dim);
+  state.config.types = types ? std::vector<uint32_t>(types, types + n) : std::vector<uint32_t>(n, 0);
+  state.velocities = velocities ? std::vector<double>(velocities, velocities + n * dim) : std::vector<double>(n * dim, 0.0);
+  for (std::size_t i = 0; i < n; ++i)
+    for (std::size_t a = 0; a < dim; ++a)
+      if (s.box.periodic[a] && std::isfinite(state.config.positions[i * dim + a]))
+        state.config.positions[i * dim + a] = wrap_coordinate(state.config.positions[i * dim + a], s.box.length[a]);
+  for (std::size_t k = 0; k < n * dim; ++k)
+    if (!std::isfinite(state.velocities[k]))
+      throw Error("particle " + std::to_string(k / dim) + " has a non-finite velocity (" +
+                  format_number(state.velocities[k]) + ")");
+  state.step = step;
+  state.time = double(step) * s.integrator.dt;
+  std::vector<double> m(masses, masses + n);
+  if (!s.md) s.md = make_md_engine(s.choice);
+  s.md->set_state(state, m, s.ff);
+  s.md_box = s.box;
+  s.md_ff = s.ff;
+  s.masses = std::move(m);
+  s.types = std::move(state.config.types);
+}
+
+void Context::step(int64_t count, bool observe) {
+  if (count < 0) throw Error("step count " + std::to_string(count) + ": expected >= 0");
+  impl_->get_md().advance(count, impl_->settings(), observe);
+}
+
+int64_t Context::current_step() const {
+  if (!impl_->md) throw Error("no MD state: call set_state first");
+  return impl_->md->step();
+}
+
+void Context::get_state(double* positions, double* velocities, double* forces) {
+  MdState state;
+  impl_->get_md().get_state(state);
+  const std::size_t count = state.config.positions.size();
+  if (positions) std::memcpy(positions, state.config.positions.data(), count * sizeof(double));
+  if (velocities) std::memcpy(velocities, state.velocities.data(), count * sizeof(double));
+  if (forces) std::memcpy(forces, state.forces.data(), count * sizeof(double));
+}
+
+Thermo Context::thermo() {
+  Impl& s = *impl_;
+  const Observables o = s.get_md().observables();
+  const int dim = s.md_box.dim;
+  const bool com_conserved = s.integrator.kind == Integrator::kVerlet;
+  Thermo t;
+  t.kinetic = o.kinetic;
+  t.potential = o.potential;
+  t.total = t.kinetic + t.potential;
+  t.temperature = 2.0 * t.kinetic / degrees_of_freedom(s.masses.size(), dim, com_conserved);
+  double trace = 0;
+  bool closed = true;
+  for (int a = 0; a < dim; ++a) {
+    trace += o.virial[a][a];
+    closed = closed && s.md_box.periodic[a];
+    for (int b = 0; b < dim; ++b) t.virial[a * dim + b] = o.virial[a][b];
+  }
+  t.pressure = closed ? (2.0 * t.kinetic + trace) / (dim * s.md_box.volume()) : std::nan("");
+  return t;
+}
+
+MinimizeResult Context::minimize(const MinimizeOptions& options) {
+  Impl& s = *impl_;
+  MdEngine& md = s.get_md();
+  MdState state;
+  md.get_state(state);
+  FireSettings fire;
+  fire.force_tolerance = options.force_tolerance;
+  fire.max_steps = options.max_steps;
+  fire.dt = options.dt;
+  fire.dt_max = options.dt_max;
+  fire.max_displacement = options.max_displacement;
+  ForceResult result;
+  const FireResult r = minimize_fire(state, s.masses, fire, [&](MdState& st) {
+    md.forces().evaluate(st.config.view(), s.md_ff, Request{true, true}, result);
+    st.forces = result.forces;
+    return result.energy;
+  });
+  state.velocities.assign(state.velocities.size(), 0.0);
+  md.set_state(state, s.masses, s.md_ff);
+  MinimizeResult out;
+  out.steps = r.steps;
+  out.initial_energy = r.initial_energy;
+  out.final_energy = r.final_energy;
+  out.initial_max_force = r.initial_max_force;
+  out.final_max_force = r.final_max_force;
+  out.final_max_force_particle = r.final_max_force_particle;
+  return out;
+}
+
+NeighborState Context::neighbor_state() {
+  const ReuseState r = impl_->get_md().forces().reuse_state();
+  return NeighborState{r.build_positions, r.served};
+}
+
+void Context::restore_neighbor_state(const NeighborState& state) {
+  Impl& s = *impl_;
+  MdEngine& md = s.get_md();
+  const std::size_t n = s.masses.size();
+  if (state.build_positions.size() != n * std::size_t(s.md_box.dim))
+    throw Error("neighbour state of " + std::to_string(state.build_positions.size()) + " coordinates for " +
+                std::to_string(n) + " particles in " + std::to_string(s.md_box.dim) + "D");
+  const SystemView built{s.md_box, n, state.build_positions.data(), s.types.data()};
+  md.forces().restore_reuse(built, s.md_ff, state.served);
+  md.reevaluate();  // the current forces from the restored structure, as the uninterrupted run had them
+}
+
+RunStatistics Context::run_statistics() const {
+  RunStatistics r;
+  if (!impl_->md) return r;
+  const MdCounters& c = impl_->md->counters();
+  r.steps = c.steps;
+  r.evaluations = c.evaluations;
+  r.force_seconds = c.force_seconds;
+  r.integration_seconds = c.integration_seconds;
+  r.step_call_seconds = c.host_wait_seconds;
+  r.bytes_to_host = c.bytes_to_host;
+  r.bytes_to_device = c.bytes_to_device;
+  r.stage_samples = c.stage_samples;
+  const double per = c.stage_samples ? 1.0 / double(c.stage_samples) : 0.0;
+  r.cell_ids = per * (c.stages.t_cell_ids + c.stages.t_count);
+  r.sort = per * c.stages.t_sort;
+  r.collision_cells = per * c.stages.t_collision_cells;
+  r.traversal = per * c.stages.t_traversal;
+  r.accumulate = per * c.stages.t_accumulate;
+  r.check = per * c.stages.t_check;
+  r.total = per * c.stages.t_total;
+  r.builds = c.builds;
+  r.largest_served_displacement = c.served;
+  return r;
+}
+
+void Context::reset_run_statistics() {
+  if (impl_->md) impl_->md->reset_counters();
+}
 int Context::dim() const { return impl_->dim; }
 std::size_t Context::num_types() const { return impl_->ff.types.size(); }
 std::string Context::backend_name() { return to_string(impl_->get_engine().backend()); }

@@ -13,9 +13,11 @@
 #include <fstream>
 #include <memory>
 
-#include "backends/force_engine.h"
+#include <cellforce/cellforce.hpp>
+
 #include "core/names.h"
 #include "core/error.h"
+#include "core/reuse.h"
 #include "core/text.h"
 #include "io/h5md_writer.h"
 #include "io/output_paths.h"
@@ -105,30 +107,6 @@ class Progress {
   bool drawn_ = false;
 };
 
-struct StageTotals {
-  double cell_ids = 0, sort = 0, collision_cells = 0, traversal = 0, accumulate = 0, transfer = 0, total = 0;
-  double check = 0;
-  // Reuse of the cell structure ([neighbor] skin): builds, the largest displacement a reused
-  // structure served, and the audit's counts.
-  int64_t builds = 0;
-  double served = 0;
-  std::size_t missed = 0, repeated = 0;
-  void add(const PipelineStats& s) {
-    check += s.t_check;
-    builds += s.rebuilt ? 1 : 0;
-    if (!s.rebuilt) served = std::max(served, s.max_displacement);
-    missed += s.missed_pairs;
-    repeated += s.repeated_pairs;
-    cell_ids += s.t_cell_ids + s.t_count;
-    sort += s.t_sort;
-    collision_cells += s.t_collision_cells;
-    traversal += s.t_traversal;
-    accumulate += s.t_accumulate;
-    transfer += s.t_transfer;
-    total += s.t_total;
-  }
-};
-
 // The thermo CSV file of an earlier run: its header and its rows with their steps.
 struct ThermoRows {
   std::string header;
@@ -195,10 +173,8 @@ void write_text_atomically(const std::string& path, const std::vector<std::strin
   }
 }
 
-}  // namespace
-
-int run_md(const RunArgs& args) {
-  const auto t_setup = Clock::now();
+// The scene with the command line's overrides applied.
+Scene scene_for(const RunArgs& args) {
   Scene scene = args.scene.empty() ? default_scene() : read_scene(args.scene);
   if (args.steps >= 0) scene.steps = args.steps;
   if (!args.backend.empty()) {
@@ -219,92 +195,278 @@ int run_md(const RunArgs& args) {
     if (scene.output.trajectory.empty()) throw Error("--trajectory-every: the run writes no trajectory (--trajectory)");
     scene.output.trajectory_every = args.trajectory_every;
   }
+  return scene;
+}
+
+// Every output is checked before anything is computed: a fresh run does not replace an earlier
+// one's outputs unless asked to; no output may be another output or an input.
+void check_outputs(const RunArgs& args, const Scene& scene, bool restart) {
+  const SceneOutput& output = scene.output;
+  std::vector<InputFile> inputs;
+  if (!args.scene.empty()) inputs.push_back({args.scene, "scene file"});
+  if (scene.particles.source == ParticleSource::kFile) inputs.push_back({scene.particles.path, "[particles] path"});
+  if (restart) inputs.push_back({args.restart, "--restart checkpoint"});
+  const bool replace = restart || args.overwrite;
+  check_output_files({{output.thermo_file, args.thermo_file.empty() ? "[output] thermo_file" : "--thermo-file", replace},
+                      {output.trajectory, args.trajectory.empty() ? "[output] trajectory" : "--trajectory", replace},
+                      {output.checkpoint, "[output] checkpoint", replace}},
+                     inputs,
+                     "an earlier run's output: continue that run with --restart CHECKPOINT, or replace it with "
+                     "--overwrite",
+                     {{"--restart checkpoint", "[output] checkpoint"}});
+}
+
+// The engine for the scene, through the public API: its box, force field, integrator and engine
+// choices.
+Context make_context(const Scene& scene, const Box& box) {
+  Context ctx(scene.dim);
+  const bool periodic[3] = {box.periodic[0], box.periodic[1], box.periodic[2]};
+  ctx.set_box(box.length, periodic);
+  const ForceField& ff = scene.force_field;
+  ctx.set_cutoff(ff.cutoff, ff.mode);
+  ctx.set_mixing(ff.mixing);
+  for (const ParticleType& t : ff.types) ctx.add_type(t.name, t.sigma, t.epsilon);
+  for (const PairOverride& o : ff.overrides) ctx.set_pair(uint32_t(o.a), uint32_t(o.b), o.sigma, o.epsilon);
+  const EngineChoice& e = scene.backend;
+  ctx.set_backend(e.backend, e.device);
+  ctx.set_precision(e.precision);
+  ctx.set_skin(e.reuse.skin);
+  ctx.set_option("neighbor-check", e.reuse.check ? "true" : "false");
+  ctx.set_option("neighbor-every", std::to_string(e.reuse.every));
+  ctx.set_option("neighbor-audit", e.reuse.audit ? "true" : "false");
+  ctx.set_option("accumulation", name_of(e.accumulation, kAccumulationNames));
+  ctx.set_option("cell-rule", name_of(e.rule, kCellRuleNames));
+  ctx.set_option("traversal", name_of(e.traversal, kTraversalNames));
+  ctx.set_option("sort", name_of(e.sort, kSortNames));
+  IntegratorOptions integrator;
+  integrator.kind = scene.integrator.kind == IntegratorKind::kLangevin ? Integrator::kLangevin : Integrator::kVerlet;
+  integrator.dt = scene.integrator.dt;
+  integrator.temperature = scene.integrator.temperature;
+  integrator.friction = scene.integrator.friction;
+  integrator.seed = scene.seed;
+  ctx.set_integrator(integrator);
+  return ctx;
+}
+
+void set_state(Context& ctx, const MdState& state, const std::vector<double>& masses) {
+  ctx.set_state(state.config.size(), state.config.positions.data(),
+                state.velocities.empty() ? nullptr : state.velocities.data(), state.config.types.data(),
+                masses.data(), state.step);
+}
+
+// The state's positions, velocities and forces from the context (a download with CUDA).
+void fetch_state(Context& ctx, MdState& state) {
+  const std::size_t nd = state.config.positions.size();
+  state.velocities.resize(nd);
+  state.forces.resize(nd);
+  ctx.get_state(state.config.positions.data(), state.velocities.data(), state.forces.data());
+  state.step = ctx.current_step();
+}
+
+// [minimize]: FIRE on the starting configuration (a fresh run's, before the velocities are
+// drawn); returns the summary line.
+std::string minimize(Context& ctx, const Scene& scene, MdState& state, const std::vector<double>& masses) {
+  set_state(ctx, state, masses);
+  MinimizeOptions fire;
+  fire.force_tolerance = scene.minimize.force_tolerance;
+  fire.max_steps = scene.minimize.max_steps;
+  fire.dt = scene.minimize.dt;
+  fire.dt_max = scene.minimize.dt_max;
+  fire.max_displacement = scene.minimize.max_displacement;
+  const MinimizeResult r = with_context(scene.source + ": [minimize]", [&] { return ctx.minimize(fire); });
+  fetch_state(ctx, state);
+  const std::size_t n = state.config.size();
+  char line[320];
+  std::snprintf(line, sizeof line,
+                "  minimize (FIRE): %lld steps; max force %.4g -> %.4g (particle %zu); energy per particle "
+                "%.6g -> %.6g",
+                (long long)r.steps, r.initial_max_force, r.final_max_force, r.final_max_force_particle,
+                r.initial_energy / double(n), r.final_energy / double(n));
+  return line;
+}
+
+// Dynamics that the first step would throw apart (overlaps) are refused before any output.
+void check_start(const Scene& scene, const MdState& state, const std::vector<double>& masses, bool restart) {
+  if (state.step >= scene.steps) return;
+  std::string remedy;  // the default advice (add [minimize]) unless it cannot help
+  if (restart)
+    remedy = "the checkpoint's state cannot continue at this dt: lower dt ([minimize] applies to fresh runs "
+             "only, and would change the scene's fingerprint)";
+  else if (scene.minimize.enabled) {
+    char text[200];
+    std::snprintf(text, sizeof text, "[minimize] stops at a largest force of %g, too large for this dt: lower "
+                  "[minimize] force_tolerance, or lower dt", scene.minimize.force_tolerance);
+    remedy = text;
+  }
+  check_stable_start(state, masses, scene.integrator.dt, scene.force_field, remedy);
+}
+
+// The thermo CSV and the H5MD trajectory of a run. On a restart the thermo rows and trajectory
+// frames beyond the checkpoint are dropped (that part of the run is redone); the thermo file is
+// rewritten under a temporary name. The earlier files are read (and checked to reach the
+// checkpoint) before either is changed.
+class RunFiles {
+ public:
+  RunFiles(const RunArgs& args, const Scene& scene, const MdState& state, bool restart) : output_(scene.output) {
+    std::vector<std::string> rows;
+    if (restart && !output_.thermo_file.empty() && std::filesystem::exists(output_.thermo_file)) {
+      const ThermoRows earlier = read_thermo_rows(output_.thermo_file);
+      std::vector<int64_t> steps;
+      for (const auto& [step, line] : earlier.rows) steps.push_back(step);
+      check_covers(steps, state.step, output_.thermo_every, output_.thermo_file, args.restart, "thermo rows");
+      // The row at the checkpoint's step stays only if the uninterrupted run writes one there (a
+      // run also writes a row at its last step).
+      rows.push_back(earlier.header);
+      for (const auto& [step, line] : earlier.rows)
+        if (step < state.step || (step == state.step && step % output_.thermo_every == 0)) rows.push_back(line);
+    }
+    if (restart && !output_.trajectory.empty() && std::filesystem::exists(output_.trajectory))
+      check_covers(H5mdWriter::stored_steps(output_.trajectory), state.step, output_.trajectory_every,
+                   output_.trajectory, args.restart, "trajectory frames");
+    if (!output_.thermo_file.empty()) {
+      if (rows.empty()) rows.push_back("step,time,temperature,kinetic_energy,potential_energy,total_energy,pressure");
+      write_text_atomically(output_.thermo_file, rows);
+      csv_ = std::make_unique<std::ofstream>(output_.thermo_file, std::ios::app);
+      if (!*csv_) throw Error(output_.thermo_file + ": cannot write the thermo file");
+    }
+    if (!output_.trajectory.empty()) {
+      H5mdOptions o;
+      o.velocities = output_.velocities;
+      o.forces = output_.forces;
+      o.observables = {"potential_energy", "kinetic_energy", "total_energy", "temperature", "pressure"};
+      o.creator_version = CELLFORCE_VERSION;
+      o.append = restart && std::filesystem::exists(output_.trajectory);
+      if (restart && !o.append)
+        std::printf("note: %s does not exist; it starts at step %lld\n", output_.trajectory.c_str(),
+                    (long long)state.step);
+      std::vector<std::string> names;
+      for (const ParticleType& t : scene.force_field.types) names.push_back(t.name);
+      trajectory_ = std::make_unique<H5mdWriter>(output_.trajectory, state.config.box, state.config.types, names, o);
+      if (o.append) trajectory_->truncate_after(state.step);
+    }
+  }
+
+  bool has_trajectory() const { return trajectory_ != nullptr; }
+
+  void write_frame(const MdState& s, const Thermo& th) {
+    trajectory_->write_frame(s.step, s.time, s.config.positions.data(),
+                             output_.velocities ? s.velocities.data() : nullptr,
+                             output_.forces ? s.forces.data() : nullptr,
+                             {th.potential, th.kinetic, th.total, th.temperature, th.pressure});
+  }
+
+  void write_row(int64_t step, double time, const Thermo& th) {
+    if (!csv_) return;
+    char line[320];
+    std::snprintf(line, sizeof line, "%lld,%.10g,%.12g,%.17g,%.17g,%.17g,%.12g\n", (long long)step, time,
+                  th.temperature, th.kinetic, th.potential, th.total, th.pressure);
+    *csv_ << line << std::flush;
+    if (!*csv_) throw Error(output_.thermo_file + ": cannot write the thermo file (disk full?)");
+  }
+
+  void close() {
+    if (trajectory_) trajectory_->close();
+  }
+
+ private:
+  const SceneOutput& output_;
+  std::unique_ptr<std::ofstream> csv_;
+  std::unique_ptr<H5mdWriter> trajectory_;
+};
+
+void print_header(const Scene& scene, const MdState& state, Context& ctx, const std::string& minimize_line,
+                  const RunArgs& args, std::size_t wrapped) {
+  const ForceField& ff = scene.force_field;
+  const int dim = scene.dim;
+  std::printf("cellforce run: %s\n", scene.source.c_str());
+  std::printf("  %zu particles, %dD, box", state.config.size(), dim);
+  for (int a = 0; a < dim; ++a)
+    std::printf(" %.6g%s", state.config.box.length[a], state.config.box.periodic[a] ? "" : " (open)");
+  std::printf(", %zu type(s); cutoff %g (%s)\n", ff.types.size(), ff.cutoff, to_string(ff.mode));
+  const ReuseOptions& reuse = scene.backend.reuse;
+  if (reuse.skin > 0)
+    std::printf("  cell structure built for rc + skin %g, reused while no particle moved more than %g%s\n",
+                reuse.skin, 0.5 * reuse.skin,
+                reuse.every > 0 ? (", and for at most " + std::to_string(reuse.every) + " steps").c_str() : "");
+  std::printf("  %s, dt %g, %lld steps; %s, precision %s\n",
+              scene.integrator.kind == IntegratorKind::kLangevin ? "Langevin (BAOAB)" : "NVE (velocity Verlet)",
+              scene.integrator.dt, (long long)scene.steps, ctx.description().c_str(),
+              to_string(scene.backend.precision));
+  if (!minimize_line.empty()) std::printf("%s\n", minimize_line.c_str());
+  if (!args.restart.empty()) std::printf("  restarting from %s at step %lld\n", args.restart.c_str(), (long long)state.step);
+  else if (wrapped > 0)
+    std::printf("  %zu particle(s) of %s lay outside the periodic box: wrapped into it\n", wrapped,
+                scene.particles.path.c_str());
+}
+
+// The performance summary of the loop: rates, where a step's time went (forces, integration,
+// output, the host's own), the bytes that crossed between host and device per step, and the
+// force engine's stages.
+void print_summary(const Scene& scene, const RunStatistics& st, std::size_t n, int64_t steps_done, double loop_seconds,
+                   double setup_seconds, double output_seconds, std::size_t output_bytes) {
+  std::printf("\nperformance: %lld steps of %zu particles in %.3f s (setup %.3f s)\n", (long long)steps_done, n,
+              loop_seconds, setup_seconds);
+  if (steps_done <= 0) return;
+  const double steps = double(steps_done);
+  std::printf("  %.2f steps/s, %.4g particle-steps/s, %.4f ms per step\n", steps / loop_seconds,
+              steps * double(n) / loop_seconds, 1e3 * loop_seconds / steps);
+  const double other = loop_seconds - st.force_seconds - st.integration_seconds - output_seconds;
+  std::printf("  per step (ms): forces %.4f (%.0f%%) | integration %.4f (%.0f%%) | output %.4f (%.0f%%) | "
+              "host and waits %.4f (%.0f%%)\n",
+              1e3 * st.force_seconds / steps, 100 * st.force_seconds / loop_seconds,
+              1e3 * st.integration_seconds / steps, 100 * st.integration_seconds / loop_seconds,
+              1e3 * output_seconds / steps, 100 * output_seconds / loop_seconds, 1e3 * other / steps,
+              100 * other / loop_seconds);
+  std::printf("  host <-> device per step: %.4g bytes of state and results (%zu B over the run for output%s)\n",
+              double(st.bytes_to_host + st.bytes_to_device - output_bytes) / steps, output_bytes,
+              st.bytes_to_host + st.bytes_to_device == 0 ? "; the state lives on the host" : "");
+  if (st.stage_samples > 0)
+    std::printf("  per force evaluation (ms, %lld sampled): cell IDs %.4f | sort %.4f | collision cells %.4f | "
+                "traversal %.4f | accumulate %.4f | engine total %.4f\n",
+                (long long)st.stage_samples, 1e3 * st.cell_ids, 1e3 * st.sort, 1e3 * st.collision_cells,
+                1e3 * st.traversal, 1e3 * st.accumulate, 1e3 * st.total);
+  const ReuseOptions& reuse = scene.backend.reuse;
+  if (reuse.skin > 0)
+    std::printf("  neighbour structure: skin %g, %lld builds in %lld evaluations (one per %.1f steps); "
+                "largest displacement served %.4g (limit skin/2 = %g%s); check %.4f ms per evaluation\n",
+                reuse.skin, (long long)st.builds, (long long)st.evaluations,
+                steps / double(std::max<int64_t>(st.builds, 1)), st.largest_served_displacement, 0.5 * reuse.skin,
+                reuse.check ? "" : ", not checked", 1e3 * st.check);
+}
+
+}  // namespace
+
+int run_md(const RunArgs& args) {
+  const auto t_setup = Clock::now();
+  const Scene scene = scene_for(args);
   const bool restart = !args.restart.empty();
   const SceneOutput& output = scene.output;
-
-  // Every output is checked before anything is computed: a fresh run does not replace an earlier
-  // one's outputs unless asked to; no output may be another output or an input.
-  {
-    std::vector<InputFile> inputs;
-    if (!args.scene.empty()) inputs.push_back({args.scene, "scene file"});
-    if (scene.particles.source == ParticleSource::kFile) inputs.push_back({scene.particles.path, "[particles] path"});
-    if (restart) inputs.push_back({args.restart, "--restart checkpoint"});
-    const bool replace = restart || args.overwrite;
-    check_output_files({{output.thermo_file, args.thermo_file.empty() ? "[output] thermo_file" : "--thermo-file", replace},
-                        {output.trajectory, args.trajectory.empty() ? "[output] trajectory" : "--trajectory", replace},
-                        {output.checkpoint, "[output] checkpoint", replace}},
-                       inputs,
-                       "an earlier run's output: continue that run with --restart CHECKPOINT, or replace it with "
-                       "--overwrite",
-                       {{"--restart checkpoint", "[output] checkpoint"}});
-  }
+  check_outputs(args, scene, restart);
 
   MdState state;
   std::size_t wrapped = 0;
   state.config = with_context(scene.source, [&] { return build_configuration(scene, &wrapped); });
   const std::size_t n = state.config.size();
-  const int dim = scene.dim;
   std::vector<double> masses(n);
   for (std::size_t i = 0; i < n; ++i) masses[i] = scene.masses[state.config.types[i]];
-  const ForceField& ff = scene.force_field;
-  with_context(scene.source, [&] { validate_system(state.config.view(), ff); });
+  with_context(scene.source, [&] { validate_system(state.config.view(), scene.force_field); });
+  Context ctx = make_context(scene, state.config.box);
 
-  const std::unique_ptr<ForceEngine> engine_owner = make_force_engine(scene.backend);
-  ForceEngine& engine = *engine_owner;
-  IntegratorSettings integrator;
-  integrator.langevin = scene.integrator.kind == IntegratorKind::kLangevin;
-  integrator.dt = scene.integrator.dt;
-  integrator.kT = scene.integrator.temperature;
-  integrator.friction = scene.integrator.friction;
-  integrator.seed = scene.seed;
-
-  ForceResult result;
-  StageTotals stages;
-  int64_t evaluations = 0;
-  double t_output = 0;
-  auto compute = [&](MdState& s, bool observe) {
-    const SystemView view = s.config.view();
-    engine.evaluate(view, ff, Request{observe, observe}, result);
-    stages.add(engine.stats(view, ff, false));
-    ++evaluations;
-    s.forces.swap(result.forces);  // no copy: the engine overwrites the old buffer next time
-  };
-
-  // [minimize]: a fresh run relaxes its starting configuration before the velocities are drawn
-  // (a restart continues from the checkpoint's positions, which the fresh run minimised).
   std::string minimize_line;
-  if (scene.minimize.enabled && !restart) {
-    FireSettings fire;
-    fire.force_tolerance = scene.minimize.force_tolerance;
-    fire.max_steps = scene.minimize.max_steps;
-    fire.dt = scene.minimize.dt;
-    fire.dt_max = scene.minimize.dt_max;
-    fire.max_displacement = scene.minimize.max_displacement;
-    const FireResult r = with_context(scene.source + ": [minimize]", [&] {
-      return minimize_fire(state, masses, fire, [&](MdState& s) {
-        compute(s, true);
-        return result.energy;
-      });
-    });
-    char line[320];
-    std::snprintf(line, sizeof line,
-                  "  minimize (FIRE): %lld steps; max force %.4g -> %.4g (particle %zu); energy per particle "
-                  "%.6g -> %.6g",
-                  (long long)r.steps, r.initial_max_force, r.final_max_force, r.final_max_force_particle,
-                  r.initial_energy / double(n), r.final_energy / double(n));
-    minimize_line = line;
-  }
-  initialize_velocities(state, masses, scene.initial_temperature, scene.seed, !integrator.langevin);
+  if (scene.minimize.enabled && !restart) minimize_line = minimize(ctx, scene, state, masses);
+  const bool langevin = scene.integrator.kind == IntegratorKind::kLangevin;
+  initialize_velocities(state, masses, scene.initial_temperature, scene.seed, !langevin);
 
   CheckpointInfo checkpoint_info;
   checkpoint_info.seed = scene.seed;
   checkpoint_info.scene_fingerprint = scene_fingerprint(scene);
   checkpoint_info.scene = scene.source;
-  checkpoint_info.backend = to_string(engine.backend());
+  checkpoint_info.backend = ctx.backend_name();
   checkpoint_info.precision = to_string(scene.backend.precision);
+  CheckpointInfo saved;
   if (restart) {
-    const CheckpointInfo saved = read_checkpoint(args.restart, state, checkpoint_info);
-    state.time = double(state.step) * integrator.dt;
+    saved = read_checkpoint(args.restart, state, checkpoint_info);
+    state.time = double(state.step) * scene.integrator.dt;
     if (state.step > scene.steps)
       throw Error(args.restart + ": checkpoint at step " + std::to_string(state.step) + ", beyond the run's " +
                   std::to_string(scene.steps) + " steps");
@@ -312,204 +474,114 @@ int run_md(const RunArgs& args) {
       std::printf("note: %s was written by backend %s, precision %s; this run uses %s, %s: it continues the run, "
                   "but not bit for bit\n", args.restart.c_str(), saved.backend.c_str(), saved.precision.c_str(),
                   checkpoint_info.backend.c_str(), checkpoint_info.precision.c_str());
+  }
+  with_context(scene.source + ": step " + std::to_string(state.step), [&] { set_state(ctx, state, masses); });
+  if (restart) {
     // With a skin, the structure the uninterrupted run was reusing is built again from the
     // positions it was built from, so that the force sums keep their order (bit for bit).
     const double skin = scene.backend.reuse.skin;
     if (skin > 0 && saved.skin == skin && !saved.reuse.build_positions.empty()) {
-      SystemView built = state.config.view();
-      built.positions = saved.reuse.build_positions.data();
-      with_context(args.restart, [&] { engine.restore_reuse(built, ff, saved.reuse.served); });
+      with_context(args.restart, [&] {
+        ctx.restore_neighbor_state(NeighborState{saved.reuse.build_positions, saved.reuse.served});
+      });
     } else if (skin > 0) {
       std::printf("note: %s holds no cell structure for skin %g: the restarted run builds its own at step %lld, "
                   "so it continues the run to round-off, not bit for bit\n",
                   args.restart.c_str(), skin, (long long)state.step);
     }
   }
+  fetch_state(ctx, state);
+  with_context(scene.source + ": step " + std::to_string(state.step), [&] { check_start(scene, state, masses, restart); });
 
-  with_context(scene.source + ": step " + std::to_string(state.step), [&] {
-    compute(state, true);
-    // Dynamics that the first step would throw apart (overlaps) are refused before any output.
-    if (state.step < scene.steps) {
-      std::string remedy;  // the default advice (add [minimize]) unless it cannot help
-      if (restart)
-        remedy = "the checkpoint's state cannot continue at this dt: lower dt ([minimize] applies to fresh runs "
-                 "only, and would change the scene's fingerprint)";
-      else if (scene.minimize.enabled) {
-        char text[200];
-        std::snprintf(text, sizeof text, "[minimize] stops at a largest force of %g, too large for this dt: lower "
-                      "[minimize] force_tolerance, or lower dt", scene.minimize.force_tolerance);
-        remedy = text;
-      }
-      check_stable_start(state, masses, integrator.dt, ff, remedy);
-    }
-  });
-
-  // Outputs are touched only now that everything that can refuse the run has run. On a restart
-  // the thermo rows and trajectory frames beyond the checkpoint are dropped (that part of the run
-  // is redone); the thermo file is rewritten under a temporary name.
-  // The earlier files are read (and checked to reach the checkpoint) before either is changed.
-  std::vector<std::string> rows;
-  if (restart && !output.thermo_file.empty() && std::filesystem::exists(output.thermo_file)) {
-    const ThermoRows earlier = read_thermo_rows(output.thermo_file);
-    std::vector<int64_t> steps;
-    for (const auto& [step, line] : earlier.rows) steps.push_back(step);
-    check_covers(steps, state.step, output.thermo_every, output.thermo_file, args.restart, "thermo rows");
-    // The row at the checkpoint's step stays only if the uninterrupted run writes one there (a
-    // run also writes a row at its last step).
-    rows.push_back(earlier.header);
-    for (const auto& [step, line] : earlier.rows)
-      if (step < state.step || (step == state.step && step % output.thermo_every == 0)) rows.push_back(line);
-  }
-  if (restart && !output.trajectory.empty() && std::filesystem::exists(output.trajectory))
-    check_covers(H5mdWriter::stored_steps(output.trajectory), state.step, output.trajectory_every, output.trajectory,
-                 args.restart, "trajectory frames");
-
-  std::unique_ptr<std::ofstream> csv;
-  if (!output.thermo_file.empty()) {
-    if (rows.empty()) rows.push_back("step,time,temperature,kinetic_energy,potential_energy,total_energy,pressure");
-    write_text_atomically(output.thermo_file, rows);
-    csv = std::make_unique<std::ofstream>(output.thermo_file, std::ios::app);
-    if (!*csv) throw Error(output.thermo_file + ": cannot write the thermo file");
-  }
-  const std::vector<std::string> observables = {"potential_energy", "kinetic_energy", "total_energy",
-                                                "temperature", "pressure"};
-  std::unique_ptr<H5mdWriter> trajectory;
-  if (!output.trajectory.empty()) {
-    H5mdOptions o;
-    o.velocities = output.velocities;
-    o.forces = output.forces;
-    o.observables = observables;
-    o.creator_version = CELLFORCE_VERSION;
-    o.append = restart && std::filesystem::exists(output.trajectory);
-    if (restart && !o.append)
-      std::printf("note: %s does not exist; it starts at step %lld\n", output.trajectory.c_str(),
-                  (long long)state.step);
-    std::vector<std::string> names;
-    for (const ParticleType& t : scene.force_field.types) names.push_back(t.name);
-    trajectory = std::make_unique<H5mdWriter>(output.trajectory, state.config.box, state.config.types, names, o);
-    if (o.append) trajectory->truncate_after(state.step);
-  }
-
+  // Outputs are touched only now that everything that can refuse the run has run.
+  RunFiles files(args, scene, state, restart);
+  print_header(scene, state, ctx, minimize_line, args, wrapped);
   const bool screen = !args.quiet;
-  std::printf("cellforce run: %s\n", scene.source.c_str());
-  std::printf("  %zu particles, %dD, box", n, dim);
-  for (int a = 0; a < dim; ++a)
-    std::printf(" %.6g%s", state.config.box.length[a], state.config.box.periodic[a] ? "" : " (open)");
-  std::printf(", %zu type(s); cutoff %g (%s)\n", ff.types.size(), ff.cutoff, to_string(ff.mode));
-  if (scene.backend.reuse.skin > 0)
-    std::printf("  cell structure built for rc + skin %g, reused while no particle moved more than %g%s\n",
-                scene.backend.reuse.skin, 0.5 * scene.backend.reuse.skin,
-                scene.backend.reuse.every > 0 ? (", and for at most " + std::to_string(scene.backend.reuse.every) +
-                                                 " steps").c_str() : "");
-  std::printf("  %s, dt %g, %lld steps; %s, precision %s\n",
-              integrator.langevin ? "Langevin (BAOAB)" : "NVE (velocity Verlet)", integrator.dt,
-              (long long)scene.steps, engine.description().c_str(), to_string(scene.backend.precision));
-  if (!minimize_line.empty()) std::printf("%s\n", minimize_line.c_str());
-  if (restart) std::printf("  restarting from %s at step %lld\n", args.restart.c_str(), (long long)state.step);
-  else if (wrapped > 0)
-    std::printf("  %zu particle(s) of %s lay outside the periodic box: wrapped into it\n", wrapped,
-                scene.particles.path.c_str());
-
-  auto report = [&](const MdState& s, bool thermo_line, bool frame, auto& progress) {
+  double t_output = 0;
+  std::size_t output_bytes = 0;
+  // Thermo on the screen and in the CSV file, and a trajectory frame: what an output step reads
+  // (8 numbers, and the state for a frame).
+  auto report = [&](bool thermo_line, bool frame, Progress& progress) {
     const auto t0 = Clock::now();
-    const Thermo th = thermo(s, masses, result, !integrator.langevin);
-    if (frame && trajectory)
-      trajectory->write_frame(s.step, s.time, s.config.positions.data(), output.velocities ? s.velocities.data() : nullptr,
-                              output.forces ? s.forces.data() : nullptr,
-                              {th.potential, th.kinetic, th.total, th.temperature, th.pressure});
+    const RunStatistics before = ctx.run_statistics();
+    const Thermo th = ctx.thermo();
+    state.step = ctx.current_step();
+    state.time = double(state.step) * scene.integrator.dt;
+    if (frame && files.has_trajectory()) {
+      fetch_state(ctx, state);
+      files.write_frame(state, th);
+    }
     if (thermo_line) {
       const double inv_n = n ? 1.0 / double(n) : 0.0;
       if (screen) {
         char line[256];
-        std::snprintf(line, sizeof line, "%10lld %10.4f %10.5f %12.6f %12.6f %12.6f %11.5f", (long long)s.step,
-                      s.time, th.temperature, th.kinetic * inv_n, th.potential * inv_n, th.total * inv_n, th.pressure);
+        std::snprintf(line, sizeof line, "%10lld %10.4f %10.5f %12.6f %12.6f %12.6f %11.5f", (long long)state.step,
+                      state.time, th.temperature, th.kinetic * inv_n, th.potential * inv_n, th.total * inv_n,
+                      th.pressure);
         progress.print(line);
       }
-      if (csv) {
-        char line[320];
-        std::snprintf(line, sizeof line, "%lld,%.10g,%.12g,%.17g,%.17g,%.17g,%.12g\n", (long long)s.step, s.time,
-                      th.temperature, th.kinetic, th.potential, th.total, th.pressure);
-        *csv << line << std::flush;
-        if (!*csv) throw Error(output.thermo_file + ": cannot write the thermo file (disk full?)");
-      }
+      files.write_row(state.step, state.time, th);
     }
+    const RunStatistics after = ctx.run_statistics();
+    output_bytes += (after.bytes_to_host - before.bytes_to_host) + (after.bytes_to_device - before.bytes_to_device);
     t_output += seconds_since(t0);
   };
   auto save_checkpoint = [&] {
     const auto t0 = Clock::now();
+    const RunStatistics before = ctx.run_statistics();
+    fetch_state(ctx, state);
+    state.time = double(state.step) * scene.integrator.dt;
     // The structure in use; the restart evaluates this step's forces once more, which serves it
     // once more: it is saved one evaluation short.
     checkpoint_info.skin = scene.backend.reuse.skin;
-    checkpoint_info.reuse = engine.reuse_state();
+    const NeighborState ns = ctx.neighbor_state();
+    checkpoint_info.reuse = ReuseState{ns.build_positions, ns.served};
     if (checkpoint_info.reuse.served > 0) checkpoint_info.reuse.served -= 1;
     write_checkpoint(output.checkpoint, state, checkpoint_info);
+    const RunStatistics after = ctx.run_statistics();
+    output_bytes += after.bytes_to_host - before.bytes_to_host;
     t_output += seconds_since(t0);
   };
 
   Progress setup_lines(state.step, scene.steps, false);
   if (screen) setup_lines.print("      step       time       temp      ke/atom      pe/atom    etot/atom       press");
-  if (!restart) report(state, true, true, setup_lines);
+  if (!restart) report(true, true, setup_lines);
   else if (screen) setup_lines.print("(continuing from " + args.restart + ")");
   const double setup_seconds = seconds_since(t_setup);
   // The summary covers the loop only: the setup evaluation (allocations, GPU warm-up) is left out.
-  stages = StageTotals{};
-  evaluations = 0;
+  ctx.reset_run_statistics();
   t_output = 0;
+  output_bytes = 0;
 
+  // The loop advances from one output step to the next in one call: the engine queues the steps
+  // between and reads its flags once.
   const auto t_loop = Clock::now();
   Progress progress(state.step, scene.steps, screen);
-  double t_forces_wall = 0;
   const int64_t first = state.step, last = scene.steps;
-  while (state.step < last) {
-    const int64_t next = state.step + 1;
-    const bool thermo_step = next % output.thermo_every == 0 || next == last;
-    const bool frame_step = trajectory && next % output.trajectory_every == 0;
-    const bool observe = thermo_step || frame_step;
+  auto next_multiple = [](int64_t step, int64_t every) { return every > 0 ? (step / every + 1) * every : INT64_MAX; };
+  int64_t step = state.step;
+  while (step < last) {
+    const int64_t checkpoint_every = !output.checkpoint.empty() ? output.checkpoint_every : 0;
+    const int64_t to = std::min({last, next_multiple(step, output.thermo_every),
+                                 files.has_trajectory() ? next_multiple(step, output.trajectory_every) : INT64_MAX,
+                                 next_multiple(step, checkpoint_every)});
+    const bool thermo_step = to % output.thermo_every == 0 || to == last;
+    const bool frame_step = files.has_trajectory() && to % output.trajectory_every == 0;
     try {
-      advance(state, masses, integrator, [&](MdState& s) {
-        const auto t0 = Clock::now();
-        compute(s, observe);
-        t_forces_wall += seconds_since(t0);
-      });
-    } catch (const Error& e) {  // name the scene and the step (built only when a step fails)
-      throw Error(scene.source + ": step " + std::to_string(next) + ": " + e.message());
+      ctx.step(to - step, thermo_step || frame_step);
+    } catch (const Error& e) {  // name the scene (the engine names the step)
+      throw Error(scene.source + ": " + e.message());
     }
-    if (observe) report(state, thermo_step, frame_step, progress);
-    if (!output.checkpoint.empty() && output.checkpoint_every > 0 && state.step % output.checkpoint_every == 0 &&
-        state.step != last)
-      save_checkpoint();
-    progress.update(state.step);
+    step = to;
+    if (thermo_step || frame_step) report(thermo_step, frame_step, progress);
+    if (checkpoint_every > 0 && step % checkpoint_every == 0 && step != last) save_checkpoint();
+    progress.update(step);
   }
   if (!output.checkpoint.empty()) save_checkpoint();
-  if (trajectory) trajectory->close();
+  files.close();
   progress.finish();
   const double loop_seconds = seconds_since(t_loop);
-
-  const double steps = double(last - first);
-  std::printf("\nperformance: %lld steps of %zu particles in %.3f s (setup %.3f s)\n", (long long)(last - first), n,
-              loop_seconds, setup_seconds);
-  if (steps > 0) {
-    std::printf("  %.2f steps/s, %.4g particle-steps/s, %.4f ms per step\n", steps / loop_seconds,
-                steps * double(n) / loop_seconds, 1e3 * loop_seconds / steps);
-    const double per = 1e3 / double(evaluations);
-    std::printf("  per force evaluation (ms): cell IDs %.4f | sort %.4f | collision cells %.4f | traversal %.4f |"
-                " accumulate %.4f | host copies %.4f | engine total %.4f\n",
-                per * stages.cell_ids, per * stages.sort, per * stages.collision_cells, per * stages.traversal,
-                per * stages.accumulate, per * stages.transfer, per * stages.total);
-    const ReuseOptions& reuse = scene.backend.reuse;
-    if (reuse.skin > 0) {
-      std::printf("  neighbour structure: skin %g, %lld builds in %lld evaluations (one per %.1f steps); "
-                  "largest displacement served %.4g (limit skin/2 = %g%s); check %.4f ms per evaluation",
-                  reuse.skin, (long long)stages.builds, (long long)evaluations,
-                  steps / double(std::max<int64_t>(stages.builds, 1)), stages.served, 0.5 * reuse.skin,
-                  reuse.check ? "" : ", not checked", per * stages.check);
-      if (reuse.audit) std::printf("; audit: missed pairs %zu, repeated pairs %zu", stages.missed, stages.repeated);
-      std::printf("\n");
-    }
-    std::printf("  per step (ms): forces %.4f | integration and the rest %.4f | output %.4f\n",
-                1e3 * t_forces_wall / steps, 1e3 * (loop_seconds - t_forces_wall - t_output) / steps,
-                1e3 * t_output / steps);
-  }
+  print_summary(scene, ctx.run_statistics(), n, last - first, loop_seconds, setup_seconds, t_output, output_bytes);
   return 0;
 }
 

@@ -5,21 +5,11 @@
 
 #include "core/box.h"
 #include "core/error.h"
+#include "core/random.h"
 #include "core/text.h"
 
 namespace cellforce {
 namespace {
-
-uint64_t splitmix64(uint64_t x) {
-  x += 0x9E3779B97F4A7C15ull;
-  x = (x ^ (x >> 30)) * 0xBF58476D1CE4E5B9ull;
-  x = (x ^ (x >> 27)) * 0x94D049BB133111EBull;
-  return x ^ (x >> 31);
-}
-
-double unit_open(uint64_t bits) {  // (0, 1), 53 random bits
-  return (double(bits >> 11) + 0.5) * 0x1.0p-53;
-}
 
 [[noreturn]] void throw_diverged(std::size_t i, int axis, double displacement, double most, double limit) {
   throw Error("particle " + std::to_string(i) + " moved " + format_number(displacement) + " along " +
@@ -57,13 +47,6 @@ void drift(MdState& s, double h, double limit, bool wrap) {
 }
 
 }  // namespace
-
-double counter_normal(uint64_t seed, uint64_t stream, uint64_t index) {
-  const uint64_t key = splitmix64(splitmix64(seed ^ 0xC0FFEEull) ^ splitmix64(stream * 0x632BE59BD9B4E019ull));
-  const uint64_t a = splitmix64(key ^ (2 * index));
-  const uint64_t b = splitmix64(key ^ (2 * index + 1));
-  return std::sqrt(-2.0 * std::log(unit_open(a))) * std::cos(2.0 * M_PI * unit_open(b));
-}
 
 double degrees_of_freedom(std::size_t n, int dim, bool com_conserved) {
   return std::max(1.0, double(dim) * (double(n) - (com_conserved ? 1.0 : 0.0)));
@@ -108,10 +91,10 @@ void initialize_velocities(MdState& s, const std::vector<double>& masses, double
   for (double& v : s.velocities) v *= scale;
 }
 
-Thermo thermo(const MdState& s, const std::vector<double>& masses, const ForceResult& result,
+ThermoValues thermo(const MdState& s, const std::vector<double>& masses, const ForceResult& result,
               bool com_conserved) {
   const int dim = s.config.box.dim;
-  Thermo t;
+  ThermoValues t;
   t.kinetic = kinetic_energy(s, masses);
   t.potential = result.energy;
   t.total = t.kinetic + t.potential;

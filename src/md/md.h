@@ -10,6 +10,7 @@
 #include <functional>
 #include <vector>
 
+#include "core/random.h"
 #include "core/system.h"
 #include "state/configuration.h"
 
@@ -23,8 +24,8 @@ struct MdState {
   double time = 0.0;
 };
 
-// A standard normal value for (seed, stream, index): the same on every machine and thread count.
-double counter_normal(uint64_t seed, uint64_t stream, uint64_t index);
+// counter_normal(seed, stream, index) (core/random.h) draws the numbers: stream 0 the initial
+// velocities, stream step + 1 the Langevin noise of that step, index particle * dim + axis.
 
 // Degrees of freedom of the kinetic temperature: dim (n - 1) when the centre-of-mass momentum
 // is removed and conserved (NVE), dim n under a Langevin thermostat (which does not conserve
@@ -42,12 +43,12 @@ void remove_com_momentum(MdState& state, const std::vector<double>& masses);
 
 double kinetic_energy(const MdState& state, const std::vector<double>& masses);
 
-struct Thermo {
+struct ThermoValues {
   double kinetic = 0, potential = 0, total = 0;
   double temperature = 0;  // 2 KE / degrees of freedom
   double pressure = 0;     // (2 KE + trace W) / (dim V); NaN when an axis is open (no volume)
 };
-Thermo thermo(const MdState& state, const std::vector<double>& masses, const ForceResult& result,
+ThermoValues thermo(const MdState& state, const std::vector<double>& masses, const ForceResult& result,
               bool com_conserved = true);
 
 struct IntegratorSettings {

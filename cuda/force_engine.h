@@ -1,0 +1,36 @@
+// The CUDA backend's force job (cuda/force_engine.cpp): GpuEngine behind the ForceEngine
+// interface, declared here so that the CUDA MD engine (cuda/md_engine.cu) can reach the engine's
+// resident evaluations. Plain C++.
+#pragma once
+
+#include <memory>
+#include <string>
+
+#include "backends/force_engine.h"
+#include "engine.h"  // cuda/engine.h
+
+namespace cellforce {
+
+class CudaForceEngine final : public ForceEngine {
+ public:
+  explicit CudaForceEngine(const EngineChoice& choice);
+
+  void evaluate(const SystemView& system, const ForceField& ff, const Request& request,
+                ForceResult& result) override;
+  void evaluate_device(const DeviceSystemView& system, const ForceField& ff, const DeviceOutputs& out,
+                       void* stream) override;
+  PipelineStats stats(const SystemView& system, const ForceField& ff, bool counts) override;
+  ReuseState reuse_state() const override;
+  void restore_reuse(const SystemView& built_from, const ForceField& ff, int64_t served) override;
+  Backend backend() const override { return Backend::kCuda; }
+  std::string description() const override;
+  std::string traversal() const override;
+  std::string sort() const override;
+
+  GpuEngine& gpu() { return engine_; }
+
+ private:
+  GpuEngine engine_;
+};
+
+}  // namespace cellforce

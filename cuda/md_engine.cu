@@ -1,0 +1,367 @@
+// The CUDA backend's integration and state-access jobs: the MD state lives in device memory for
+// the whole run, and velocity Verlet and Langevin BAOAB (md/md.h's advance(), step for step) run
+// as kernels on the force engine's stream, with the forces from its resident evaluations. The
+// host queues a call's steps without waiting, except for the counts the search reads to size its
+// buffers (valid cell-ID entries, collision cells; with an open axis the particles' bounds; with a
+// skin the largest displacement); the flags (a drift that diverged, a force that is not finite)
+// are read once per advance() call. Nothing of the particles crosses PCIe except in set_state,
+// get_state and the error path; observables() reads 8 numbers.
+#include <cub/device/device_reduce.cuh>
+#include <thrust/iterator/counting_iterator.h>
+#include <thrust/iterator/transform_iterator.h>
+
+#include <chrono>
+#include <cmath>
+
+#include "backends/md_engine.h"
+#include "check.cuh"
+#include "core/box.h"
+#include "core/error.h"
+#include "core/random.h"
+#include "core/text.h"
+#include "device_buffer.cuh"
+#include "force_engine.h"  // cuda/force_engine.h
+#include "traversal.cuh"   // kCellSums
+
+namespace cellforce {
+namespace {
+
+using cuda::DeviceBuffer;
+constexpr int kBlock = 256;
+
+unsigned blocks_for(std::size_t n) { return unsigned((n + kBlock - 1) / kBlock); }
+
+// What the integration kernels raise: the smallest index of a particle whose drift diverged
+// (a displacement not finite or longer than allowed on a periodic axis, or a position no longer
+// finite), ~0 when none.
+struct MdFlags {
+  unsigned long long diverged;
+};
+
+// v += (h / m) F, per coordinate.
+__global__ void kick_kernel(double* __restrict__ v, const double* __restrict__ f,
+                            const double* __restrict__ mass, double h, std::size_t n, int dim) {
+  const std::size_t k = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
+  if (k >= n * std::size_t(dim)) return;
+  const double hm = h / mass[k / std::size_t(dim)];
+  v[k] += hm * f[k];
+}
+
+struct DriftBox {
+  int dim;
+  double length[kMaxDim];
+  double most[kMaxDim];  // largest displacement allowed per axis (infinite on open axes)
+  bool periodic[kMaxDim];
+};
+
+// x += h v per particle, the displacement checked as the host's drift() checks it; with `wrap`
+// (a step's last drift) the new position is wrapped into [0, L) on periodic axes.
+__global__ void drift_kernel(double* __restrict__ x, const double* __restrict__ v, double h, DriftBox box,
+                             bool wrap, std::size_t n, MdFlags* flags) {
+  const std::size_t i = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
+  if (i >= n) return;
+  bool bad = false;
+  for (int a = 0; a < box.dim; ++a) {
+    const std::size_t k = i * box.dim + a;
+    const double dx = h * v[k];
+    if (!(fabs(dx) <= box.most[a])) bad = true;  // also catches NaN
+    double xa = x[k] + dx;
+    if (wrap) {
+      if (!isfinite(xa)) bad = true;
+      else if (box.periodic[a]) xa = wrap_coordinate(xa, box.length[a]);
+    }
+    x[k] = xa;
+  }
+  if (bad) atomicMin(&flags->diverged, static_cast<unsigned long long>(i));
+}
+
+// BAOAB's O step: v = c1 v + c2 sqrt(kT / m) xi, xi from counter_normal keyed by the step and the
+// particle's stable ID (its index in the caller's order), as the host integrator draws it.
+__global__ void thermostat_kernel(double* __restrict__ v, const double* __restrict__ mass, double c1,
+                                  double c2, double kT, uint64_t seed, uint64_t stream, std::size_t n, int dim) {
+  const std::size_t k = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
+  if (k >= n * std::size_t(dim)) return;
+  const double sigma = c2 * sqrt(kT / mass[k / std::size_t(dim)]);
+  v[k] = c1 * v[k] + sigma * counter_normal(seed, stream, k);
+}
+
+// m v^2 / 2 of particle i (summed over axes), for the kinetic-energy reduction.
+struct KineticTerm {
+  const double* v;
+  const double* mass;
+  int dim;
+  __host__ __device__ double operator()(std::size_t i) const {
+    double v2 = 0;
+    for (int a = 0; a < dim; ++a) v2 += v[i * dim + a] * v[i * dim + a];
+    return 0.5 * mass[i] * v2;
+  }
+};
+
+template <class T>
+void upload(DeviceBuffer<T>& d, const std::vector<T>& h, cudaStream_t stream) {
+  d.reserve(std::max<std::size_t>(h.size(), 1));
+  if (!h.empty())
+    CF_CUDA_CHECK(cudaMemcpyAsync(d.data(), h.data(), h.size() * sizeof(T), cudaMemcpyHostToDevice, stream));
+}
+
+template <class T>
+void download(std::vector<T>& h, const T* d, std::size_t count, cudaStream_t stream) {
+  h.resize(count);
+  if (count) CF_CUDA_CHECK(cudaMemcpyAsync(h.data(), d, count * sizeof(T), cudaMemcpyDeviceToHost, stream));
+}
+
+using Clock = std::chrono::steady_clock;
+
+// The engine's device current for a call, the caller's restored after it.
+class OnDevice {
+ public:
+  explicit OnDevice(int device) {
+    CF_CUDA_CHECK(cudaGetDevice(&previous_));
+    if (previous_ != device) CF_CUDA_CHECK(cudaSetDevice(device));
+  }
+  ~OnDevice() { cudaSetDevice(previous_); }
+  OnDevice(const OnDevice&) = delete;
+  OnDevice& operator=(const OnDevice&) = delete;
+
+ private:
+  int previous_ = 0;
+};
+
+class CudaMdEngine final : public MdEngine {
+ public:
+  explicit CudaMdEngine(std::unique_ptr<ForceEngine> forces)
+      : owner_(std::move(forces)), forces_(dynamic_cast<CudaForceEngine&>(*owner_)), gpu_(forces_.gpu()) {
+    const OnDevice on(gpu_.options().device);
+    stream_ = static_cast<cudaStream_t>(gpu_.stream());
+    CF_CUDA_CHECK(cudaEventCreate(&chunk_start_));
+    CF_CUDA_CHECK(cudaEventCreate(&chunk_end_));
+  }
+  ~CudaMdEngine() override {
+    for (cudaEvent_t e : force_events_) cudaEventDestroy(e);
+    cudaEventDestroy(chunk_start_);
+    cudaEventDestroy(chunk_end_);
+  }
+
+  void set_state(const MdState& state, const std::vector<double>& masses, const ForceField& ff) override {
+    const OnDevice on(gpu_.options().device);
+    validate_system(state.config.view(), ff);
+    validate_masses(masses, state.config.size());
+    if (ff.num_types() > 1 && state.config.types.size() != state.config.size())
+      throw Error("the state has " + std::to_string(state.config.types.size()) + " types for " +
+                  std::to_string(state.config.size()) + " particles");
+    box_ = state.config.box;
+    n_ = state.config.size();
+    ff_ = ff;
+    step_ = state.step;
+    time_ = state.time;
+    host_types_ = state.config.types;
+    upload(positions_, state.config.positions, stream_);
+    upload(velocities_, state.velocities.empty() ? std::vector<double>(n_ * box_.dim, 0.0) : state.velocities,
+           stream_);
+    upload(masses_, masses, stream_);
+    upload(types_, state.config.types, stream_);
+    counters_.bytes_to_device += (2 * n_ * box_.dim + n_) * sizeof(double) + n_ * sizeof(uint32_t);
+    flags_.reserve(1);
+    reset_flags();
+    evaluate(true);
+    check(step_, step_);
+  }
+
+  void advance(int64_t steps, const IntegratorSettings& settings, bool observe) override {
+    const OnDevice on(gpu_.options().device);
+    if (steps <= 0) return;
+    const auto t0 = Clock::now();
+    const int dim = box_.dim;
+    const double dt = settings.dt;
+    const int64_t first = step_ + 1;
+    CF_CUDA_CHECK(cudaEventRecord(chunk_start_, stream_));
+    std::size_t timed = 0;
+    for (int64_t k = 0; k < steps; ++k) {
+      const bool last = k + 1 == steps;
+      kick(0.5 * dt);
+      if (settings.langevin) {
+        drift(0.5 * dt, 0.5, false);  // two half drifts of at most L / 2: a step of at most L
+        const double c1 = std::exp(-settings.friction * dt);
+        const double c2 = std::sqrt(1.0 - c1 * c1);
+        if (n_)
+          thermostat_kernel<<<blocks_for(n_ * dim), kBlock, 0, stream_>>>(
+              velocities_.data(), masses_.data(), c1, c2, settings.kT, settings.seed, uint64_t(step_) + 1, n_, dim);
+        CF_CUDA_CHECK_LAUNCH();
+        drift(0.5 * dt, 0.5, true);
+      } else {
+        drift(dt, 1.0, true);
+      }
+      step_ += 1;
+      time_ = double(step_) * dt;  // not summed: the same after a restart
+      if (force_events_.size() < 2 * (timed + 1)) {
+        for (int e = 0; e < 2; ++e) {
+          cudaEvent_t ev;
+          CF_CUDA_CHECK(cudaEventCreate(&ev));
+          force_events_.push_back(ev);
+        }
+      }
+      CF_CUDA_CHECK(cudaEventRecord(force_events_[2 * timed], stream_));
+      evaluate(observe && last);
+      CF_CUDA_CHECK(cudaEventRecord(force_events_[2 * timed + 1], stream_));
+      ++timed;
+      kick(0.5 * dt);
+    }
+    CF_CUDA_CHECK(cudaEventRecord(chunk_end_, stream_));
+    check(first, step_);  // synchronises: the one host wait of the call beyond the counts
+    float ms = 0;
+    double forces_ms = 0;
+    for (std::size_t t = 0; t < timed; ++t) {
+      CF_CUDA_CHECK(cudaEventElapsedTime(&ms, force_events_[2 * t], force_events_[2 * t + 1]));
+      forces_ms += ms;
+    }
+    CF_CUDA_CHECK(cudaEventElapsedTime(&ms, chunk_start_, chunk_end_));
+    counters_.steps += steps;
+    counters_.force_seconds += 1e-3 * forces_ms;
+    counters_.integration_seconds += 1e-3 * (double(ms) - forces_ms);
+    counters_.host_wait_seconds += std::chrono::duration<double>(Clock::now() - t0).count();
+    gpu_.collect_timing();  // the stage times of the call's last evaluation
+    add_stage_sample(counters_, gpu_.stats());
+  }
+
+  void get_state(MdState& state) override {
+    const OnDevice on(gpu_.options().device);
+    const std::size_t nd = n_ * std::size_t(box_.dim);
+    state.config.box = box_;
+    state.config.types = host_types_;
+    download(state.config.positions, positions_.data(), nd, stream_);
+    download(state.velocities, velocities_.data(), nd, stream_);
+    download(state.forces, gpu_.device_forces(), nd, stream_);
+    CF_CUDA_CHECK(cudaStreamSynchronize(stream_));
+    counters_.bytes_to_host += 3 * nd * sizeof(double);
+    state.step = step_;
+    state.time = time_;
+  }
+
+  int64_t step() const override { return step_; }
+
+  Observables observables() override {
+    const OnDevice on(gpu_.options().device);
+    if (!observed_) {
+      evaluate(true);
+      check(step_, step_);
+    }
+    // One reduction and one copy of 8 numbers: kinetic energy, then the engine's totals.
+    scratch_result_.reserve(1 + cuda::kCellSums);
+    double* result = scratch_result_.data();
+    if (n_) {
+      auto terms = thrust::make_transform_iterator(thrust::counting_iterator<std::size_t>(0),
+                                                   KineticTerm{velocities_.data(), masses_.data(), box_.dim});
+      std::size_t bytes = 0;
+      CF_CUDA_CHECK(cub::DeviceReduce::Sum(nullptr, bytes, terms, result, n_, stream_));
+      reduce_scratch_.reserve(std::max<std::size_t>(bytes, 1));
+      CF_CUDA_CHECK(cub::DeviceReduce::Sum(reduce_scratch_.data(), bytes, terms, result, n_, stream_));
+    } else {
+      CF_CUDA_CHECK(cudaMemsetAsync(result, 0, sizeof(double), stream_));
+    }
+    CF_CUDA_CHECK(cudaMemcpyAsync(result + 1, gpu_.device_totals(), cuda::kCellSums * sizeof(double),
+                                  cudaMemcpyDeviceToDevice, stream_));
+    double host[1 + cuda::kCellSums] = {};
+    CF_CUDA_CHECK(cudaMemcpyAsync(host, result, sizeof(host), cudaMemcpyDeviceToHost, stream_));
+    CF_CUDA_CHECK(cudaStreamSynchronize(stream_));
+    counters_.bytes_to_host += sizeof(host);
+    Observables o;
+    o.kinetic = host[0];
+    o.potential = host[1];
+    static constexpr int kRow[6] = {0, 1, 2, 0, 0, 1}, kCol[6] = {0, 1, 2, 1, 2, 2};
+    for (int k = 0; k < 6; ++k) {
+      if (kRow[k] >= box_.dim || kCol[k] >= box_.dim) continue;
+      o.virial[kRow[k]][kCol[k]] = o.virial[kCol[k]][kRow[k]] = host[2 + k];
+    }
+    return o;
+  }
+
+  void reevaluate() override {
+    const OnDevice on(gpu_.options().device);
+    evaluate(true);
+    check(step_, step_);
+  }
+  ForceEngine& forces() override { return forces_; }
+  const MdCounters& counters() const override { return counters_; }
+  void reset_counters() override { counters_ = MdCounters{}; }
+
+ private:
+  void kick(double h) {
+    if (n_ == 0) return;
+    kick_kernel<<<blocks_for(n_ * box_.dim), kBlock, 0, stream_>>>(velocities_.data(), gpu_.device_forces(),
+                                                                     masses_.data(), h, n_, box_.dim);
+    CF_CUDA_CHECK_LAUNCH();
+  }
+
+  void drift(double h, double limit, bool wrap) {
+    if (n_ == 0) return;
+    DriftBox b{};
+    b.dim = box_.dim;
+    for (int a = 0; a < box_.dim; ++a) {
+      b.length[a] = box_.length[a];
+      b.periodic[a] = box_.periodic[a];
+      b.most[a] = box_.periodic[a] ? limit * box_.length[a] : INFINITY;
+    }
+    drift_kernel<<<blocks_for(n_), kBlock, 0, stream_>>>(positions_.data(), velocities_.data(), h, b, wrap, n_,
+                                                         flags_.data());
+    CF_CUDA_CHECK_LAUNCH();
+  }
+
+  void evaluate(bool observe) {
+    gpu_.evaluate_resident(box_, n_, positions_.data(), ff_.num_types() > 1 ? types_.data() : nullptr, ff_,
+                           Request{observe, observe});
+    observed_ = observe;
+    ++counters_.evaluations;
+    add_reuse(counters_, gpu_.stats());
+  }
+
+  void reset_flags() { CF_CUDA_CHECK(cudaMemsetAsync(flags_.data(), 0xff, sizeof(MdFlags), stream_)); }
+
+  // Reads the integration's and the force engine's flags (synchronises) and throws for the first
+  // that is raised, naming the steps first..last of the call.
+  void check(int64_t first, int64_t last) {
+    MdFlags f{};
+    CF_CUDA_CHECK(cudaMemcpyAsync(&f, flags_.data(), sizeof(f), cudaMemcpyDeviceToHost, stream_));
+    const std::string steps = first == last ? "step " + std::to_string(first)
+                                            : "steps " + std::to_string(first) + "-" + std::to_string(last);
+    try {
+      gpu_.check_flags(box_, n_, positions_.data(), ff_);  // synchronises the stream
+    } catch (const Error& e) {
+      if (f.diverged == ~0ull) throw Error(steps + ": " + e.message());
+    }
+    if (f.diverged != ~0ull) {
+      reset_flags();
+      throw Error(steps + ": particle " + std::to_string(f.diverged) +
+                  " moved too far in one drift or left the finite numbers (more than the box edge, or half "
+                  "of it in each of a Langevin step's two half drifts): the integration diverged; lower dt, "
+                  "or remove overlaps first");
+    }
+  }
+
+  std::unique_ptr<ForceEngine> owner_;
+  CudaForceEngine& forces_;
+  GpuEngine& gpu_;
+  cudaStream_t stream_ = nullptr;
+  Box box_;
+  std::size_t n_ = 0;
+  ForceField ff_;
+  int64_t step_ = 0;
+  double time_ = 0;
+  std::vector<uint32_t> host_types_;
+  DeviceBuffer<double> positions_, velocities_, masses_;
+  DeviceBuffer<uint32_t> types_;
+  DeviceBuffer<MdFlags> flags_;
+  DeviceBuffer<double> scratch_result_;
+  DeviceBuffer<std::byte> reduce_scratch_;
+  bool observed_ = false;
+  MdCounters counters_;
+  std::vector<cudaEvent_t> force_events_;
+  cudaEvent_t chunk_start_ = nullptr, chunk_end_ = nullptr;
+};
+
+}  // namespace
+
+std::unique_ptr<MdEngine> make_cuda_md_engine(std::unique_ptr<ForceEngine> forces) {
+  return std::make_unique<CudaMdEngine>(std::move(forces));
+}
+
+}  // namespace cellforce

@@ -1,0 +1,99 @@
+// The backends' integration and state-access jobs: an MdEngine holds the MD state (positions,
+// velocities, forces, types, masses) where its backend computes (host memory for the CPU; device
+// memory for CUDA, for the whole run) and advances it with the integrators of md/md.h (velocity
+// Verlet, Langevin BAOAB). The state crosses to the host only when asked for (get_state,
+// observables). One implementation per backend: src/backends/cpu_md_engine.cpp and
+// cuda/md_engine.cu.
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "backends/force_engine.h"
+#include "md/md.h"
+
+namespace cellforce {
+
+// What an output step reads: kinetic energy (reduced where the state lives), and the potential
+// energy and virial of the evaluation at the current positions.
+struct Observables {
+  double kinetic = 0;
+  double potential = 0;
+  double virial[kMaxDim][kMaxDim] = {};
+};
+
+// Time and traffic of the steps since the engine was made or reset_counters() ran.
+struct MdCounters {
+  int64_t steps = 0;
+  int64_t evaluations = 0;
+  double force_seconds = 0;        // force evaluations (CUDA: device time; CPU: wall time)
+  double integration_seconds = 0;  // kicks, drifts, thermostat (CUDA: device time; CPU: wall time)
+  double host_wait_seconds = 0;    // wall time of advance() calls, host included
+  std::size_t bytes_to_host = 0;   // particle data and results copied device -> host (CUDA)
+  std::size_t bytes_to_device = 0; // host -> device
+  PipelineStats stages;            // stage times (t_*) summed over the evaluations sampled
+  int64_t stage_samples = 0;       // evaluations whose stage times are in `stages` (CUDA: the last
+                                   // of each advance() call; CPU: every one)
+  // Reuse of the neighbour structure (skin > 0), over every evaluation: builds, the largest
+  // displacement a reused structure served, and the audit's counts (CPU only).
+  int64_t builds = 0;
+  double served = 0;
+  std::size_t missed_pairs = 0, repeated_pairs = 0;
+};
+
+class MdEngine {
+ public:
+  virtual ~MdEngine() = default;
+
+  // The state to integrate (host arrays, the caller's order; positions wrapped on periodic axes)
+  // and each particle's mass (n). Validates it (non-finite coordinates, types, cutoff against the
+  // box; masses finite and > 0), stores it where the backend computes and evaluates the forces
+  // (with energy and virial) at its positions. Throws cellforce::Error naming the particle.
+  virtual void set_state(const MdState& state, const std::vector<double>& masses, const ForceField& ff) = 0;
+
+  // Advances `steps` time steps of `settings` (md/md.h's advance(): forces at the new positions
+  // each step); the last step's evaluation also computes energy and virial when `observe`. On a
+  // backend whose state lives on a device the host does not wait for the device here except for
+  // the counts that size the search's buffers; the kernels' flags are read once at the end, and
+  // an integration that diverged or a force that is not finite throws cellforce::Error naming the
+  // particle(s) and the steps the call covered.
+  virtual void advance(int64_t steps, const IntegratorSettings& settings, bool observe) = 0;
+
+  // The state now, into `state` (positions, velocities, forces; step and time): a download on a
+  // device backend.
+  virtual void get_state(MdState& state) = 0;
+  virtual int64_t step() const = 0;
+
+  // Kinetic energy now, potential energy and virial at the current positions: those of the last
+  // evaluation when it computed them, else from one more evaluation (which computes them).
+  virtual Observables observables() = 0;
+
+  // Evaluates the forces (with energy and virial) at the current positions again: after the
+  // force engine's structure was restored (restore_reuse), so that the state's forces come from it.
+  virtual void reevaluate() = 0;
+
+  // The force engine underneath (description, reuse state for checkpoints, stage statistics).
+  virtual ForceEngine& forces() = 0;
+
+  virtual const MdCounters& counters() const = 0;
+  virtual void reset_counters() = 0;
+};
+
+// The engine of `choice`'s backend (auto resolved as make_force_engine does).
+std::unique_ptr<MdEngine> make_md_engine(const EngineChoice& choice);
+std::unique_ptr<MdEngine> make_cpu_md_engine(std::unique_ptr<ForceEngine> forces);
+#ifdef CELLFORCE_HAVE_CUDA
+std::unique_ptr<MdEngine> make_cuda_md_engine(std::unique_ptr<ForceEngine> forces);
+#endif
+
+// Adds one evaluation's statistics: its stage times to c.stages (one more sample), its build or
+// reuse to the reuse figures.
+void add_stage_sample(MdCounters& c, const PipelineStats& s);
+void add_reuse(MdCounters& c, const PipelineStats& s);
+
+// Throws cellforce::Error naming the first particle whose mass is not finite and > 0.
+void validate_masses(const std::vector<double>& masses, std::size_t n);
+
+}  // namespace cellforce
