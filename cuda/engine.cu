@@ -142,6 +142,13 @@ struct GpuEngine::Impl {
 
   std::vector<std::byte> host_table;  // the table last uploaded (uploaded again only on change)
 
+  // Host-array calls read their own flags: any a resident run left are dropped.
+  void per_call_flags() {
+    if (!accumulate_flags) return;
+    accumulate_flags = false;
+    plan_from_corners = false;
+  }
+
   void reset_flags() {
     flags.reserve(1);
     cuda::DeviceFlags* f = flags.data();
@@ -395,6 +402,7 @@ void GpuEngine::evaluate(const SystemView& system, const ForceField& ff, const R
                          ForceResult& result) {
   const DeviceScope scope(options_.device);
   Impl& s = *impl_;
+  s.per_call_flags();
   prepare(system, ff);
   traverse(system, ff, request);
   const Grid& g = stats_.grid;
@@ -421,6 +429,7 @@ void GpuEngine::evaluate_device(const DeviceSystemView& dsys, const ForceField& 
                                 const DeviceOutputs& out, void* stream) {
   const DeviceScope scope(options_.device);
   Impl& s = *impl_;
+  s.per_call_flags();
   if (dsys.n > 0 && (!dsys.positions || !out.forces))
     throw Error(std::string(dsys.positions ? "forces" : "positions") + " is a null pointer (" +
                 std::to_string(dsys.n) + " particles)");
@@ -595,6 +604,7 @@ void GpuEngine::restore_reuse(const SystemView& built_from, const ForceField& ff
   if (!reuse_.enabled()) return;
   const DeviceScope scope(options_.device);
   Impl& s = *impl_;
+  s.plan_from_corners = false;  // the grid from these host positions
   validate_system(built_from, ff);
   s.upload_system(built_from);
   s.record(kChecked);
@@ -618,6 +628,7 @@ std::vector<std::pair<uint32_t, uint32_t>> GpuEngine::record(const SystemView& s
                                                              const ForceField& ff, bool keep) {
   const DeviceScope scope(options_.device);
   Impl& s = *impl_;
+  s.per_call_flags();
   prepare(system, ff);
   const Grid& g = stats_.grid;
   cuda::TraversalArgs<double, double> args =
