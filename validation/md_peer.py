@@ -150,9 +150,9 @@ def main() -> int:
     with tempfile.TemporaryDirectory() as tmp:
         for cells in args.cells:
             n = 4 * cells ** 3
-            # steps for ~args.seconds at a rough 1e9 particle-steps/s (OpenMM) and 2e8 (cellforce), at least 50
-            omm_steps = max(50, int(args.seconds * 1.0e9 / n))
-            cf_steps = max(50, int(args.seconds * 2.0e8 / n))
+            # steps for ~args.seconds at a rough 3e8 particle-steps/s (OpenMM) and 4e7 (cellforce), at least 100
+            omm_steps = max(100, int(args.seconds * 3.0e8 / n))
+            cf_steps = max(100, int(args.seconds * 4.0e7 / n))
             for precision in args.precisions:
                 row = {"cells": cells, "particles": n, "precision": precision}
                 try:
