@@ -115,7 +115,8 @@ def cellforce_steps_per_second(binary: str, cells: int, precision: str, steps: i
     scene = folder / f"inlj_{cells}_{precision}.toml"
     scene.write_text(SCENE.format(cells=cells, density=DENSITY, cutoff=CUTOFF, t0=T0, dt=DT, steps=steps,
                                   precision=precision, thermo_every=steps))
-    p = subprocess.run([binary, "run", str(scene), "--quiet"], capture_output=True, text=True, cwd=folder)
+    p = subprocess.run([str(Path(binary).resolve()), "run", str(scene), "--quiet"], capture_output=True, text=True,
+                       cwd=folder)
     if p.returncode != 0:
         raise RuntimeError(f"cellforce run failed ({p.returncode}): {p.stderr.strip()[-2000:]}")
     out = p.stdout
