@@ -53,12 +53,11 @@ __global__ void write_totals_kernel(const double* __restrict__ totals, int dim, 
   if (threadIdx.x != 0) return;
   if (energy) *energy = totals[0];
   if (!virial) return;
-  constexpr int kRow[6] = {0, 1, 2, 0, 0, 1}, kCol[6] = {0, 1, 2, 1, 2, 2};
   for (int k = 0; k < dim * dim; ++k) virial[k] = 0;
-  for (int k = 0; k < 6; ++k) {
-    if (kRow[k] >= dim || kCol[k] >= dim) continue;
-    virial[kRow[k] * dim + kCol[k]] = totals[1 + k];
-    virial[kCol[k] * dim + kRow[k]] = totals[1 + k];
+  for (int k = 0; k < kVirialComponents; ++k) {
+    const int r = virial_row(k), c = virial_col(k);
+    if (r >= dim || c >= dim) continue;
+    virial[r * dim + c] = virial[c * dim + r] = totals[1 + k];
   }
 }
 

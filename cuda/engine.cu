@@ -291,11 +291,7 @@ struct GpuEngine::Impl {
     args.table = as<LJParams<Real>>(table);
     args.num_types = uint32_t(ff.num_types());
     args.rc2 = Real(ff.cutoff) * Real(ff.cutoff);
-    for (int a = 0; a < kMaxDim; ++a) {
-      const bool w = a < g.dim && g.wraps_inside_cell(a);
-      args.length[a] = w ? Real(g.length[a]) : Real(0);
-      args.inv_length[a] = w ? Real(g.inv_length[a]) : Real(0);
-    }
+    wrap_lengths(g, args.length, args.inv_length);  // core/cell_totals.h
     if (!accumulate_flags) reset_flags();
     args.flags = flags.data();
     return args;

@@ -267,10 +267,10 @@ class CudaMdEngine final : public MdEngine {
     Observables o;
     o.kinetic = host[0];
     o.potential = host[1];
-    static constexpr int kRow[6] = {0, 1, 2, 0, 0, 1}, kCol[6] = {0, 1, 2, 1, 2, 2};
-    for (int k = 0; k < 6; ++k) {
-      if (kRow[k] >= box_.dim || kCol[k] >= box_.dim) continue;
-      o.virial[kRow[k]][kCol[k]] = o.virial[kCol[k]][kRow[k]] = host[2 + k];
+    for (int k = 0; k < kVirialComponents; ++k) {
+      const int r = virial_row(k), c = virial_col(k);
+      if (r >= box_.dim || c >= box_.dim) continue;
+      o.virial[r][c] = o.virial[c][r] = host[2 + k];
     }
     return o;
   }

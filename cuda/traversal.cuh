@@ -11,14 +11,16 @@
 #include <cstdint>
 
 #include "core/grid.h"
+#include "core/cell_totals.h"
 #include "core/lj.h"
+#include "core/cell_totals.h"
 #include "engine.h"
 
 namespace cellforce::cuda {
 
 // Per collision cell the traversal writes its pair-energy sum and the six virial components
-// (xx yy zz xy xz yz), so that the totals are summed in a fixed order afterwards.
-inline constexpr int kCellSums = 7;
+// (core/cell_totals.h's layout), so that the totals are summed in a fixed order afterwards.
+inline constexpr int kCellSums = kCellTotals;
 
 // One occupant of a collision cell in sorted order, staged by stage_occupants(): its position
 // relative to the centre of the cell it occupies (formed in double, then rounded to Real, so that

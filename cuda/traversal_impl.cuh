@@ -18,6 +18,7 @@
 #include <type_traits>
 
 #include "check.cuh"
+#include "core/cell_totals.h"
 #include "traversal.cuh"
 
 namespace cellforce::cuda {
@@ -77,43 +78,6 @@ __device__ __forceinline__ void record_pair(const TraversalArgs<double, double>&
   if (k < args.pair_capacity) args.pairs[k] = make_uint2(i < j ? i : j, i < j ? j : i);
 }
 
-// Per-cell energy and virial (xx yy zz xy xz yz). With float sums (single precision) the pairs
-// are summed in blocks of kBlock, each block then added to the total (as the CPU traversal does):
-// a thread that walks a crowded cell rounds ~kBlock + n/kBlock times per term instead of ~n.
-// finish() must run before v is read.
-template <class Accum>
-struct CellTotals {
-  static constexpr bool kBlocked = std::is_same_v<Accum, float>;
-  static constexpr int kBlock = 64;
-  Accum v[kCellSums] = {};
-  Accum block[kBlocked ? kCellSums : 1] = {};
-  int in_block = 0;
-  template <int D, class Real>
-  __device__ __forceinline__ void add(Real e, Real fr, const Real d[3]) {
-    Accum* s = kBlocked ? block : v;
-    s[0] += Accum(e);
-    s[1] += Accum(fr * d[0] * d[0]);
-    s[2] += Accum(fr * d[1] * d[1]);
-    s[4] += Accum(fr * d[0] * d[1]);
-    if constexpr (D == 3) {
-      s[3] += Accum(fr * d[2] * d[2]);
-      s[5] += Accum(fr * d[0] * d[2]);
-      s[6] += Accum(fr * d[1] * d[2]);
-    }
-    if constexpr (kBlocked)
-      if (++in_block == kBlock) finish();
-  }
-  __device__ __forceinline__ void finish() {
-    if constexpr (kBlocked) {
-      for (int k = 0; k < kCellSums; ++k) {
-        v[k] += block[k];
-        block[k] = 0;
-      }
-      in_block = 0;
-    }
-  }
-};
-
 // A warp's butterfly sum: the same tree every time, so the result is reproducible.
 template <class V>
 __device__ __forceinline__ V warp_sum(V v) {
@@ -136,7 +100,7 @@ __global__ void __launch_bounds__(kThreadsPerBlock)
   const StagedEntry<Real>* occ = args.staged + cell.start;
   const uint32_t* ids = args.sorted_ids + cell.start;
   const uint32_t m = cell.h + cell.p;
-  CellTotals<Accum> totals;
+  CellTotals<Accum, true, true> totals;  // core/cell_totals.h
   unsigned long long candidates = 0, interacting = 0;
 
   for (uint32_t a = 0; a < cell.h; ++a) {
@@ -224,7 +188,7 @@ __global__ void __launch_bounds__(kWarpsPerBlock * 32)
   const StagedEntry<Real>* occ = args.staged + cell.start;
   const uint32_t* ids = args.sorted_ids + cell.start;
   const uint32_t h = cell.h, m = cell.h + cell.p;
-  CellTotals<Accum> totals;
+  CellTotals<Accum, true, true> totals;  // core/cell_totals.h
   unsigned long long candidates = 0, interacting = 0;
   bool impossible = false;
 

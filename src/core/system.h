@@ -6,6 +6,7 @@
 #include <vector>
 
 #include "core/box.h"
+#include "core/cell_totals.h"  // the virial layout
 #include "core/force_field.h"
 
 namespace cellforce {
@@ -55,15 +56,13 @@ struct ForceResult {
 
 // Stores the six virial components w = (xx, yy, zz, xy, xz, yz) as the symmetric dim x dim block
 // of result.virial, zero elsewhere (2D uses xx, yy, xy). Shared by the engines' accumulation.
-inline void set_virial(ForceResult& result, int dim, const double w[6]) {
-  static constexpr int kRow[6] = {0, 1, 2, 0, 0, 1};
-  static constexpr int kCol[6] = {0, 1, 2, 1, 2, 2};
+inline void set_virial(ForceResult& result, int dim, const double w[kVirialComponents]) {
   for (auto& row : result.virial)
     for (double& v : row) v = 0;
-  for (int k = 0; k < 6; ++k) {
-    if (kRow[k] >= dim || kCol[k] >= dim) continue;
-    result.virial[kRow[k]][kCol[k]] = w[k];
-    result.virial[kCol[k]][kRow[k]] = w[k];
+  for (int k = 0; k < kVirialComponents; ++k) {
+    const int r = virial_row(k), c = virial_col(k);
+    if (r >= dim || c >= dim) continue;
+    result.virial[r][c] = result.virial[c][r] = w[k];
   }
 }
 

@@ -8,7 +8,6 @@ namespace cellforce::cpu {
 using detail::CellStage;
 using detail::for_each_candidate;
 using detail::with_bool;
-using detail::wrap_lengths;
 
 std::vector<std::pair<uint32_t, uint32_t>> traverse_pairs(const TraversalInput& in) {
   std::vector<std::pair<uint32_t, uint32_t>> pairs;

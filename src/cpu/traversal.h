@@ -9,12 +9,12 @@
 #include "core/force_field.h"
 #include "core/grid.h"
 #include "core/system.h"
+#include "core/cell_totals.h"  // kVirialComponents
 #include "cpu/engine.h"
 #include "cpu/stages.h"
 
 namespace cellforce::cpu {
 
-inline constexpr int kVirialComponents = 6;  // xx yy zz xy xz yz
 
 // What the traversal writes, in the accumulation type.
 template <class Accum>

@@ -13,6 +13,7 @@
 // precision per file so that the builds run in parallel.
 #pragma once
 
+#include "core/cell_totals.h"
 #include "cpu/traversal.h"
 
 #include <omp.h>
@@ -154,16 +155,6 @@ inline void for_each_candidate(const Stage& s, const CollisionCell& cell, unsign
   }
 }
 
-// Per-axis wrap lengths for the pair loop: nonzero only where one cell spans a periodic axis.
-template <class Real>
-void wrap_lengths(const Grid& g, Real length[kMaxDim], Real inv_length[kMaxDim]) {
-  for (int a = 0; a < kMaxDim; ++a) {
-    const bool w = a < g.dim && g.wraps_inside_cell(a);
-    length[a] = w ? Real(g.length[a]) : Real(0);
-    inv_length[a] = w ? Real(g.inv_length[a]) : Real(0);
-  }
-}
-
 template <class T, class Real, class Accum>
 TraversalReport run(const TraversalInput& in, Accumulation mode, Accumulators<Accum>& out) {
   constexpr int D = T::kDim;
@@ -195,19 +186,7 @@ TraversalReport run(const TraversalInput& in, Accumulation mode, Accumulators<Ac
         s.load(in, cell, D);
         for (int a = 0; a < D; ++a) std::fill_n(s.force[a].begin(), m, Accum(0));
         if constexpr (T::kEnergy) std::fill_n(s.energy.begin(), m, Accum(0));
-        // Cell totals of energy and virial. With float sums (single precision) the pairs are
-        // summed in blocks of kBlock, each block then added to the total: a crowded cell of n
-        // pairs then rounds ~kBlock + n/kBlock times per term instead of ~n times.
-        Accum cell_e = 0, total_e = 0;
-        Accum w[kVirialComponents] = {}, total_w[kVirialComponents] = {};
-        constexpr int kBlock = std::is_same_v<Accum, float> ? 64 : 0;
-        int in_block = 0;
-        auto flush = [&] {
-          total_e += cell_e;
-          cell_e = 0;
-          for (int k = 0; k < kVirialComponents; ++k) total_w[k] += w[k], w[k] = 0;
-          in_block = 0;
-        };
+        CellTotals<Accum, T::kEnergy, T::kVirial> totals;  // core/cell_totals.h
         const unsigned type = cell_type_of_id(g, cell.cell);
         local.max_occupancy = std::max<std::size_t>(local.max_occupancy, m);
 
@@ -237,22 +216,10 @@ TraversalReport run(const TraversalInput& in, Accumulation mode, Accumulators<Ac
                 const Accum half = Accum(Real(0.5) * e);
                 s.energy[a] += half;
                 s.energy[b] += half;
-                cell_e += Accum(e);
               }
-              if constexpr (T::kVirial) {
-                w[0] += Accum(fr * d[0] * d[0]);
-                w[1] += Accum(fr * d[1] * d[1]);
-                w[3] += Accum(fr * d[0] * d[1]);
-                if constexpr (D == 3) {
-                  w[2] += Accum(fr * d[2] * d[2]);
-                  w[4] += Accum(fr * d[0] * d[2]);
-                  w[5] += Accum(fr * d[1] * d[2]);
-                }
-              }
-              if constexpr (kBlock > 0 && (T::kEnergy || T::kVirial))
-                if (++in_block == kBlock) flush();
+              totals.template add<D>(e, fr, d);
             });
-        flush();
+        totals.finish();
 
         // Jacobi: slot `type` of each occupant is written by this cell only (condition 1).
         Accum* force = out.force.data() + (jacobi ? std::size_t(type) * n * D : 0);
@@ -268,9 +235,9 @@ TraversalReport run(const TraversalInput& in, Accumulation mode, Accumulators<Ac
             else energy[i] += s.energy[e];
           }
         }
-        if constexpr (T::kEnergy) out.cell_energy[ci] = total_e;
+        if constexpr (T::kEnergy) out.cell_energy[ci] = totals.v[0];
         if constexpr (T::kVirial)
-          for (int k = 0; k < kVirialComponents; ++k) out.cell_virial[ci * kVirialComponents + k] = total_w[k];
+          for (int k = 0; k < kVirialComponents; ++k) out.cell_virial[ci * kVirialComponents + k] = totals.v[1 + k];
       }
     }
 #pragma omp critical(cellforce_traversal_report)
