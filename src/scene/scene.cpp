@@ -207,24 +207,10 @@ Scene default_scene() {
   return s;
 }
 
-Scene parse_scene(const std::string& text, const std::string& name, const std::string& folder) {
-  toml::table root;
-  try {
-    root = toml::parse(text, name);
-  } catch (const toml::parse_error& e) {
-    throw Error(name + ":" + std::to_string(e.source().begin.line) + ": " + std::string(e.description()));
-  }
-  Scene scene;
-  scene.source = name;
-  scene.text = text;
-  static const std::set<std::string> kSections = {"system", "particles", "types", "interactions",
-                                                  "initial", "integrator", "run", "output", "minimize",
-                                                  "neighbor"};
-  for (const auto& [key, value] : root)
-    if (!kSections.count(std::string(key.str())))
-      throw Error(name + ":" + std::to_string(value.source().begin.line) + ": unknown section or key " +
-                  quote_excerpt(key.str()));
+namespace {
 
+// [system]: dimension and periodicity.
+void read_system(const toml::table& root, const std::string& name, Scene& scene) {
   Section sys = section(root, "system", name);
   const int64_t dimension = sys.integer("dimension", 3, 2);
   if (dimension != 2 && dimension != 3) sys.fail("dimension", "must be 2 or 3, got " + std::to_string(dimension));
@@ -232,8 +218,11 @@ Scene parse_scene(const std::string& text, const std::string& name, const std::s
   if (auto p = sys.vector<bool>("periodic", scene.dim)) scene.periodic = *p;
   if (scene.dim == 2) scene.periodic[2] = false;
   sys.finish();
+}
 
-  // Types first: composition and pairs refer to them by name.
+// [[types]]: names, sigma, epsilon, mass; returns each name's index (composition and pairs refer
+// to types by name).
+std::map<std::string, std::size_t> read_types(const toml::table& root, const std::string& name, Scene& scene) {
   const toml::node* types_node = root.get("types");
   if (!types_node) throw Error(name + ":1: no [[types]]: a scene needs at least one particle type");
   const toml::array* types = types_node->as_array();
@@ -253,7 +242,13 @@ Scene parse_scene(const std::string& text, const std::string& name, const std::s
     scene.masses.push_back(ts.positive("mass", 1.0));
     ts.finish();
   }
+  return type_index;
+}
 
+// [interactions]: cutoff, mode, mixing and explicit pairs.
+void read_interactions(const toml::table& root, const std::string& name, Scene& scene,
+                       const std::map<std::string, std::size_t>& type_index) {
+  ForceField& ff = scene.force_field;
   Section in = section(root, "interactions", name);
   ff.cutoff = in.positive("cutoff", 2.5);
   ff.mode = in.choice("mode", CutoffMode::kTruncate, kModes);
@@ -282,7 +277,11 @@ Scene parse_scene(const std::string& text, const std::string& name, const std::s
     }
   }
   in.finish();
+}
 
+// [particles]: a lattice, random placement or a file.
+void read_particles(const toml::table& root, const std::string& name, const std::string& folder, Scene& scene,
+                    const std::map<std::string, std::size_t>& type_index) {
   Section pa = section(root, "particles", name);
   SceneParticles& p = scene.particles;
   p.source = pa.choice("source", ParticleSource::kLattice, kSources);
@@ -353,7 +352,10 @@ Scene parse_scene(const std::string& text, const std::string& name, const std::s
              {"count", random_only}, {"min_distance", random_only}, {"path", file_only}, {"frame", file_only},
              {"composition", "does not apply to source = \"file\" (the file's species give the types)"},
              {"box", "does not apply to source = \"file\" (the file gives the box)"}});
+}
 
+// [initial] and [integrator].
+void read_dynamics(const toml::table& root, const std::string& name, Scene& scene) {
   Section init = section(root, "initial", name);
   scene.initial_temperature = init.non_negative("temperature", 1.0);
   scene.seed = uint64_t(init.integer("seed", 1, 0));
@@ -369,7 +371,10 @@ Scene parse_scene(const std::string& text, const std::string& name, const std::s
   }
   integ.finish({{"temperature", "applies only to kind = \"langevin\" (the initial one is [initial] temperature)"},
                 {"friction", "applies only to kind = \"langevin\""}});
+}
 
+// [minimize]: FIRE before the dynamics.
+void read_minimize(const toml::table& root, const std::string& name, Scene& scene) {
   Section mini = section(root, "minimize", name);
   if (mini.present()) {
     SceneMinimize& m = scene.minimize;
@@ -386,7 +391,10 @@ Scene parse_scene(const std::string& text, const std::string& name, const std::s
     m.max_displacement = mini.positive("max_displacement", 0.1);
   }
   mini.finish();
+}
 
+// [neighbor]: skin reuse of the cell structure.
+void read_neighbor(const toml::table& root, const std::string& name, Scene& scene) {
   Section neighbor = section(root, "neighbor", name);
   ReuseOptions& reuse = scene.backend.reuse;
   reuse.skin = neighbor.non_negative("skin", 0.0);
@@ -401,7 +409,10 @@ Scene parse_scene(const std::string& text, const std::string& name, const std::s
                            "'neigh_modify every N check no'), keep the check, or set audit = true to count "
                            "the pairs that reuse misses");
   neighbor.finish();
+}
 
+// [run] and [output].
+void read_run_and_output(const toml::table& root, const std::string& name, Scene& scene) {
   Section run = section(root, "run", name);
   scene.steps = run.integer("steps", 1000, 0);
   scene.backend.backend = run.choice("backend", Backend::kAuto, kBackends);
@@ -423,8 +434,36 @@ Scene parse_scene(const std::string& text, const std::string& name, const std::s
   if (scene.output.checkpoint.empty() && out.node("checkpoint_every"))
     out.fail("checkpoint_every", "applies only with a checkpoint (checkpoint = \"FILE.h5\")");
   out.finish();
+}
 
-  with_context(name, [&] { ff.validate(); });
+}  // namespace
+
+Scene parse_scene(const std::string& text, const std::string& name, const std::string& folder) {
+  toml::table root;
+  try {
+    root = toml::parse(text, name);
+  } catch (const toml::parse_error& e) {
+    throw Error(name + ":" + std::to_string(e.source().begin.line) + ": " + std::string(e.description()));
+  }
+  Scene scene;
+  scene.source = name;
+  scene.text = text;
+  static const std::set<std::string> kSections = {"system", "particles", "types", "interactions",
+                                                  "initial", "integrator", "run", "output", "minimize",
+                                                  "neighbor"};
+  for (const auto& [key, value] : root)
+    if (!kSections.count(std::string(key.str())))
+      throw Error(name + ":" + std::to_string(value.source().begin.line) + ": unknown section or key " +
+                  quote_excerpt(key.str()));
+  read_system(root, name, scene);
+  const std::map<std::string, std::size_t> type_index = read_types(root, name, scene);
+  read_interactions(root, name, scene, type_index);
+  read_particles(root, name, folder, scene, type_index);
+  read_dynamics(root, name, scene);
+  read_minimize(root, name, scene);
+  read_neighbor(root, name, scene);
+  read_run_and_output(root, name, scene);
+  with_context(name, [&] { scene.force_field.validate(); });
   return scene;
 }
 
