@@ -429,6 +429,21 @@ void GpuEngine::evaluate_device(const DeviceSystemView& dsys, const ForceField& 
   if (dsys.n > 0 && (!dsys.positions || !out.forces))
     throw Error(std::string(dsys.positions ? "forces" : "positions") + " is a null pointer (" +
                 std::to_string(dsys.n) + " particles)");
+  // Every pointer must be one the device can use: a host pointer here would fault the context.
+  const std::pair<const void*, const char*> pointers[] = {{dsys.positions, "positions"}, {dsys.types, "types"},
+                                                          {out.forces, "forces"}, {out.energies, "energies"},
+                                                          {out.energy, "energy"}, {out.virial, "virial"}};
+  for (const auto& [p, what] : pointers) {
+    if (!p || (dsys.n == 0 && (p == dsys.positions || p == dsys.types || p == out.forces || p == out.energies)))
+      continue;
+    cudaPointerAttributes attributes{};
+    const cudaError_t err = cudaPointerGetAttributes(&attributes, p);
+    if (err != cudaSuccess) (void)cudaGetLastError();
+    if (err != cudaSuccess || attributes.type == cudaMemoryTypeUnregistered ||
+        (attributes.type == cudaMemoryTypeHost && attributes.devicePointer == nullptr))
+      throw Error(std::string(what) + " is not a device pointer (compute_device takes device arrays; use "
+                  "compute for host arrays)");
+  }
   const auto caller = static_cast<cudaStream_t>(stream);
   CF_CUDA_CHECK(cudaEventRecord(s.joined, caller));  // the engine starts after the caller's work
   CF_CUDA_CHECK(cudaStreamWaitEvent(s.stream, s.joined, 0));
@@ -477,15 +492,27 @@ void GpuEngine::evaluate_resident(const Box& box, std::size_t n, const double* p
   if (open) {
     double lo[kMaxDim], hi[kMaxDim];
     cuda::bounding_box(positions, n, box.dim, lo, hi, s.cub, s.stream);
+    bool finite = true;
     for (int a = 0; a < box.dim; ++a) {
       s.corners[a] = lo[a];
       s.corners[box.dim + a] = hi[a];
+      finite = finite && std::isfinite(lo[a]) && std::isfinite(hi[a]);
     }
-    s.corner_count = n ? 2 : 0;
+    // A drift that diverged this step: plan one cell (the kernels clamp what they bin) and let
+    // the caller's flag check name the particle.
+    s.corner_count = n && finite ? 2 : 0;
   }
   prepare_resident(system, ff, on_device);
   traverse(system, ff, request, false);
   s.record(kDownloaded);
+  if (options_.reuse.audit && !stats_.rebuilt) {  // diagnostics: the positions come to the host
+    std::vector<double> host_positions;
+    std::vector<uint32_t> host_types;
+    download(host_positions, positions, n * std::size_t(box.dim), s.stream);
+    if (types) download(host_types, types, n, s.stream);
+    CF_CUDA_CHECK(cudaStreamSynchronize(s.stream));
+    audit(SystemView{box, n, host_positions.data(), types ? host_types.data() : nullptr}, ff);
+  }
 }
 
 void GpuEngine::check_flags(const Box& box, std::size_t n, const double* positions, const ForceField& ff) {
@@ -531,11 +558,10 @@ void GpuEngine::finish_timing() {
   stats_.buffer_bytes = s.bytes();
 }
 
-// Validates the input, uploads it, then rebuilds the structure (stages 1-3) or keeps the last
-// one: shared by evaluate() and the pair recorder.
-void GpuEngine::prepare(const SystemView& system, const ForceField& ff, const DeviceSystemView* on_device) {
-  Impl& s = *impl_;
-  validate_system(system, ff);
+namespace {
+
+// What the CUDA pipeline can hold, checked before anything runs (host and resident paths).
+void check_capacity(const SystemView& system, const ForceField& ff) {
   if (ff.num_types() > cuda::kMaxStagedTypes)
     throw Error("the CUDA engine supports at most " + std::to_string(cuda::kMaxStagedTypes) +
                 " particle types; the force field has " + std::to_string(ff.num_types()));
@@ -544,6 +570,16 @@ void GpuEngine::prepare(const SystemView& system, const ForceField& ff, const De
     throw Error("the CUDA engine takes at most 2^31 - 1 cell-ID entries (N x 2^d): " +
                 std::to_string(system.n) + " particles in " + std::to_string(system.box.dim) +
                 "D make " + std::to_string(entries));
+}
+
+}  // namespace
+
+// Validates the input, uploads it, then rebuilds the structure (stages 1-3) or keeps the last
+// one: shared by evaluate() and the pair recorder.
+void GpuEngine::prepare(const SystemView& system, const ForceField& ff, const DeviceSystemView* on_device) {
+  Impl& s = *impl_;
+  validate_system(system, ff);
+  check_capacity(system, ff);
   s.upload_system(system, on_device);
   const bool rebuild = reuse_.decide(system, ff.cutoff, [&] {
     return cuda::max_displacement2(system.box, s.pos, s.build_positions.data(), system.n, s.cub,
@@ -563,6 +599,7 @@ void GpuEngine::prepare(const SystemView& system, const ForceField& ff, const De
 // drifts are checked on the device), so nothing here reads them on the host.
 void GpuEngine::prepare_resident(const SystemView& system, const ForceField& ff, const DeviceSystemView& on_device) {
   Impl& s = *impl_;
+  check_capacity(system, ff);
   s.upload_system(system, &on_device);
   const bool rebuild = reuse_.decide(system, ff.cutoff, [&] {
     return cuda::max_displacement2(system.box, s.pos, s.build_positions.data(), system.n, s.cub, s.stream);

@@ -10,6 +10,7 @@
 #include <thrust/iterator/counting_iterator.h>
 #include <thrust/iterator/transform_iterator.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 
@@ -133,13 +134,21 @@ class CudaMdEngine final : public MdEngine {
       : owner_(std::move(forces)), forces_(dynamic_cast<CudaForceEngine&>(*owner_)), gpu_(forces_.gpu()) {
     const OnDevice on(gpu_.options().device);
     stream_ = static_cast<cudaStream_t>(gpu_.stream());
-    CF_CUDA_CHECK(cudaEventCreate(&chunk_start_));
-    CF_CUDA_CHECK(cudaEventCreate(&chunk_end_));
+    try {
+      CF_CUDA_CHECK(cudaEventCreate(&chunk_start_));
+      CF_CUDA_CHECK(cudaEventCreate(&chunk_end_));
+    } catch (...) {
+      release();
+      throw;
+    }
   }
   ~CudaMdEngine() override {
-    for (cudaEvent_t e : force_events_) cudaEventDestroy(e);
-    cudaEventDestroy(chunk_start_);
-    cudaEventDestroy(chunk_end_);
+    try {
+      const OnDevice on(gpu_.options().device);  // the buffers are freed on their own device
+      release();
+    } catch (...) {
+      release();  // a destructor cannot throw
+    }
   }
 
   void set_state(const MdState& state, const std::vector<double>& masses, const ForceField& ff) override {
@@ -169,55 +178,13 @@ class CudaMdEngine final : public MdEngine {
 
   void advance(int64_t steps, const IntegratorSettings& settings, bool observe) override {
     const OnDevice on(gpu_.options().device);
-    if (steps <= 0) return;
     const auto t0 = Clock::now();
-    const int dim = box_.dim;
-    const double dt = settings.dt;
-    const int64_t first = step_ + 1;
-    CF_CUDA_CHECK(cudaEventRecord(chunk_start_, stream_));
-    std::size_t timed = 0;
-    for (int64_t k = 0; k < steps; ++k) {
-      const bool last = k + 1 == steps;
-      kick(0.5 * dt);
-      if (settings.langevin) {
-        drift(0.5 * dt, 0.5, false);  // two half drifts of at most L / 2: a step of at most L
-        const double c1 = std::exp(-settings.friction * dt);
-        const double c2 = std::sqrt(1.0 - c1 * c1);
-        if (n_)
-          thermostat_kernel<<<blocks_for(n_ * dim), kBlock, 0, stream_>>>(
-              velocities_.data(), masses_.data(), c1, c2, settings.kT, settings.seed, uint64_t(step_) + 1, n_, dim);
-        CF_CUDA_CHECK_LAUNCH();
-        drift(0.5 * dt, 0.5, true);
-      } else {
-        drift(dt, 1.0, true);
-      }
-      step_ += 1;
-      time_ = double(step_) * dt;  // not summed: the same after a restart
-      if (force_events_.size() < 2 * (timed + 1)) {
-        for (int e = 0; e < 2; ++e) {
-          cudaEvent_t ev;
-          CF_CUDA_CHECK(cudaEventCreate(&ev));
-          force_events_.push_back(ev);
-        }
-      }
-      CF_CUDA_CHECK(cudaEventRecord(force_events_[2 * timed], stream_));
-      evaluate(observe && last);
-      CF_CUDA_CHECK(cudaEventRecord(force_events_[2 * timed + 1], stream_));
-      ++timed;
-      kick(0.5 * dt);
+    // At most kRun steps are queued between two reads of the flags (and of the timing events).
+    for (int64_t done = 0; done < steps;) {
+      const int64_t k = std::min<int64_t>(steps - done, kRun);
+      run(k, settings, observe && done + k == steps);
+      done += k;
     }
-    CF_CUDA_CHECK(cudaEventRecord(chunk_end_, stream_));
-    check(first, step_);  // synchronises: the one host wait of the call beyond the counts
-    float ms = 0;
-    double forces_ms = 0;
-    for (std::size_t t = 0; t < timed; ++t) {
-      CF_CUDA_CHECK(cudaEventElapsedTime(&ms, force_events_[2 * t], force_events_[2 * t + 1]));
-      forces_ms += ms;
-    }
-    CF_CUDA_CHECK(cudaEventElapsedTime(&ms, chunk_start_, chunk_end_));
-    counters_.steps += steps;
-    counters_.force_seconds += 1e-3 * forces_ms;
-    counters_.integration_seconds += 1e-3 * (double(ms) - forces_ms);
     counters_.host_wait_seconds += std::chrono::duration<double>(Clock::now() - t0).count();
     gpu_.collect_timing();  // the stage times of the call's last evaluation
     add_stage_sample(counters_, gpu_.stats());
@@ -285,6 +252,74 @@ class CudaMdEngine final : public MdEngine {
   void reset_counters() override { counters_ = MdCounters{}; }
 
  private:
+  static constexpr int64_t kRun = 256;
+
+  void release() {
+    for (cudaEvent_t e : force_events_) cudaEventDestroy(e);
+    force_events_.clear();
+    if (chunk_start_) cudaEventDestroy(chunk_start_);
+    if (chunk_end_) cudaEventDestroy(chunk_end_);
+    chunk_start_ = chunk_end_ = nullptr;
+  }
+
+  // `steps` steps queued back to back, then the flags read (one synchronisation). An error thrown
+  // while queueing (an evaluation of positions that diverged) gives way to the flags' diagnosis.
+  void run(int64_t steps, const IntegratorSettings& settings, bool observe) {
+    const int dim = box_.dim;
+    const double dt = settings.dt;
+    const int64_t first = step_ + 1;
+    CF_CUDA_CHECK(cudaEventRecord(chunk_start_, stream_));
+    std::size_t timed = 0;
+    try {
+      for (int64_t k = 0; k < steps; ++k) {
+        const bool last = k + 1 == steps;
+        kick(0.5 * dt);
+        if (settings.langevin) {
+          drift(0.5 * dt, 0.5, false);  // two half drifts of at most L / 2: a step of at most L
+          const double c1 = std::exp(-settings.friction * dt);
+          const double c2 = std::sqrt(1.0 - c1 * c1);
+          if (n_) {
+            thermostat_kernel<<<blocks_for(n_ * dim), kBlock, 0, stream_>>>(
+                velocities_.data(), masses_.data(), c1, c2, settings.kT, settings.seed, uint64_t(step_) + 1, n_, dim);
+            CF_CUDA_CHECK_LAUNCH();
+          }
+          drift(0.5 * dt, 0.5, true);
+        } else {
+          drift(dt, 1.0, true);
+        }
+        step_ += 1;
+        time_ = double(step_) * dt;  // not summed: the same after a restart
+        while (force_events_.size() < 2 * (timed + 1)) {
+          cudaEvent_t ev;
+          CF_CUDA_CHECK(cudaEventCreate(&ev));
+          force_events_.push_back(ev);
+        }
+        CF_CUDA_CHECK(cudaEventRecord(force_events_[2 * timed], stream_));
+        evaluate(observe && last);
+        CF_CUDA_CHECK(cudaEventRecord(force_events_[2 * timed + 1], stream_));
+        ++timed;
+        kick(0.5 * dt);
+      }
+    } catch (const Error& e) {
+      check(first, step_);  // throws the divergence or the bad pair when one is flagged
+      rethrow_with((first == step_ ? "step " + std::to_string(first)
+                                   : "steps " + std::to_string(first) + "-" + std::to_string(step_)) + ": ",
+                   e);
+    }
+    CF_CUDA_CHECK(cudaEventRecord(chunk_end_, stream_));
+    check(first, step_);  // synchronises: the one host wait beyond the search's counts
+    float ms = 0;
+    double forces_ms = 0;
+    for (std::size_t t = 0; t < timed; ++t) {
+      CF_CUDA_CHECK(cudaEventElapsedTime(&ms, force_events_[2 * t], force_events_[2 * t + 1]));
+      forces_ms += ms;
+    }
+    CF_CUDA_CHECK(cudaEventElapsedTime(&ms, chunk_start_, chunk_end_));
+    counters_.steps += steps;
+    counters_.force_seconds += 1e-3 * forces_ms;
+    counters_.integration_seconds += 1e-3 * (double(ms) - forces_ms);
+  }
+
   void kick(double h) {
     if (n_ == 0) return;
     kick_kernel<<<blocks_for(n_ * box_.dim), kBlock, 0, stream_>>>(velocities_.data(), gpu_.device_forces(),
@@ -326,7 +361,7 @@ class CudaMdEngine final : public MdEngine {
     try {
       gpu_.check_flags(box_, n_, positions_.data(), ff_);  // synchronises the stream
     } catch (const Error& e) {
-      if (f.diverged == ~0ull) throw Error(steps + ": " + e.message());
+      if (f.diverged == ~0ull) rethrow_with(steps + ": ", e);
     }
     if (f.diverged != ~0ull) {
       reset_flags();

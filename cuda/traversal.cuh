@@ -13,7 +13,6 @@
 #include "core/grid.h"
 #include "core/cell_totals.h"
 #include "core/lj.h"
-#include "core/cell_totals.h"
 #include "engine.h"
 
 namespace cellforce::cuda {

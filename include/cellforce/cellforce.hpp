@@ -117,6 +117,8 @@ struct RunStatistics {
   // structure served.
   int64_t builds = 0;
   double largest_served_displacement = 0;
+  // With neighbor-audit: pairs within the cutoff that a reused structure missed or repeated.
+  std::size_t missed_pairs = 0, repeated_pairs = 0;
 };
 
 // The neighbour structure in use (skin > 0), for a bitwise restart: the positions it was built

@@ -45,8 +45,9 @@ double parse_number(std::string_view key, std::string_view value) {
   return v;
 }
 
-int parse_int(std::string_view key, std::string_view value) {
-  int v = 0;
+template <class Int = int>
+Int parse_int(std::string_view key, std::string_view value) {
+  Int v = 0;
   const auto [end, ec] = std::from_chars(value.data(), value.data() + value.size(), v);
   if (ec != std::errc() || end != value.data() + value.size() || value.empty())
     throw Error("option " + std::string(key) + ": " + quote_excerpt(std::string(value)) + " is not an integer");
@@ -89,6 +90,7 @@ struct Context::Impl {
     if (!engine) engine = make_force_engine(choice);
     return *engine;
   }
+  ForceEngine& named_engine() { return md ? md->forces() : get_engine(); }
   void engine_changed() {
     engine.reset();
     md.reset();  // the state must be set again
@@ -242,7 +244,7 @@ void Context::set_option(std::string_view key, std::string_view value) {
     impl_->engine_changed();
   } else if (key == "neighbor-every") {
     ReuseOptions reuse = c.reuse;
-    reuse.every = parse_int(key, value);
+    reuse.every = parse_int<int64_t>(key, value);
     validate_reuse(reuse);
     c.reuse = reuse;
     impl_->engine_changed();
@@ -352,7 +354,12 @@ void Context::set_state(std::size_t n, const double* positions, const double* ve
   state.time = double(step) * s.integrator.dt;
   std::vector<double> m(masses, masses + n);
   if (!s.md) s.md = make_md_engine(s.choice);
-  s.md->set_state(state, m, s.ff);
+  try {
+    s.md->set_state(state, m, s.ff);
+  } catch (...) {
+    s.md.reset();  // no half-set state: the next step() asks for set_state again
+    throw;
+  }
   s.md_box = s.box;
   s.md_ff = s.ff;
   s.masses = std::move(m);
@@ -411,11 +418,17 @@ MinimizeResult Context::minimize(const MinimizeOptions& options) {
   fire.dt_max = options.dt_max;
   fire.max_displacement = options.max_displacement;
   ForceResult result;
-  const FireResult r = minimize_fire(state, s.masses, fire, [&](MdState& st) {
-    md.forces().evaluate(st.config.view(), s.md_ff, Request{true, true}, result);
-    st.forces = result.forces;
-    return result.energy;
-  });
+  FireResult r;
+  try {
+    r = minimize_fire(state, s.masses, fire, [&](MdState& st) {
+      md.forces().evaluate(st.config.view(), s.md_ff, Request{true, true}, result);
+      st.forces = result.forces;
+      return result.energy;
+    });
+  } catch (...) {
+    md.reevaluate();  // FIRE's evaluations overwrote the engine's forces: the state's again
+    throw;
+  }
   state.velocities.assign(state.velocities.size(), 0.0);
   md.set_state(state, s.masses, s.md_ff);
   MinimizeResult out;
@@ -467,6 +480,8 @@ RunStatistics Context::run_statistics() const {
   r.total = per * c.stages.t_total;
   r.builds = c.builds;
   r.largest_served_displacement = c.served;
+  r.missed_pairs = c.missed_pairs;
+  r.repeated_pairs = c.repeated_pairs;
   return r;
 }
 
@@ -475,9 +490,10 @@ void Context::reset_run_statistics() {
 }
 int Context::dim() const { return impl_->dim; }
 std::size_t Context::num_types() const { return impl_->ff.types.size(); }
-std::string Context::backend_name() { return to_string(impl_->get_engine().backend()); }
-std::string Context::description() { return impl_->get_engine().description(); }
-std::string Context::traversal() { return impl_->get_engine().traversal(); }
-std::string Context::sort() { return impl_->get_engine().sort(); }
+// The MD engine's force engine when there is one (no second engine is built just to be named).
+std::string Context::backend_name() { return to_string(impl_->named_engine().backend()); }
+std::string Context::description() { return impl_->named_engine().description(); }
+std::string Context::traversal() { return impl_->named_engine().traversal(); }
+std::string Context::sort() { return impl_->named_engine().sort(); }
 
 }  // namespace cellforce

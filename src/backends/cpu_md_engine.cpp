@@ -71,7 +71,7 @@ class CpuMdEngine final : public MdEngine {
           force_seconds += seconds_since(tf);
         });
       } catch (const Error& e) {  // the step that failed (built only then)
-        throw Error("step " + std::to_string(next) + ": " + e.message());
+        rethrow_with("step " + std::to_string(next) + ": ", e);
       }
     }
     const double total = seconds_since(t0);

@@ -432,6 +432,8 @@ void print_summary(const Scene& scene, const RunStatistics& st, std::size_t n, i
                 reuse.skin, (long long)st.builds, (long long)st.evaluations,
                 steps / double(std::max<int64_t>(st.builds, 1)), st.largest_served_displacement, 0.5 * reuse.skin,
                 reuse.check ? "" : ", not checked", 1e3 * st.check);
+  if (reuse.skin > 0 && reuse.audit)
+    std::printf("  audit: missed pairs %zu, repeated pairs %zu\n", st.missed_pairs, st.repeated_pairs);
 }
 
 }  // namespace
@@ -570,7 +572,7 @@ int run_md(const RunArgs& args) {
     try {
       ctx.step(to - step, thermo_step || frame_step);
     } catch (const Error& e) {  // name the scene (the engine names the step)
-      throw Error(scene.source + ": " + e.message());
+      rethrow_with(scene.source + ": ", e);
     }
     step = to;
     if (thermo_step || frame_step) report(thermo_step, frame_step, progress);

@@ -8,6 +8,12 @@
 
 namespace cellforce {
 
+// The same kind of error (DeviceError stays one) with `prefix` before its message.
+[[noreturn]] inline void rethrow_with(const std::string& prefix, const Error& e) {
+  if (dynamic_cast<const DeviceError*>(&e)) throw DeviceError(prefix + e.message());
+  throw Error(prefix + e.message());
+}
+
 // Runs f; a cellforce::Error it throws comes out with "context: " before its message (the file
 // or scene, and the step, that the inner code does not know about).
 template <class F>
@@ -15,7 +21,7 @@ auto with_context(const std::string& context, F&& f) {
   try {
     return f();
   } catch (const Error& e) {
-    throw Error(context + ": " + e.message());
+    rethrow_with(context + ": ", e);
   }
 }
 
