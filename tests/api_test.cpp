@@ -477,6 +477,27 @@ TEST(ApiDevice, DevicePointersAreBitwiseTheHostResults) {
     }
 }
 
+// Host pointers given to the device call are refused, naming the parameter, before any copy.
+TEST(ApiDevice, HostPointersAreRefused) {
+  if (!cf::GpuEngine::unavailable().empty()) GTEST_SKIP() << cf::GpuEngine::unavailable();
+  cf_context* c = ready_context();
+  ASSERT_EQ(cf_set_option(c, "backend", "cuda"), CF_OK);
+  std::vector<double> pos = {1, 1, 1, 3, 1, 1};
+  double* d_pos = device_copy(pos);
+  double* d_f = device_copy(std::vector<double>(6, 0.0));
+  double host_f[6], host_energy = 0;
+  EXPECT_EQ(cf_compute_device(c, 2, pos.data(), nullptr, d_f, nullptr, nullptr, nullptr), CF_ERROR_INPUT);
+  EXPECT_THAT(std::string(cf_last_error(c)), HasSubstr("positions is not a device pointer"));
+  EXPECT_EQ(cf_compute_device(c, 2, d_pos, nullptr, host_f, nullptr, nullptr, nullptr), CF_ERROR_INPUT);
+  EXPECT_THAT(std::string(cf_last_error(c)), HasSubstr("forces is not a device pointer"));
+  EXPECT_EQ(cf_compute_device(c, 2, d_pos, nullptr, d_f, &host_energy, nullptr, nullptr), CF_ERROR_INPUT);
+  EXPECT_THAT(std::string(cf_last_error(c)), HasSubstr("energy is not a device pointer"));
+  EXPECT_EQ(cf_compute_device(c, 2, d_pos, nullptr, d_f, nullptr, nullptr, nullptr), CF_OK) << cf_last_error(c);
+  cudaFree(d_pos);
+  cudaFree(d_f);
+  cf_destroy(c);
+}
+
 // A bad particle in device arrays is named as for host arrays, and the outputs stay unwritten.
 TEST(ApiDevice, BadDeviceInputIsNamed) {
   if (!cf::GpuEngine::unavailable().empty()) GTEST_SKIP() << cf::GpuEngine::unavailable();

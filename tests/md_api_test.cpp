@@ -220,3 +220,37 @@ std::string backend_name(const ::testing::TestParamInfo<cf::Backend>& info) { re
 INSTANTIATE_TEST_SUITE_P(Backends, MdApi, ::testing::Values(cf::Backend::kCpu, cf::Backend::kCuda), backend_name);
 
 }  // namespace
+
+namespace {
+
+// A state the engine refuses (two particles at one position) leaves no half-set state behind:
+// step() asks for set_state again, and a good state then runs.
+TEST_P(MdApi, RefusedStateLeavesNoHalfSetState) {
+  cf::Context ctx(3);
+  const double box[3] = {10, 10, 10};
+  const bool periodic[3] = {true, true, true};
+  ctx.set_box(box, periodic);
+  ctx.set_cutoff(2.5);
+  ctx.add_type("A", 1.0, 1.0);
+  ctx.set_backend(GetParam());
+  const double same[6] = {1, 1, 1, 1, 1, 1}, masses[2] = {1, 1};
+  try {
+    ctx.set_state(2, same, nullptr, nullptr, masses);
+    ADD_FAILURE() << "a coincident pair was accepted";
+  } catch (const cf::Error& e) {
+    EXPECT_THAT(e.message(), HasSubstr("particles 0 and 1"));
+  }
+  try {
+    ctx.step(1);
+    ADD_FAILURE() << "step() ran without a state";
+  } catch (const cf::Error& e) {
+    EXPECT_THAT(e.message(), HasSubstr("set_state"));
+  }
+  const double apart[6] = {1, 1, 1, 2.2, 1, 1};
+  ctx.set_state(2, apart, nullptr, nullptr, masses);
+  ctx.step(10);
+  EXPECT_EQ(ctx.current_step(), 10);
+  EXPECT_TRUE(std::isfinite(ctx.thermo().total));
+}
+
+}  // namespace

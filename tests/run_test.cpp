@@ -119,6 +119,29 @@ TEST_F(RunFolder, RestartReproducesTheUninterruptedRunBitwise) {
     }
 }
 
+// With the displacement check on, the audit of the reused structure finds no missed or repeated
+// pair on any backend (the CUDA run audits its resident evaluations too).
+TEST_F(RunFolder, AuditFindsNothingMissedWithTheCheck) {
+  for (const std::string& backend : backends_here()) {
+    SCOPED_TRACE(backend);
+    std::ofstream("scene.toml") << scene_text("nve", backend, 60) << "[neighbor]\nskin = 0.3\naudit = true\n";
+    RunArgs args;
+    args.scene = "scene.toml";
+    args.quiet = true;
+    args.overwrite = true;
+    testing::internal::CaptureStdout();
+    EXPECT_EQ(run_md(args), 0);
+    const std::string out = testing::internal::GetCapturedStdout();
+    EXPECT_THAT(out, HasSubstr("audit: missed pairs 0, repeated pairs 0"));
+    const std::size_t at = out.find("neighbour structure: skin 0.3, ");
+    ASSERT_NE(at, std::string::npos) << out;
+    long builds = 0, evaluations = 0;
+    ASSERT_EQ(std::sscanf(out.c_str() + at, "neighbour structure: skin 0.3, %ld builds in %ld evaluations", &builds,
+                          &evaluations), 2);
+    EXPECT_LT(builds, evaluations) << "the structure was never reused, so the audit checked nothing";
+  }
+}
+
 TEST_F(RunFolder, ThermoFileHoldsTheStepsAskedFor) {
   std::ofstream("scene.toml") << scene_text("nve", "cpu", 23);
   RunArgs args;
