@@ -13,6 +13,7 @@ GpuOptions options(const EngineChoice& choice) {
   o.sort = choice.sort;
   o.reuse = choice.reuse;
   o.device = choice.device;
+  o.grid_override = choice.grid_override;
   return o;
 }
 

@@ -20,6 +20,10 @@ class CudaForceEngine final : public ForceEngine {
   void evaluate_device(const DeviceSystemView& system, const ForceField& ff, const DeviceOutputs& out,
                        void* stream) override;
   PipelineStats stats(const SystemView& system, const ForceField& ff, bool counts) override;
+  const PipelineStats& stats() const override { return engine_.stats(); }
+  std::vector<std::pair<uint32_t, uint32_t>> visited_pairs(const SystemView& system, const ForceField& ff) override {
+    return engine_.visited_pairs(system, ff);
+  }
   ReuseState reuse_state() const override;
   void restore_reuse(const SystemView& built_from, const ForceField& ff, int64_t served) override;
   Backend backend() const override { return Backend::kCuda; }

@@ -7,46 +7,25 @@
 namespace cftest {
 namespace {
 
-// Any engine with evaluate() and visited_pairs(), built from its own options.
-template <class Engine>
-class UnderTest final : public EngineUnderTest {
- public:
-  template <class Options>
-  explicit UnderTest(const Options& options) : engine_(options) {}
-
-  void evaluate(const cellforce::SystemView& system, const cellforce::ForceField& ff,
-                const cellforce::Request& request, cellforce::ForceResult& result) override {
-    engine_.evaluate(system, ff, request, result);
-  }
-  std::vector<Pair> visited_pairs(const cellforce::SystemView& system,
-                                  const cellforce::ForceField& ff) override {
-    return engine_.visited_pairs(system, ff);
-  }
-  const cellforce::PipelineStats& stats() const override { return engine_.stats(); }
-
- private:
-  Engine engine_;
-};
-
-// The options every engine shares, taken from the spec.
-template <class Options>
-Options options_from(const EngineSpec& spec) {
-  Options o;
-  o.precision = spec.precision;
-  o.accumulation = spec.accumulation;
-  o.grid_override = spec.grid_override;
-  o.reuse = spec.reuse;
-  return o;
+// The engine choice a spec describes.
+cellforce::EngineChoice choice_from(const EngineSpec& spec, cellforce::Backend backend) {
+  cellforce::EngineChoice c;
+  c.backend = backend;
+  c.precision = spec.precision;
+  c.accumulation = spec.accumulation;
+  c.grid_override = spec.grid_override;
+  c.reuse = spec.reuse;
+  return c;
 }
 
 #ifdef CELLFORCE_HAVE_CUDA
 Backend gpu_backend(std::string name, cellforce::TraversalForm form, cellforce::SortMethod sort) {
   return Backend{std::move(name), [] { return cellforce::GpuEngine::unavailable(); },
                  [form, sort](const EngineSpec& spec) -> std::unique_ptr<EngineUnderTest> {
-                   auto o = options_from<cellforce::GpuOptions>(spec);
-                   o.traversal = form;
-                   o.sort = sort;
-                   return std::make_unique<UnderTest<cellforce::GpuEngine>>(o);
+                   cellforce::EngineChoice c = choice_from(spec, cellforce::Backend::kCuda);
+                   c.traversal = form;
+                   c.sort = sort;
+                   return cellforce::make_cuda_force_engine(c);
                  }};
 }
 #endif
@@ -57,8 +36,7 @@ const std::vector<Backend>& backends() {
   static const std::vector<Backend> list = {
       Backend{"cpu", [] { return std::string(); },
               [](const EngineSpec& spec) -> std::unique_ptr<EngineUnderTest> {
-                return std::make_unique<UnderTest<cellforce::CpuEngine>>(
-                    options_from<cellforce::CpuOptions>(spec));
+                return cellforce::make_cpu_force_engine(choice_from(spec, cellforce::Backend::kCpu));
               }},
 #ifdef CELLFORCE_HAVE_CUDA
       // The CUDA engine in both traversal forms and with the chapter's sort; they skip where no

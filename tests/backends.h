@@ -1,7 +1,7 @@
-// The engines under test, behind one interface, so that every pipeline property is one test body
-// instantiated for each backend (style.md, tests): the CPU engine and, where CUDA is built, the
-// CUDA engine in each traversal form, whose `unavailable` returns a reason ("no CUDA device: ...")
-// so that its instances skip where there is no GPU.
+// The engines under test, behind the backends' ForceEngine interface, so that every pipeline
+// property is one test body instantiated for each backend (style.md, tests): the CPU engine and,
+// where CUDA is built, the CUDA engine in each traversal form, whose `unavailable` returns a
+// reason ("no CUDA device: ...") so that its instances skip where there is no GPU.
 #pragma once
 
 #include <cstddef>
@@ -14,7 +14,7 @@
 #include "core/grid.h"
 #include "core/reuse.h"
 #include "core/system.h"
-#include "cpu/engine.h"
+#include "backends/force_engine.h"
 #include "oracle.h"
 
 namespace cftest {
@@ -28,17 +28,9 @@ struct EngineSpec {
   cellforce::ReuseOptions reuse;  // skin, check, every, audit (core/reuse.h)
 };
 
-class EngineUnderTest {
- public:
-  virtual ~EngineUnderTest() = default;
-  virtual void evaluate(const cellforce::SystemView& system, const cellforce::ForceField& ff,
-                        const cellforce::Request& request, cellforce::ForceResult& result) = 0;
-  // Every pair evaluated with r < rc, once per evaluation (a pair evaluated twice appears twice).
-  virtual std::vector<Pair> visited_pairs(const cellforce::SystemView& system,
-                                          const cellforce::ForceField& ff) = 0;
-  // The engine's statistics of its last call (stage times, counts, buffer bytes).
-  virtual const cellforce::PipelineStats& stats() const = 0;
-};
+// The product's force-engine interface (src/backends/force_engine.h): the tests drive the engines
+// exactly as the public API does.
+using EngineUnderTest = cellforce::ForceEngine;
 
 struct Backend {
   std::string name;  // [a-z0-9] only: it becomes part of test names

@@ -15,6 +15,7 @@
 #include <vector>
 
 #include "backends.h"
+#include "cpu/engine.h"
 #include "core/grid.h"
 #include "core/lj.h"
 #include "oracle.h"

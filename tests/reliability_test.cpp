@@ -45,6 +45,7 @@
 #include "scene/scene.h"
 
 #include "backends.h"
+#include "cpu/engine.h"
 #include "oracle.h"
 #include "temp_folder.h"
 

@@ -22,6 +22,10 @@ class CpuForceEngine final : public ForceEngine {
   PipelineStats stats(const SystemView&, const ForceField&, bool) override {
     return engine_.stats();  // the CPU engine counts pairs on every evaluation
   }
+  const PipelineStats& stats() const override { return engine_.stats(); }
+  std::vector<std::pair<uint32_t, uint32_t>> visited_pairs(const SystemView& system, const ForceField& ff) override {
+    return engine_.visited_pairs(system, ff);
+  }
   ReuseState reuse_state() const override { return engine_.reuse_state(); }
   void restore_reuse(const SystemView& built_from, const ForceField& ff, int64_t served) override {
     engine_.restore_reuse(built_from, ff, served);
@@ -40,6 +44,7 @@ class CpuForceEngine final : public ForceEngine {
     o.accumulation = choice.accumulation;
     o.grid.rule = choice.rule;
     o.reuse = choice.reuse;
+    o.grid_override = choice.grid_override;
     return o;
   }
   CpuEngine engine_;

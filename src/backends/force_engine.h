@@ -6,6 +6,9 @@
 
 #include <cstdint>
 #include <memory>
+#include <optional>
+#include <utility>
+#include <vector>
 #include <string>
 
 #include <cellforce/options.hpp>
@@ -29,6 +32,7 @@ struct EngineChoice {
   SortMethod sort = SortMethod::kCub;                     // CUDA only
   ReuseOptions reuse;                                     // skin, check, every, audit
   int device = 0;                                         // CUDA device ordinal
+  std::optional<Grid> grid_override;                      // tests only: this grid, unchecked
 };
 
 class ForceEngine {
@@ -51,6 +55,17 @@ class ForceEngine {
   // counts as one more evaluation of the structure: it may rebuild, and it uses up one of
   // `every`; the build counts it reports are the extra pass's).
   virtual PipelineStats stats(const SystemView& system, const ForceField& ff, bool counts) = 0;
+
+  // The statistics of the last call as the engine holds them (stage times of evaluate(); pair
+  // counts after visited_pairs(), and on the CPU after every evaluation).
+  virtual const PipelineStats& stats() const = 0;
+
+  // Every pair the traversal evaluates with r < rc, once per evaluation (a pair evaluated twice
+  // appears twice), as (min index, max index), in no particular order: what the coverage tests
+  // compare with the brute force's pair set. With a skin the structure is rebuilt or reused as for
+  // evaluate().
+  virtual std::vector<std::pair<uint32_t, uint32_t>> visited_pairs(const SystemView& system,
+                                                                   const ForceField& ff) = 0;
 
   // Reuse across a restart (the engines' reuse_state / restore_reuse).
   virtual ReuseState reuse_state() const = 0;
