@@ -483,25 +483,8 @@ void GpuEngine::evaluate_resident(const Box& box, std::size_t n, const double* p
   }
   const SystemView system{box, n, nullptr, nullptr};  // no host arrays: nothing reads them
   const DeviceSystemView on_device{box, n, positions, types};
-  // The grid of an open axis spans the particles: their bounds, when a build may need them (this
-  // reads 2 x dim numbers back; periodic axes need none).
   s.plan_from_corners = true;
   s.corner_count = 0;
-  bool open = false;
-  for (int a = 0; a < box.dim; ++a) open = open || !box.periodic[a];
-  if (open) {
-    double lo[kMaxDim], hi[kMaxDim];
-    cuda::bounding_box(positions, n, box.dim, lo, hi, s.cub, s.stream);
-    bool finite = true;
-    for (int a = 0; a < box.dim; ++a) {
-      s.corners[a] = lo[a];
-      s.corners[box.dim + a] = hi[a];
-      finite = finite && std::isfinite(lo[a]) && std::isfinite(hi[a]);
-    }
-    // A drift that diverged this step: plan one cell (the kernels clamp what they bin) and let
-    // the caller's flag check name the particle.
-    s.corner_count = n && finite ? 2 : 0;
-  }
   prepare_resident(system, ff, on_device);
   traverse(system, ff, request, false);
   s.record(kDownloaded);
@@ -606,12 +589,34 @@ void GpuEngine::prepare_resident(const SystemView& system, const ForceField& ff,
   }, stats_);
   s.record(kChecked);
   if (rebuild) {
+    plan_corners(system.box, system.n, on_device.positions);
     build(system, ff);
   } else {
     s.skip_build();
     reuse_.reused();
   }
   stats_.builds = reuse_.builds();
+}
+
+// The grid of an open axis spans the particles: their bounds, read back (2 x dim numbers) only for
+// a build; periodic axes need none.
+void GpuEngine::plan_corners(const Box& box, std::size_t n, const double* positions) {
+  Impl& s = *impl_;
+  s.corner_count = 0;
+  bool open = false;
+  for (int a = 0; a < box.dim; ++a) open = open || !box.periodic[a];
+  if (!open) return;
+  double lo[kMaxDim], hi[kMaxDim];
+  cuda::bounding_box(positions, n, box.dim, lo, hi, s.cub, s.stream);
+  bool finite = true;
+  for (int a = 0; a < box.dim; ++a) {
+    s.corners[a] = lo[a];
+    s.corners[box.dim + a] = hi[a];
+    finite = finite && std::isfinite(lo[a]) && std::isfinite(hi[a]);
+  }
+  // A drift that diverged this step: plan one cell (the kernels clamp what they bin) and let the
+  // caller's flag check name the particle.
+  s.corner_count = n && finite ? 2 : 0;
 }
 
 // Stages 1-3 on the uploaded positions, the policy invalid until they complete.

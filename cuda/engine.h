@@ -60,7 +60,8 @@ class GpuEngine {
   // positions (n x dim, wrapped on periodic axes) and types (n, or null) are the caller's device
   // arrays, validated by the caller before its run. The work is queued on the engine's stream()
   // and the host waits only for the counts that size the stage buffers (valid entries, collision
-  // cells) and, with an open axis, the particles' bounds (2 x dim numbers). Forces stay on the
+  // cells) and, with an open axis and only when the structure is built, the particles' bounds
+  // (2 x dim numbers). Forces stay on the
   // device (device_forces(), n x dim); with `request`, so do the energy and virial totals
   // (device_totals(): energy, then w_xx, w_yy, w_zz, w_xy, w_xz, w_yz). The kernels' flags are
   // not read: they accumulate until check_flags(). Stage times are not read either
@@ -112,6 +113,7 @@ class GpuEngine {
   void prepare(const SystemView& system, const ForceField& ff, const DeviceSystemView* on_device = nullptr);
   void traverse(const SystemView& system, const ForceField& ff, const Request& request, bool read_flags = true);
   void prepare_resident(const SystemView& system, const ForceField& ff, const DeviceSystemView& on_device);
+  void plan_corners(const Box& box, std::size_t n, const double* positions);
   void finish_timing();
   void build(const SystemView& system, const ForceField& ff);
   void audit(const SystemView& system, const ForceField& ff);

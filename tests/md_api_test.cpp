@@ -198,6 +198,41 @@ TEST_P(MdApi, FollowsTheCpuRun) {
   EXPECT_NEAR(a.pressure, b.pressure, 1e-9 * std::max(1.0, std::abs(b.pressure)));
 }
 
+// An open box (the grid spans the particles' bounds, read on the device for CUDA), with and without
+// a skin: the backend's run follows the CPU's to round-off over 50 double steps.
+TEST_P(MdApi, OpenBoxFollowsTheCpuRun) {
+  for (const double skin : {0.0, 0.3}) {
+    SCOPED_TRACE("skin " + std::to_string(skin));
+    auto run = [&](cf::Backend backend) {
+      cf::MdState state;
+      state.config = cf::make_lattice(cf::Lattice::kFcc, 4, 0.8442);
+      const std::size_t n = state.config.size();
+      std::vector<double> masses(n, 1.0);
+      cf::initialize_velocities(state, masses, 1.44, 77);
+      cf::Context ctx(3);
+      const double lengths[3] = {0, 0, 0};
+      const bool periodic[3] = {false, false, false};
+      ctx.set_box(lengths, periodic);
+      ctx.set_cutoff(2.5, cf::CutoffMode::kForceShift);
+      ctx.add_type("A", 1.0, 1.0);
+      ctx.set_backend(backend);
+      ctx.set_skin(skin);
+      ctx.set_state(n, state.config.positions.data(), state.velocities.data(), nullptr, masses.data());
+      ctx.step(50);
+      std::vector<double> x(3 * n);
+      ctx.get_state(x.data(), nullptr, nullptr);
+      x.push_back(ctx.thermo().potential);
+      return x;
+    };
+    const std::vector<double> got = run(GetParam()), ref = run(cf::Backend::kCpu);
+    ASSERT_EQ(got.size(), ref.size());
+    double worst = 0;
+    for (std::size_t k = 0; k + 1 < got.size(); ++k) worst = std::max(worst, std::abs(got[k] - ref[k]));
+    EXPECT_LT(worst, 1e-9);
+    EXPECT_NEAR(got.back(), ref.back(), 1e-10 * std::abs(ref.back()));
+  }
+}
+
 // dt far too large: the step call that diverged throws, naming the particle and its steps.
 TEST_P(MdApi, DivergenceNamesTheParticleAndTheSteps) {
   RunSetup s;
