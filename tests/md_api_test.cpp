@@ -19,6 +19,7 @@
 #endif
 #include "core/engine_options.h"
 #include "md/md.h"
+#include "series.h"
 #include "scene/lattice.h"
 
 namespace {
@@ -63,23 +64,8 @@ cf::Context liquid(const RunSetup& s, std::size_t* n_out = nullptr) {
   return ctx;
 }
 
-double slope(const std::vector<double>& x, const std::vector<double>& y) {
-  const double mx = std::accumulate(x.begin(), x.end(), 0.0) / double(x.size());
-  const double my = std::accumulate(y.begin(), y.end(), 0.0) / double(y.size());
-  double sxy = 0, sxx = 0;
-  for (std::size_t k = 0; k < x.size(); ++k) {
-    sxy += (x[k] - mx) * (y[k] - my);
-    sxx += (x[k] - mx) * (x[k] - mx);
-  }
-  return sxy / sxx;
-}
-
-double rms_about_mean(const std::vector<double>& y) {
-  const double m = std::accumulate(y.begin(), y.end(), 0.0) / double(y.size());
-  double s = 0;
-  for (double v : y) s += (v - m) * (v - m);
-  return std::sqrt(s / double(y.size()));
-}
+using cftest::rms_about_mean;
+using cftest::slope;
 
 class MdApi : public ::testing::TestWithParam<cf::Backend> {
  protected:

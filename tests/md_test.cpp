@@ -9,6 +9,7 @@
 
 #include "cpu/engine.h"
 #include "md/md.h"
+#include "series.h"
 #include "scene/lattice.h"
 
 namespace {
@@ -62,24 +63,8 @@ Trace simulate(Precision precision, bool langevin, double dt, int64_t steps, int
   return run;
 }
 
-// Least-squares slope of y against x.
-double slope(const std::vector<double>& x, const std::vector<double>& y) {
-  const double mx = std::accumulate(x.begin(), x.end(), 0.0) / double(x.size());
-  const double my = std::accumulate(y.begin(), y.end(), 0.0) / double(y.size());
-  double sxy = 0, sxx = 0;
-  for (std::size_t k = 0; k < x.size(); ++k) {
-    sxy += (x[k] - mx) * (y[k] - my);
-    sxx += (x[k] - mx) * (x[k] - mx);
-  }
-  return sxy / sxx;
-}
-
-double rms_about_mean(const std::vector<double>& y) {
-  const double m = std::accumulate(y.begin(), y.end(), 0.0) / double(y.size());
-  double s = 0;
-  for (double v : y) s += (v - m) * (v - m);
-  return std::sqrt(s / double(y.size()));
-}
+using cftest::rms_about_mean;
+using cftest::slope;
 
 // NVE, force-shifted LJ liquid (500 particles), dt 0.005, 20,000 steps (t = 100): the total
 // energy per particle drifts by less than 1e-6 per unit time and fluctuates (RMS) by less than

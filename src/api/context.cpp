@@ -272,8 +272,7 @@ void Context::compute(std::size_t n, const double* positions, const uint32_t* ty
   s.check_ready();
   check_output(positions, "positions", n);
   check_output(out.forces, "forces", n);
-  const SystemView system{s.box, n, positions, types};
-  validate_system(system, s.ff);  // before the engine is built: bad input is named either way
+  const SystemView system{s.box, n, positions, types};  // the engine validates it
   const Request request{out.energies != nullptr || out.energy != nullptr, out.virial != nullptr};
   s.get_engine().evaluate(system, s.ff, request, s.result);
   const std::size_t dim = std::size_t(s.dim);
@@ -303,8 +302,7 @@ void Context::compute_device(std::size_t n, const double* positions, const uint3
 PairCounts Context::count_pairs(std::size_t n, const double* positions, const uint32_t* types) {
   Impl& s = *impl_;
   s.check_ready();
-  const SystemView system{s.box, n, positions, types};
-  validate_system(system, s.ff);
+  const SystemView system{s.box, n, positions, types};  // the engine validates it
   ForceEngine& engine = s.get_engine();
   if (engine.backend() == Backend::kCpu) {  // the CPU counts on every evaluation
     ForceResult scratch;

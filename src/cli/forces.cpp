@@ -9,9 +9,9 @@
 
 #include <cellforce/cellforce.hpp>
 
+#include "cli/engine_context.h"
 #include "cli/options.h"
 #include "core/error.h"
-#include "core/names.h"
 #include "core/text.h"
 #include "io/configuration_file.h"
 #include "io/forces_file.h"
@@ -95,30 +95,6 @@ ForceField make_force_field(const ForcesArgs& args, const ConfigurationFile& inp
   ff.validate();
   return ff;
 }
-
-namespace {
-
-// A context for the configuration's box with the force field and the engine choices: what the
-// command asks of the engine goes through the public API (include/cellforce/cellforce.hpp).
-Context make_context(const Box& box, const ForceField& ff, const EngineChoice& engine) {
-  Context ctx(box.dim);
-  const bool periodic[3] = {box.periodic[0], box.periodic[1], box.periodic[2]};
-  ctx.set_box(box.length, periodic);
-  ctx.set_cutoff(ff.cutoff, ff.mode);
-  ctx.set_mixing(ff.mixing);
-  for (const ParticleType& t : ff.types) ctx.add_type(t.name, t.sigma, t.epsilon);
-  for (const PairOverride& o : ff.overrides) ctx.set_pair(uint32_t(o.a), uint32_t(o.b), o.sigma, o.epsilon);
-  ctx.set_backend(engine.backend, engine.device);
-  ctx.set_precision(engine.precision);
-  ctx.set_skin(engine.reuse.skin);
-  ctx.set_option("accumulation", name_of(engine.accumulation, kAccumulationNames));
-  ctx.set_option("cell-rule", name_of(engine.rule, kCellRuleNames));
-  ctx.set_option("traversal", name_of(engine.traversal, kTraversalNames));
-  ctx.set_option("sort", name_of(engine.sort, kSortNames));
-  return ctx;
-}
-
-}  // namespace
 
 int run_forces(const ForcesArgs& args) {
   if (args.out.empty()) throw Error("forces: --out is required");

@@ -15,6 +15,8 @@
 
 #include <cellforce/cellforce.hpp>
 
+#include "cli/engine_context.h"
+
 #include "core/names.h"
 #include "core/error.h"
 #include "core/reuse.h"
@@ -216,28 +218,10 @@ void check_outputs(const RunArgs& args, const Scene& scene, bool restart) {
                      {{"--restart checkpoint", "[output] checkpoint"}});
 }
 
-// The engine for the scene, through the public API: its box, force field, integrator and engine
-// choices.
-Context make_context(const Scene& scene, const Box& box) {
-  Context ctx(scene.dim);
-  const bool periodic[3] = {box.periodic[0], box.periodic[1], box.periodic[2]};
-  ctx.set_box(box.length, periodic);
-  const ForceField& ff = scene.force_field;
-  ctx.set_cutoff(ff.cutoff, ff.mode);
-  ctx.set_mixing(ff.mixing);
-  for (const ParticleType& t : ff.types) ctx.add_type(t.name, t.sigma, t.epsilon);
-  for (const PairOverride& o : ff.overrides) ctx.set_pair(uint32_t(o.a), uint32_t(o.b), o.sigma, o.epsilon);
-  const EngineChoice& e = scene.backend;
-  ctx.set_backend(e.backend, e.device);
-  ctx.set_precision(e.precision);
-  ctx.set_skin(e.reuse.skin);
-  ctx.set_option("neighbor-check", e.reuse.check ? "true" : "false");
-  ctx.set_option("neighbor-every", std::to_string(e.reuse.every));
-  ctx.set_option("neighbor-audit", e.reuse.audit ? "true" : "false");
-  ctx.set_option("accumulation", name_of(e.accumulation, kAccumulationNames));
-  ctx.set_option("cell-rule", name_of(e.rule, kCellRuleNames));
-  ctx.set_option("traversal", name_of(e.traversal, kTraversalNames));
-  ctx.set_option("sort", name_of(e.sort, kSortNames));
+// The engine for the scene, through the public API: the system and engine choices
+// (make_context), and the integrator.
+Context scene_context(const Scene& scene, const Box& box) {
+  Context ctx = make_context(box, scene.force_field, scene.backend);
   IntegratorOptions integrator;
   integrator.kind = scene.integrator.kind == IntegratorKind::kLangevin ? Integrator::kLangevin : Integrator::kVerlet;
   integrator.dt = scene.integrator.dt;
@@ -452,7 +436,7 @@ int run_md(const RunArgs& args) {
   std::vector<double> masses(n);
   for (std::size_t i = 0; i < n; ++i) masses[i] = scene.masses[state.config.types[i]];
   with_context(scene.source, [&] { validate_system(state.config.view(), scene.force_field); });
-  Context ctx = make_context(scene, state.config.box);
+  Context ctx = scene_context(scene, state.config.box);
 
   std::string minimize_line;
   if (scene.minimize.enabled && !restart) minimize_line = minimize(ctx, scene, state, masses);
