@@ -31,9 +31,11 @@ constexpr int kSumThreads = 256;
 
 template <class Accum>
 __global__ void __launch_bounds__(kSumThreads)
-    sum_cells_kernel(const Accum* __restrict__ cell_sums, std::size_t cells, double* __restrict__ totals) {
+    sum_cells_kernel(const Accum* __restrict__ cell_sums, const uint32_t* __restrict__ count,
+                     double* __restrict__ totals) {
   __shared__ Accum partial[kCellSums][kSumThreads];
   Accum v[kCellSums] = {};
+  const std::size_t cells = *count;
   for (std::size_t c = threadIdx.x; c < cells; c += kSumThreads)
     for (int k = 0; k < kCellSums; ++k) v[k] += cell_sums[c * kCellSums + k];
   for (int k = 0; k < kCellSums; ++k) partial[k][threadIdx.x] = v[k];
@@ -81,14 +83,14 @@ void sum_slots(const Accum* force_slots, const Accum* energy_slots, int dim, std
 }
 
 template <class Accum>
-void sum_cells(const Accum* cell_sums, std::size_t cells, double* totals, cudaStream_t stream) {
-  sum_cells_kernel<Accum><<<1, kSumThreads, 0, stream>>>(cell_sums, cells, totals);
+void sum_cells(const Accum* cell_sums, const uint32_t* count, double* totals, cudaStream_t stream) {
+  sum_cells_kernel<Accum><<<1, kSumThreads, 0, stream>>>(cell_sums, count, totals);
   CF_CUDA_CHECK_LAUNCH();
 }
 
 template void sum_slots<float>(const float*, const float*, int, std::size_t, int, double*, double*, cudaStream_t);
 template void sum_slots<double>(const double*, const double*, int, std::size_t, int, double*, double*, cudaStream_t);
-template void sum_cells<float>(const float*, std::size_t, double*, cudaStream_t);
-template void sum_cells<double>(const double*, std::size_t, double*, cudaStream_t);
+template void sum_cells<float>(const float*, const uint32_t*, double*, cudaStream_t);
+template void sum_cells<double>(const double*, const uint32_t*, double*, cudaStream_t);
 
 }  // namespace cellforce::cuda

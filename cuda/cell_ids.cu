@@ -1,7 +1,7 @@
 // Stage 1, cell IDs (GPU Gems 3 ch. 32, section 32.2.2), one thread per particle: the H cell and
 // up to 2^d - 1 P cells of each particle's box, through the same bin_particle() as the CPU (its
 // geometry is immune to FMA contraction, so both bin every particle identically), and the count
-// of valid entries by a CUB reduction.
+// of valid entries by a CUB reduction, left in device memory for the later stages.
 #include <cub/device/device_reduce.cuh>
 #include <thrust/iterator/transform_iterator.h>
 
@@ -43,24 +43,19 @@ void build_cell_ids(const Grid& grid, const double* positions, std::size_t n, ui
   CF_CUDA_CHECK_LAUNCH();
 }
 
-std::size_t count_valid(const uint32_t* keys, std::size_t entries, DeviceBuffer<std::byte>& scratch,
-                        cudaStream_t stream) {
-  if (entries == 0) return 0;
-  // The sum lands in the first 256 bytes of the scratch; CUB's temporary storage follows it, so
-  // that a count allocates nothing once the scratch is large enough.
-  constexpr std::size_t kResultBytes = 256;
+void count_valid(const uint32_t* keys, std::size_t entries, PipelineCounts* counts,
+                 DeviceBuffer<std::byte>& scratch, cudaStream_t stream) {
+  static_assert(sizeof(unsigned long long) == sizeof(std::size_t));
+  auto* result = reinterpret_cast<std::size_t*>(&counts->valid);
+  if (entries == 0) {
+    CF_CUDA_CHECK(cudaMemsetAsync(result, 0, sizeof(*result), stream));
+    return;
+  }
   auto valid = thrust::make_transform_iterator(keys, IsValid{});
   std::size_t bytes = 0;
-  CF_CUDA_CHECK(cub::DeviceReduce::Sum(nullptr, bytes, valid, static_cast<std::size_t*>(nullptr),
-                                       entries, stream));
-  scratch.reserve(kResultBytes + bytes);
-  auto* result = reinterpret_cast<std::size_t*>(scratch.data());
-  CF_CUDA_CHECK(cub::DeviceReduce::Sum(scratch.data() + kResultBytes, bytes, valid, result, entries,
-                                       stream));
-  std::size_t count = 0;
-  CF_CUDA_CHECK(cudaMemcpyAsync(&count, result, sizeof(count), cudaMemcpyDeviceToHost, stream));
-  CF_CUDA_CHECK(cudaStreamSynchronize(stream));
-  return count;
+  CF_CUDA_CHECK(cub::DeviceReduce::Sum(nullptr, bytes, valid, result, entries, stream));
+  scratch.reserve(bytes);
+  CF_CUDA_CHECK(cub::DeviceReduce::Sum(scratch.data(), bytes, valid, result, entries, stream));
 }
 
 }  // namespace cellforce::cuda

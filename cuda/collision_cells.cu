@@ -1,11 +1,17 @@
 // Stage 3, collision cells (GPU Gems 3 ch. 32, section 32.2.5): the sorted keys are scanned for
 // transitions in parallel: (1) flag every entry that starts a cell, (2) compact the flagged
-// positions (CUB select), (3) one thread per cell finds where its H entries end (they sort first)
-// and whether it is a collision cell (H >= 1, H + P >= 2), (4) compact those. The list comes out
-// in cell order, identical to the CPU stage's.
+// positions (CUB select), (3) describe each run, finding where its H entries end (they sort
+// first), and compact those that are collision cells (H >= 1, H + P >= 2) (CUB select on the
+// descriptions). The list comes out in cell order, identical to the CPU stage's. Every count stays
+// in device memory (PipelineCounts); the launches cover the host's bounds.
 #include <cub/device/device_radix_sort.cuh>
 #include <cub/device/device_select.cuh>
 #include <thrust/iterator/counting_iterator.h>
+#include <thrust/iterator/transform_iterator.h>
+
+#include <algorithm>
+
+#include "core/error.h"
 
 #include "stages.cuh"
 
@@ -16,64 +22,76 @@ constexpr int kBlock = 256;
 
 unsigned blocks_for(std::size_t n) { return unsigned((n + kBlock - 1) / kBlock); }
 
-__global__ void flag_cell_starts(const uint32_t* __restrict__ keys, std::size_t n,
-                                 uint8_t* __restrict__ flags) {
+// Entry i starts a cell: it is valid and its cell differs from entry i - 1's.
+__global__ void flag_cell_starts(const uint32_t* __restrict__ keys, std::size_t entries,
+                                 const PipelineCounts* __restrict__ counts, uint8_t* __restrict__ flags) {
   const std::size_t i = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
-  if (i >= n) return;
-  flags[i] = i == 0 || (keys[i] >> 1) != (keys[i - 1] >> 1);
+  if (i >= entries) return;
+  flags[i] = i < counts->valid && (i == 0 || (keys[i] >> 1) != (keys[i - 1] >> 1));
 }
 
-__global__ void describe_cells(const uint32_t* __restrict__ keys, std::size_t n,
-                               const uint32_t* __restrict__ run_start, int runs,
-                               CollisionCell* __restrict__ out, uint8_t* __restrict__ keep) {
-  const int r = int(blockIdx.x * blockDim.x + threadIdx.x);
-  if (r >= runs) return;
-  const uint32_t start = run_start[r];
-  const uint32_t end = r + 1 < runs ? run_start[r + 1] : uint32_t(n);
-  uint32_t lo = start, hi = end;  // first P entry: keys are H (low bit 0) then P (low bit 1)
-  while (lo < hi) {
-    const uint32_t mid = lo + (hi - lo) / 2;
-    if (keys[mid] & 1u) hi = mid;
-    else lo = mid + 1;
+// Run r (one cell's entries) as a CollisionCell: where its H entries end (they sort first) by a
+// binary search over the phantom bit. Runs beyond the count come out empty (h = 0).
+struct DescribeRun {
+  const uint32_t* keys;
+  const uint32_t* run_start;
+  const PipelineCounts* counts;
+  __device__ CollisionCell operator()(uint32_t r) const {
+    const uint32_t runs = counts->runs;
+    if (r >= runs) return CollisionCell{0, 0, 0, 0};
+    const uint32_t start = run_start[r];
+    const uint32_t end = r + 1 < runs ? run_start[r + 1] : uint32_t(counts->valid);
+    uint32_t lo = start, hi = end;  // first P entry: keys are H (low bit 0) then P (low bit 1)
+    while (lo < hi) {
+      const uint32_t mid = lo + (hi - lo) / 2;
+      if (keys[mid] & 1u) hi = mid;
+      else lo = mid + 1;
+    }
+    const uint32_t h = lo - start, total = end - start;
+    return CollisionCell{start, h, total - h, keys[start] >> 1};
   }
-  const uint32_t h = lo - start, total = end - start;
-  out[r] = CollisionCell{start, h, total - h, keys[start] >> 1};
-  keep[r] = h >= 1 && total >= 2;
-}
+};
 
-template <class In, class Out>
-int select_flagged(In in, const uint8_t* flags, Out out, std::size_t n, CollisionScratch& s,
-                   cudaStream_t stream) {
-  std::size_t bytes = 0;
-  CF_CUDA_CHECK(cub::DeviceSelect::Flagged(nullptr, bytes, in, flags, out, s.count.data(), int(n), stream));
-  s.cub.reserve(bytes);
-  CF_CUDA_CHECK(cub::DeviceSelect::Flagged(s.cub.data(), bytes, in, flags, out, s.count.data(), int(n), stream));
-  int selected = 0;
-  CF_CUDA_CHECK(cudaMemcpyAsync(&selected, s.count.data(), sizeof(int), cudaMemcpyDeviceToHost, stream));
-  CF_CUDA_CHECK(cudaStreamSynchronize(stream));
-  return selected;
-}
+// A collision cell: at least one home occupant and at least two occupants.
+struct IsCollisionCell {
+  __host__ __device__ bool operator()(const CollisionCell& c) const { return c.h >= 1 && c.h + c.p >= 2; }
+};
 
 }  // namespace
 
-std::size_t find_collision_cells(const uint32_t* sorted_keys, std::size_t valid,
-                                 DeviceBuffer<CollisionCell>& cells, CollisionScratch& s,
-                                 cudaStream_t stream) {
-  if (valid == 0) return 0;
-  if (valid > std::size_t(INT32_MAX)) throw Error("collision cells of more than 2^31 entries");
-  s.flags.reserve(valid);
-  s.run_start.reserve(valid);
-  s.count.reserve(1);
-  flag_cell_starts<<<blocks_for(valid), kBlock, 0, stream>>>(sorted_keys, valid, s.flags.data());
+PipelineCounts read_counts(const PipelineCounts* counts, cudaStream_t stream) {
+  PipelineCounts host{};
+  CF_CUDA_CHECK(cudaMemcpyAsync(&host, counts, sizeof(host), cudaMemcpyDeviceToHost, stream));
+  CF_CUDA_CHECK(cudaStreamSynchronize(stream));
+  return host;
+}
+
+void find_collision_cells(const uint32_t* sorted_keys, std::size_t entries, std::size_t run_bound,
+                          std::size_t cell_bound, PipelineCounts* counts, DeviceBuffer<CollisionCell>& cells,
+                          CollisionScratch& s, cudaStream_t stream) {
+  // cell_range[0] stays 0; the count goes to cell_range[1].
+  CF_CUDA_CHECK(cudaMemsetAsync(&counts->runs, 0, sizeof(counts->runs) + sizeof(counts->cell_range), stream));
+  cells.reserve(std::max<std::size_t>(cell_bound, 1));
+  if (entries == 0 || run_bound == 0) return;
+  if (entries > std::size_t(INT32_MAX)) throw Error("collision cells of more than 2^31 entries");
+  s.flags.reserve(entries);
+  s.run_start.reserve(run_bound);
+  flag_cell_starts<<<blocks_for(entries), kBlock, 0, stream>>>(sorted_keys, entries, counts, s.flags.data());
   CF_CUDA_CHECK_LAUNCH();
-  const int runs = select_flagged(thrust::counting_iterator<uint32_t>(0), s.flags.data(),
-                                  s.run_start.data(), valid, s, stream);
-  s.runs.reserve(std::size_t(runs));
-  describe_cells<<<blocks_for(std::size_t(runs)), kBlock, 0, stream>>>(
-      sorted_keys, valid, s.run_start.data(), runs, s.runs.data(), s.flags.data());
-  CF_CUDA_CHECK_LAUNCH();
-  cells.reserve(std::size_t(runs));
-  return std::size_t(select_flagged(s.runs.data(), s.flags.data(), cells.data(), std::size_t(runs), s, stream));
+  // The runs' first entries, then the runs that are collision cells, each compacted by CUB with
+  // the count left in device memory.
+  const thrust::counting_iterator<uint32_t> index(0);
+  auto runs = thrust::make_transform_iterator(index, DescribeRun{sorted_keys, s.run_start.data(), counts});
+  std::size_t starts_bytes = 0, cells_bytes = 0;
+  CF_CUDA_CHECK(cub::DeviceSelect::Flagged(nullptr, starts_bytes, index, s.flags.data(), s.run_start.data(),
+                                           &counts->runs, int(entries), stream));
+  CF_CUDA_CHECK(cub::DeviceSelect::If(nullptr, cells_bytes, runs, cells.data(), &counts->cell_range[1],
+                                      int(run_bound), IsCollisionCell{}, stream));
+  s.cub.reserve(std::max(starts_bytes, cells_bytes));
+  CF_CUDA_CHECK(cub::DeviceSelect::Flagged(s.cub.data(), starts_bytes, index, s.flags.data(), s.run_start.data(),
+                                           &counts->runs, int(entries), stream));
+  CF_CUDA_CHECK(cub::DeviceSelect::If(s.cub.data(), cells_bytes, runs, cells.data(), &counts->cell_range[1],
+                                      int(run_bound), IsCollisionCell{}, stream));
 }
 
 }  // namespace cellforce::cuda
@@ -84,15 +102,21 @@ std::size_t find_collision_cells(const uint32_t* sorted_keys, std::size_t valid,
 namespace cellforce::cuda {
 namespace {
 
-__global__ void cell_types(const Grid grid, const CollisionCell* __restrict__ cells, std::size_t n,
-                           uint32_t* __restrict__ types, uint32_t* __restrict__ positions,
-                           unsigned* __restrict__ counts) {
+// The key of each of the `bound` cell slots: its cell type, or `types` (sorting last) beyond the
+// count; the per-type counts by integer atomics (the result does not depend on their order).
+__global__ void cell_types(const Grid grid, const CollisionCell* __restrict__ cells, std::size_t bound,
+                           const PipelineCounts* __restrict__ counts, uint32_t* __restrict__ types,
+                           uint32_t* __restrict__ positions, unsigned* __restrict__ per_type) {
   const std::size_t c = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
-  if (c >= n) return;
+  if (c >= bound) return;
+  positions[c] = uint32_t(c);
+  if (c >= counts->cell_range[1]) {
+    types[c] = 1u << grid.dim;  // the number of cell types: past every real one
+    return;
+  }
   const uint32_t t = cell_type_of_id(grid, cells[c].cell);
   types[c] = t;
-  positions[c] = uint32_t(c);
-  atomicAdd(&counts[t], 1u);  // integer counts: the result does not depend on the order
+  atomicAdd(&per_type[t], 1u);
 }
 
 __global__ void gather_cells(const CollisionCell* __restrict__ in, const uint32_t* __restrict__ order,
@@ -101,39 +125,44 @@ __global__ void gather_cells(const CollisionCell* __restrict__ in, const uint32_
   if (c < n) out[c] = in[order[c]];
 }
 
+__global__ void type_starts(const unsigned* __restrict__ per_type, int types, PipelineCounts* counts) {
+  if (threadIdx.x != 0) return;
+  counts->type_start[0] = 0;
+  for (int t = 0; t < types; ++t) counts->type_start[t + 1] = counts->type_start[t] + per_type[t];
+}
+
 }  // namespace
 
-void split_by_type(const Grid& grid, DeviceBuffer<CollisionCell>& cells, std::size_t count,
-                   SplitScratch& s, std::size_t type_start[kMaxCellTypes + 1], cudaStream_t stream) {
+void split_by_type(const Grid& grid, DeviceBuffer<CollisionCell>& cells, std::size_t bound,
+                   PipelineCounts* counts, SplitScratch& s, cudaStream_t stream) {
   const int types = grid.num_types();
-  for (int t = 0; t <= types; ++t) type_start[t] = 0;
-  if (count == 0) return;
-  s.keys.reserve(count);
-  s.keys_out.reserve(count);
-  s.order.reserve(count);
-  s.order_out.reserve(count);
-  s.cells.reserve(count);
   s.counts.reserve(kMaxCellTypes);
   CF_CUDA_CHECK(cudaMemsetAsync(s.counts.data(), 0, kMaxCellTypes * sizeof(unsigned), stream));
-  cell_types<<<blocks_for(count), kBlock, 0, stream>>>(grid, cells.data(), count, s.keys.data(),
-                                                       s.order.data(), s.counts.data());
+  if (bound > 0) {
+    s.keys.reserve(bound);
+    s.keys_out.reserve(bound);
+    s.order.reserve(bound);
+    s.order_out.reserve(bound);
+    s.cells.reserve(bound);
+    cell_types<<<blocks_for(bound), kBlock, 0, stream>>>(grid, cells.data(), bound, counts, s.keys.data(),
+                                                         s.order.data(), s.counts.data());
+    CF_CUDA_CHECK_LAUNCH();
+    // Keys 0 .. types (the sentinel): dim + 1 bits.
+    std::size_t bytes = 0;
+    CF_CUDA_CHECK(cub::DeviceRadixSort::SortPairs(nullptr, bytes, s.keys.data(), s.keys_out.data(),
+                                                  s.order.data(), s.order_out.data(), int(bound), 0,
+                                                  grid.dim + 1, stream));
+    s.cub.reserve(bytes);
+    CF_CUDA_CHECK(cub::DeviceRadixSort::SortPairs(s.cub.data(), bytes, s.keys.data(), s.keys_out.data(),
+                                                  s.order.data(), s.order_out.data(), int(bound), 0,
+                                                  grid.dim + 1, stream));
+    gather_cells<<<blocks_for(bound), kBlock, 0, stream>>>(cells.data(), s.order_out.data(), bound,
+                                                           s.cells.data());
+    CF_CUDA_CHECK_LAUNCH();
+    std::swap(cells, s.cells);
+  }
+  type_starts<<<1, 32, 0, stream>>>(s.counts.data(), types, counts);
   CF_CUDA_CHECK_LAUNCH();
-  std::size_t bytes = 0;
-  CF_CUDA_CHECK(cub::DeviceRadixSort::SortPairs(nullptr, bytes, s.keys.data(), s.keys_out.data(),
-                                                s.order.data(), s.order_out.data(), int(count), 0,
-                                                grid.dim, stream));
-  s.cub.reserve(bytes);
-  CF_CUDA_CHECK(cub::DeviceRadixSort::SortPairs(s.cub.data(), bytes, s.keys.data(), s.keys_out.data(),
-                                                s.order.data(), s.order_out.data(), int(count), 0,
-                                                grid.dim, stream));
-  gather_cells<<<blocks_for(count), kBlock, 0, stream>>>(cells.data(), s.order_out.data(), count,
-                                                         s.cells.data());
-  CF_CUDA_CHECK_LAUNCH();
-  std::swap(cells, s.cells);
-  unsigned counts[kMaxCellTypes] = {};
-  CF_CUDA_CHECK(cudaMemcpyAsync(counts, s.counts.data(), sizeof(counts), cudaMemcpyDeviceToHost, stream));
-  CF_CUDA_CHECK(cudaStreamSynchronize(stream));
-  for (int t = 0; t < types; ++t) type_start[t + 1] = type_start[t] + counts[t];
 }
 
 }  // namespace cellforce::cuda

@@ -1,4 +1,8 @@
 // Device memory sized from counts: a buffer grows (never shrinks) when a count says it must.
+// A buffer bound to a stream (bind) grows in stream order (cudaFreeAsync / cudaMallocAsync on that
+// stream), so that growing it never waits for the device: work queued earlier on the stream still
+// reads the old memory, work queued later the new. Unbound, growth frees with cudaFree, which
+// waits for the device.
 #pragma once
 
 #include <cuda_runtime.h>
@@ -16,26 +20,41 @@ class DeviceBuffer {
   DeviceBuffer() = default;
   explicit DeviceBuffer(std::size_t n) { reserve(n); }
   ~DeviceBuffer() {
-    // A destructor cannot throw: an error here shows up at the next checked CUDA call.
+    // A destructor cannot throw: an error here shows up at the next checked CUDA call. cudaFree
+    // also frees stream-ordered memory (after waiting for the device).
     if (ptr_) cudaFree(ptr_);
   }
   DeviceBuffer(const DeviceBuffer&) = delete;
   DeviceBuffer& operator=(const DeviceBuffer&) = delete;
   DeviceBuffer(DeviceBuffer&& o) noexcept
-      : ptr_(std::exchange(o.ptr_, nullptr)), capacity_(std::exchange(o.capacity_, 0)) {}
+      : ptr_(std::exchange(o.ptr_, nullptr)), capacity_(std::exchange(o.capacity_, 0)),
+        stream_(o.stream_), bound_(o.bound_) {}
   DeviceBuffer& operator=(DeviceBuffer&& o) noexcept {
     std::swap(ptr_, o.ptr_);
     std::swap(capacity_, o.capacity_);
+    std::swap(stream_, o.stream_);
+    std::swap(bound_, o.bound_);
     return *this;
+  }
+
+  // From now on the buffer grows in the order of `stream` (see above).
+  void bind(cudaStream_t stream) {
+    stream_ = stream;
+    bound_ = true;
   }
 
   // Makes room for n elements; the contents are not kept when it grows.
   void reserve(std::size_t n) {
     if (n <= capacity_) return;
-    if (ptr_) CF_CUDA_CHECK(cudaFree(ptr_));
-    ptr_ = nullptr;
+    T* old = std::exchange(ptr_, nullptr);
     capacity_ = 0;
-    CF_CUDA_CHECK(cudaMalloc(reinterpret_cast<void**>(&ptr_), n * sizeof(T)));
+    if (bound_) {
+      if (old) CF_CUDA_CHECK(cudaFreeAsync(old, stream_));
+      CF_CUDA_CHECK(cudaMallocAsync(reinterpret_cast<void**>(&ptr_), n * sizeof(T), stream_));
+    } else {
+      if (old) CF_CUDA_CHECK(cudaFree(old));
+      CF_CUDA_CHECK(cudaMalloc(reinterpret_cast<void**>(&ptr_), n * sizeof(T)));
+    }
     capacity_ = n;
   }
   T* data() const { return ptr_; }
@@ -45,6 +64,8 @@ class DeviceBuffer {
  private:
   T* ptr_ = nullptr;
   std::size_t capacity_ = 0;
+  cudaStream_t stream_ = nullptr;
+  bool bound_ = false;
 };
 
 }  // namespace cellforce::cuda

@@ -1,6 +1,9 @@
 // The CUDA engine: plans the grid on the host, runs the stages on its own stream, times each with
-// CUDA events, and reads the kernels' flags once per evaluation. Device buffers live in Impl and
-// grow when a count says so (DeviceBuffer), so repeated evaluations allocate nothing.
+// CUDA events, and reads the kernels' flags when the host synchronises. The stages keep their
+// counts in device memory (cuda::PipelineCounts) and the buffers are sized by bounds the host
+// knows from n and the grid, so that no stage waits for the host. Device buffers live in Impl,
+// grow in the stream's order (DeviceBuffer::bind) and are reused, so repeated evaluations
+// allocate nothing.
 #include "engine.h"
 
 #include <cuda_runtime.h>
@@ -97,7 +100,7 @@ struct GpuEngine::Impl {
   DeviceBuffer<CollisionCell> cells;
   cuda::CollisionScratch collision;
   cuda::SplitScratch split;
-  std::size_t type_start[kMaxCellTypes + 1] = {};
+  DeviceBuffer<cuda::PipelineCounts> counts;  // stage 1-3 counts, read by the later stages
   DeviceBuffer<std::byte> staged, table, force_slots, energy_slots, cell_sums;
   DeviceBuffer<double> forces, energies, totals;
   DeviceBuffer<cuda::DeviceFlags> flags;
@@ -105,23 +108,28 @@ struct GpuEngine::Impl {
   DeviceBuffer<double> build_positions;  // reuse: positions at the build in use (n x dim)
   std::vector<uint32_t> build_keys;      // audit (host): stage 1's keys of that build, user order
   std::vector<Control> build_control;    // audit (host): its control bits
-  std::size_t valid = 0, num_cells = 0;
+  // Bounds of the structure in use, from its build (cuda::PipelineCounts): the cell-ID entries
+  // n x 2^d (>= the valid ones) and min(n, grid cells) (>= the collision cells).
+  std::size_t entries = 0, max_cells = 0;
   int multiprocessors = 1;  // of the engine's device, read once
   bool has_types = false;
 
+  // Calls f on every device buffer of the stages.
+  template <class F>
+  void for_each_buffer(F&& f) {
+    f(positions), f(types), f(keys), f(object_ids), f(sorted_keys), f(sorted_ids), f(control), f(cub);
+    f(cells), f(counts), f(staged), f(table), f(force_slots), f(energy_slots), f(cell_sums);
+    f(forces), f(energies), f(totals), f(flags), f(pairs), f(build_positions);
+    f(chapter_sort.keys), f(chapter_sort.values), f(chapter_sort.counts), f(chapter_sort.digit_totals);
+    f(collision.flags), f(collision.run_start), f(collision.cub);
+    f(split.keys), f(split.keys_out), f(split.order), f(split.order_out), f(split.cells), f(split.counts);
+    f(split.cub);
+  }
+
   // Device bytes held by the stage buffers.
-  std::size_t bytes() const {
-    std::size_t b = positions.bytes() + types.bytes() + keys.bytes() + object_ids.bytes() +
-                    sorted_keys.bytes() + sorted_ids.bytes() + control.bytes() + cub.bytes() +
-                    cells.bytes() + staged.bytes() + table.bytes() + force_slots.bytes() +
-                    energy_slots.bytes() + cell_sums.bytes() + forces.bytes() + energies.bytes() +
-                    totals.bytes() + flags.bytes() + pairs.bytes() + build_positions.bytes();
-    b += chapter_sort.keys.bytes() + chapter_sort.values.bytes() + chapter_sort.counts.bytes() +
-         chapter_sort.digit_totals.bytes();
-    b += collision.flags.bytes() + collision.run_start.bytes() + collision.runs.bytes() +
-         collision.count.bytes() + collision.cub.bytes();
-    b += split.keys.bytes() + split.keys_out.bytes() + split.order.bytes() +
-         split.order_out.bytes() + split.cells.bytes() + split.counts.bytes() + split.cub.bytes();
+  std::size_t bytes() {
+    std::size_t b = 0;
+    for_each_buffer([&](const auto& buffer) { b += buffer.bytes(); });
     return b;
   }
 
@@ -130,6 +138,8 @@ struct GpuEngine::Impl {
       if (e) cudaEventDestroy(e);
     if (joined) cudaEventDestroy(joined);
     if (finished) cudaEventDestroy(finished);
+    if (table_copied) cudaEventDestroy(table_copied);
+    if (pinned_table) cudaFreeHost(pinned_table);
     if (stream) cudaStreamDestroy(stream);
   }
 
@@ -141,6 +151,34 @@ struct GpuEngine::Impl {
   }
 
   std::vector<std::byte> host_table;  // the table last uploaded (uploaded again only on change)
+  // Its staging in pinned memory, so that the upload never waits for the stream; table_copied
+  // marks when the copy has left it.
+  void* pinned_table = nullptr;
+  std::size_t pinned_bytes = 0;
+  cudaEvent_t table_copied = nullptr;
+
+  // The pair table of `f` on the device: copied only when it changed since the last upload. Waits
+  // only when it changes while the previous table's copy is still queued.
+  template <class Real>
+  void upload_table(const ForceField& f) {
+    const std::vector<LJParams<Real>> params = make_pair_table<Real>(f);
+    const std::size_t bytes = params.size() * sizeof(LJParams<Real>);
+    if (host_table.size() == bytes && std::memcmp(host_table.data(), params.data(), bytes) == 0) return;
+    CF_CUDA_CHECK(cudaEventSynchronize(table_copied));
+    if (pinned_bytes < bytes) {
+      if (pinned_table) CF_CUDA_CHECK(cudaFreeHost(pinned_table));
+      pinned_table = nullptr;
+      pinned_bytes = 0;
+      CF_CUDA_CHECK(cudaMallocHost(&pinned_table, bytes));
+      pinned_bytes = bytes;
+    }
+    host_table.resize(bytes);
+    std::memcpy(host_table.data(), params.data(), bytes);
+    std::memcpy(pinned_table, params.data(), bytes);
+    table.reserve(bytes);
+    CF_CUDA_CHECK(cudaMemcpyAsync(table.data(), pinned_table, bytes, cudaMemcpyHostToDevice, stream));
+    CF_CUDA_CHECK(cudaEventRecord(table_copied, stream));
+  }
 
   // Host-array calls read their own flags: any a resident run left are dropped.
   void per_call_flags() {
@@ -152,8 +190,10 @@ struct GpuEngine::Impl {
   void reset_flags() {
     flags.reserve(1);
     cuda::DeviceFlags* f = flags.data();
+    static_assert(offsetof(cuda::DeviceFlags, bad_coordinate) == sizeof(f->bad_pair) &&
+                  offsetof(cuda::DeviceFlags, bad_type) == 2 * sizeof(f->bad_pair));
     CF_CUDA_CHECK(cudaMemsetAsync(f, 0, sizeof(cuda::DeviceFlags), stream));
-    CF_CUDA_CHECK(cudaMemsetAsync(&f->bad_pair, 0xff, sizeof(f->bad_pair), stream));
+    CF_CUDA_CHECK(cudaMemsetAsync(f, 0xff, 3 * sizeof(f->bad_pair), stream));  // "none" for the minima
   }
 
   // The positions (and types) of this evaluation, on every evaluation.
@@ -185,15 +225,38 @@ struct GpuEngine::Impl {
   std::size_t corner_count = 0;
   bool plan_from_corners = false, accumulate_flags = false;
 
-  // Throws for a flag the kernels raised (read after the stream has been synchronised).
-  void throw_flags(const cuda::DeviceFlags& f, const SystemView& system) const {
+  // Throws for a flag the kernels raised (read after the stream has been synchronised). Without
+  // the positions (system.positions null: device arrays the caller may have changed since), a
+  // close pair is named without its distance.
+  void throw_flags(const cuda::DeviceFlags& f, const SystemView& system, const ForceField& ff) const {
+    static constexpr const char* kAxis[kMaxDim] = {"x", "y", "z"};
     if (f.impossible)
       throw Error("CUDA engine: a traversal kernel met a particle index out of range (an internal "
                   "error, not bad input)");
+    if (f.bad_coordinate != ~0ull)
+      throw Error("particle " + std::to_string(f.bad_coordinate >> 32) + " has a non-finite " +
+                  kAxis[std::min<unsigned>(unsigned(f.bad_coordinate & 0xffffffffu), kMaxDim - 1)] + " coordinate");
+    if (f.bad_type != ~0ull)
+      throw Error("particle " + std::to_string(f.bad_type >> 32) + " has type index " +
+                  std::to_string(f.bad_type & 0xffffffffu) + " but there are " + std::to_string(ff.num_types()) +
+                  " types");
     if (f.bad_pair != ~0ull) {
       const auto i = uint32_t(f.bad_pair >> 32), j = uint32_t(f.bad_pair & 0xffffffffu);
-      throw_close_pair(system, i, j, distance2(system, i, j));
+      if (system.positions) throw_close_pair(system, i, j, distance2(system, i, j));
+      throw Error("particles " + std::to_string(i) + " and " + std::to_string(j) +
+                  " are too close: the Lennard-Jones force is not finite in this precision");
     }
+  }
+
+  // The counts of the structure in use, into the statistics (after a synchronisation).
+  void read_counts(PipelineStats& st) {
+    cuda::PipelineCounts c{};
+    if (entries > 0) {
+      CF_CUDA_CHECK(cudaMemcpyAsync(&c, counts.data(), sizeof(c), cudaMemcpyDeviceToHost, stream));
+      CF_CUDA_CHECK(cudaStreamSynchronize(stream));
+    }
+    st.valid_entries = std::size_t(c.valid);
+    st.collision_cells = c.cell_range[1];
   }
 
   cudaEvent_t joined = nullptr, finished = nullptr;  // the caller's stream <-> the engine's
@@ -213,8 +276,12 @@ struct GpuEngine::Impl {
       check_staging(st.grid, ff.cutoff, o.precision);
     }
     const Grid& g = st.grid;
-    const std::size_t n = sys.n, entries = n << g.dim;
+    const std::size_t n = sys.n;
+    entries = n << g.dim;
+    max_cells = std::min<std::size_t>(n, g.num_cells);
+    const std::size_t run_bound = std::min<std::size_t>(entries, g.num_cells);
     const std::size_t cap = std::max<std::size_t>(entries, 1);
+    counts.reserve(1);
     keys.reserve(cap);
     object_ids.reserve(cap);
     sorted_keys.reserve(cap);
@@ -232,7 +299,7 @@ struct GpuEngine::Impl {
       }
     }
     record(kCellIds);
-    valid = cuda::count_valid(keys.data(), entries, cub, stream);
+    cuda::count_valid(keys.data(), entries, counts.data(), cub, stream);
     record(kCounted);
     switch (o.sort) {
       case SortMethod::kCub:
@@ -245,13 +312,13 @@ struct GpuEngine::Impl {
         break;
     }
     record(kSorted);
-    num_cells = cuda::find_collision_cells(sorted_keys.data(), valid, cells, collision, stream);
+    cuda::find_collision_cells(sorted_keys.data(), entries, run_bound, max_cells, counts.data(), cells,
+                               collision, stream);
     if (o.accumulation == Accumulation::kGaussSeidel)
-      cuda::split_by_type(g, cells, num_cells, split, type_start, stream);
+      cuda::split_by_type(g, cells, max_cells, counts.data(), split, stream);
     record(kCellsFound);
     st.entries = entries;
-    st.valid_entries = valid;
-    st.collision_cells = num_cells;
+    st.valid_entries = st.collision_cells = 0;  // on the device until read_counts()
   }
 
   // A reused structure: the stage events recorded back to back (zero stage times).
@@ -266,24 +333,18 @@ struct GpuEngine::Impl {
   template <class Real, class Accum>
   cuda::TraversalArgs<Real, Accum> prepare(const Grid& g, const SystemView& sys,
                                            const ForceField& ff, CutoffMode mode) {
-    staged.reserve(std::max<std::size_t>(valid, 1) * sizeof(cuda::StagedEntry<Real>));
-    cuda::stage_occupants<Real>(g, sorted_keys.data(), sorted_ids.data(), valid, pos, typ, control.data(),
-                                as<cuda::StagedEntry<Real>>(staged), stream);
+    staged.reserve(std::max<std::size_t>(entries, 1) * sizeof(cuda::StagedEntry<Real>));
+    cuda::stage_occupants<Real>(g, sorted_keys.data(), sorted_ids.data(), entries, &counts.data()->valid, pos,
+                                typ, uint32_t(ff.num_types()), control.data(), as<cuda::StagedEntry<Real>>(staged),
+                                stream);
     ForceField f = ff;
     f.mode = mode;
-    const std::vector<LJParams<Real>> params = make_pair_table<Real>(f);
-    const std::size_t bytes = params.size() * sizeof(LJParams<Real>);
-    // A copy from pageable memory waits for the stream: upload only when the table changes.
-    if (host_table.size() != bytes || std::memcmp(host_table.data(), params.data(), bytes) != 0) {
-      host_table.resize(bytes);
-      std::memcpy(host_table.data(), params.data(), bytes);
-      table.reserve(bytes);
-      CF_CUDA_CHECK(cudaMemcpyAsync(table.data(), host_table.data(), bytes, cudaMemcpyHostToDevice, stream));
-    }
+    upload_table<Real>(f);
     cuda::TraversalArgs<Real, Accum> args;
     args.grid = g;
     args.cells = cells.data();
-    args.num_cells = uint32_t(num_cells);
+    args.cell_range = counts.data()->cell_range;
+    args.max_cells = uint32_t(max_cells);
     args.staged = as<cuda::StagedEntry<Real>>(staged);
     args.sorted_ids = sorted_ids.data();
     args.n = sys.n;
@@ -313,7 +374,7 @@ struct GpuEngine::Impl {
     if (observables) {
       energy_slots.reserve(std::max<std::size_t>(copies * n, 1) * sizeof(Accum));
       CF_CUDA_CHECK(cudaMemsetAsync(energy_slots.data(), 0, copies * n * sizeof(Accum), stream));
-      cell_sums.reserve(std::max<std::size_t>(num_cells, 1) * cuda::kCellSums * sizeof(Accum));
+      cell_sums.reserve(std::max<std::size_t>(max_cells, 1) * cuda::kCellSums * sizeof(Accum));
       args.energy = as<Accum>(energy_slots);
       args.energy_slot_stride = gs ? 0 : n;
       args.cell_sums = as<Accum>(cell_sums);
@@ -328,9 +389,7 @@ struct GpuEngine::Impl {
       cuda::traverse(o.traversal, sw, args, stream);
     } else {
       for (int t = 0; t < g.num_types(); ++t) {  // one pass per cell type, in type order
-        args.cells = cells.data() + type_start[t];
-        args.num_cells = uint32_t(type_start[t + 1] - type_start[t]);
-        args.first_cell = uint32_t(type_start[t]);
+        args.cell_range = counts.data()->type_start + t;
         cuda::traverse(o.traversal, sw, args, stream);
       }
     }
@@ -343,11 +402,27 @@ struct GpuEngine::Impl {
                            stream);
     if (observables) {
       totals.reserve(cuda::kCellSums);
-      cuda::sum_cells<Accum>(as<Accum>(cell_sums), num_cells, totals.data(), stream);
+      cuda::sum_cells<Accum>(as<Accum>(cell_sums), &counts.data()->cell_range[1], totals.data(), stream);
     }
     record(kAccumulated);
   }
 };
+
+namespace {
+
+// What the CUDA pipeline can hold, checked before anything runs (host and resident paths).
+void check_capacity(const SystemView& system, const ForceField& ff) {
+  if (ff.num_types() > cuda::kMaxStagedTypes)
+    throw Error("the CUDA engine supports at most " + std::to_string(cuda::kMaxStagedTypes) +
+                " particle types; the force field has " + std::to_string(ff.num_types()));
+  const std::size_t entries = system.n << system.box.dim;
+  if (entries > std::size_t(INT32_MAX))
+    throw Error("the CUDA engine takes at most 2^31 - 1 cell-ID entries (N x 2^d): " +
+                std::to_string(system.n) + " particles in " + std::to_string(system.box.dim) +
+                "D make " + std::to_string(entries));
+}
+
+}  // namespace
 
 GpuEngine::GpuEngine(GpuOptions options)
     : options_(std::move(options)), reuse_(options_.reuse), impl_(std::make_unique<Impl>()) {
@@ -366,6 +441,8 @@ GpuEngine::GpuEngine(GpuOptions options)
   for (cudaEvent_t& e : impl_->events) CF_CUDA_CHECK(cudaEventCreate(&e));
   CF_CUDA_CHECK(cudaEventCreateWithFlags(&impl_->joined, cudaEventDisableTiming));
   CF_CUDA_CHECK(cudaEventCreateWithFlags(&impl_->finished, cudaEventDisableTiming));
+  CF_CUDA_CHECK(cudaEventCreateWithFlags(&impl_->table_copied, cudaEventDisableTiming));
+  impl_->for_each_buffer([&](auto& buffer) { buffer.bind(impl_->stream); });
 }
 
 GpuEngine::~GpuEngine() {
@@ -391,7 +468,7 @@ void GpuEngine::traverse(const SystemView& system, const ForceField& ff, const R
   cuda::DeviceFlags flags{};
   CF_CUDA_CHECK(cudaMemcpyAsync(&flags, s.flags.data(), sizeof(flags), cudaMemcpyDeviceToHost, s.stream));
   CF_CUDA_CHECK(cudaStreamSynchronize(s.stream));
-  s.throw_flags(flags, system);
+  s.throw_flags(flags, system, ff);
 }
 
 void GpuEngine::evaluate(const SystemView& system, const ForceField& ff, const Request& request,
@@ -418,6 +495,7 @@ void GpuEngine::evaluate(const SystemView& system, const ForceField& ff, const R
   set_virial(result, g.dim, request.virial ? totals + 1 : no_virial);
 
   finish_timing();
+  s.read_counts(stats_);
   audit(system, ff);  // after the total: its host search is no part of the engine's time
 }
 
@@ -425,7 +503,6 @@ void GpuEngine::evaluate_device(const DeviceSystemView& dsys, const ForceField& 
                                 const DeviceOutputs& out, void* stream) {
   const DeviceScope scope(options_.device);
   Impl& s = *impl_;
-  s.per_call_flags();
   if (dsys.n > 0 && (!dsys.positions || !out.forces))
     throw Error(std::string(dsys.positions ? "forces" : "positions") + " is a null pointer (" +
                 std::to_string(dsys.n) + " particles)");
@@ -444,18 +521,26 @@ void GpuEngine::evaluate_device(const DeviceSystemView& dsys, const ForceField& 
       throw Error(std::string(what) + " is not a device pointer (compute_device takes device arrays; use "
                   "compute for host arrays)");
   }
+  // What can be checked without the arrays: the box, the force field, the capacity.
+  const std::size_t n = dsys.n, dim = std::size_t(dsys.box.dim);
+  const SystemView system{dsys.box, n, nullptr, nullptr};  // no host arrays: nothing reads them
+  validate_physics(dsys.box, ff, n);
+  check_capacity(system, ff);
+
   const auto caller = static_cast<cudaStream_t>(stream);
   CF_CUDA_CHECK(cudaEventRecord(s.joined, caller));  // the engine starts after the caller's work
   CF_CUDA_CHECK(cudaStreamWaitEvent(s.stream, s.joined, 0));
-  // Host copies for validation and grid planning (this is where the call waits for the caller).
-  const std::size_t n = dsys.n, dim = std::size_t(dsys.box.dim);
-  download(s.host_positions, dsys.positions, n * dim, s.stream);
-  if (dsys.types) download(s.host_types, dsys.types, n, s.stream);
-  CF_CUDA_CHECK(cudaStreamSynchronize(s.stream));
-  const SystemView system{dsys.box, n, s.host_positions.data(), dsys.types ? s.host_types.data() : nullptr};
+  if (!s.accumulate_flags) {  // flags accumulate until synchronize()
+    s.reset_flags();
+    s.accumulate_flags = true;
+  }
+  // The arrays are checked on the device; what it finds is raised by synchronize().
+  cuda::check_input(dsys.positions, dsys.types, n, int(dim), uint32_t(ff.num_types()), s.flags.data(), s.stream);
+  s.plan_from_corners = true;
+  s.corner_count = 0;
+  prepare_resident(system, ff, dsys);
   const Request request{out.energies || out.energy, out.virial != nullptr};
-  prepare(system, ff, &dsys);
-  traverse(system, ff, request);
+  traverse(system, ff, request, false);
   if (n) {
     CF_CUDA_CHECK(cudaMemcpyAsync(out.forces, s.forces.data(), n * dim * sizeof(double),
                                   cudaMemcpyDeviceToDevice, s.stream));
@@ -468,9 +553,29 @@ void GpuEngine::evaluate_device(const DeviceSystemView& dsys, const ForceField& 
   s.record(kDownloaded);
   CF_CUDA_CHECK(cudaEventRecord(s.finished, s.stream));
   CF_CUDA_CHECK(cudaStreamWaitEvent(caller, s.finished, 0));
-  CF_CUDA_CHECK(cudaEventSynchronize(s.events[kDownloaded]));  // for the stage times
+  if (options_.reuse.audit && !stats_.rebuilt) {  // diagnostics: the positions come to the host
+    std::vector<double> host_positions;
+    std::vector<uint32_t> host_types;
+    download(host_positions, dsys.positions, n * dim, s.stream);
+    if (dsys.types) download(host_types, dsys.types, n, s.stream);
+    CF_CUDA_CHECK(cudaStreamSynchronize(s.stream));
+    audit(SystemView{dsys.box, n, host_positions.data(), dsys.types ? host_types.data() : nullptr}, ff);
+  }
+}
+
+void GpuEngine::synchronize(const ForceField& ff) {
+  const DeviceScope scope(options_.device);
+  Impl& s = *impl_;
+  CF_CUDA_CHECK(cudaStreamSynchronize(s.stream));
+  if (!s.accumulate_flags) return;
+  cuda::DeviceFlags flags{};
+  CF_CUDA_CHECK(cudaMemcpyAsync(&flags, s.flags.data(), sizeof(flags), cudaMemcpyDeviceToHost, s.stream));
+  CF_CUDA_CHECK(cudaStreamSynchronize(s.stream));
+  s.accumulate_flags = false;
+  s.plan_from_corners = false;
   finish_timing();
-  audit(system, ff);
+  s.read_counts(stats_);
+  s.throw_flags(flags, SystemView{}, ff);
 }
 
 void GpuEngine::evaluate_resident(const Box& box, std::size_t n, const double* positions, const uint32_t* types,
@@ -511,8 +616,7 @@ void GpuEngine::check_flags(const Box& box, std::size_t n, const double* positio
   std::vector<double> host;
   download(host, positions, n * std::size_t(box.dim), s.stream);
   CF_CUDA_CHECK(cudaStreamSynchronize(s.stream));
-  (void)ff;
-  s.throw_flags(flags, SystemView{box, n, host.data(), nullptr});
+  s.throw_flags(flags, SystemView{box, n, host.data(), nullptr}, ff);
 }
 
 const double* GpuEngine::device_forces() const { return impl_->forces.data(); }
@@ -522,6 +626,7 @@ void GpuEngine::collect_timing() {
   const DeviceScope scope(options_.device);
   CF_CUDA_CHECK(cudaEventSynchronize(impl_->events[kDownloaded]));
   finish_timing();
+  impl_->read_counts(stats_);
 }
 
 // The stage times of the evaluation whose events were recorded last (synchronised).
@@ -541,21 +646,6 @@ void GpuEngine::finish_timing() {
   stats_.buffer_bytes = s.bytes();
 }
 
-namespace {
-
-// What the CUDA pipeline can hold, checked before anything runs (host and resident paths).
-void check_capacity(const SystemView& system, const ForceField& ff) {
-  if (ff.num_types() > cuda::kMaxStagedTypes)
-    throw Error("the CUDA engine supports at most " + std::to_string(cuda::kMaxStagedTypes) +
-                " particle types; the force field has " + std::to_string(ff.num_types()));
-  const std::size_t entries = system.n << system.box.dim;
-  if (entries > std::size_t(INT32_MAX))
-    throw Error("the CUDA engine takes at most 2^31 - 1 cell-ID entries (N x 2^d): " +
-                std::to_string(system.n) + " particles in " + std::to_string(system.box.dim) +
-                "D make " + std::to_string(entries));
-}
-
-}  // namespace
 
 // Validates the input, uploads it, then rebuilds the structure (stages 1-3) or keeps the last
 // one: shared by evaluate() and the pair recorder.
@@ -671,10 +761,11 @@ std::vector<std::pair<uint32_t, uint32_t>> GpuEngine::record(const SystemView& s
   const Grid& g = stats_.grid;
   cuda::TraversalArgs<double, double> args =
       s.prepare<double, double>(g, system, ff, CutoffMode::kTruncate);
+  s.read_counts(stats_);
   cuda::DeviceFlags flags{};
   for (;;) {
     if (keep) {
-      s.pairs.reserve(std::max<std::size_t>(s.valid * 8, 1024));
+      s.pairs.reserve(std::max<std::size_t>(stats_.valid_entries * 8, 1024));
       args.pairs = s.pairs.data();
       args.pair_capacity = s.pairs.capacity();
     }
@@ -690,7 +781,7 @@ std::vector<std::pair<uint32_t, uint32_t>> GpuEngine::record(const SystemView& s
   std::vector<uint2> raw;
   if (keep) download(raw, s.pairs.data(), std::size_t(flags.recorded), s.stream);
   std::vector<CollisionCell> cells;
-  download(cells, s.cells.data(), s.num_cells, s.stream);
+  download(cells, s.cells.data(), stats_.collision_cells, s.stream);
   CF_CUDA_CHECK(cudaStreamSynchronize(s.stream));
   stats_.candidate_pairs = std::size_t(flags.candidates);
   stats_.interacting_pairs = std::size_t(flags.interacting);

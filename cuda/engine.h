@@ -48,20 +48,28 @@ class GpuEngine {
   // Device arrays (core/system.h): the work is ordered after what the caller's `stream` (a
   // cudaStream_t; null: the legacy default stream) holds, and the results are written on the
   // engine's stream, which the caller's stream then waits for. Energy and virial are computed when
-  // any of out.energies, out.energy, out.virial is given. For now this call synchronises the
-  // host: it copies the positions (and types) to the host to validate them and plan the grid, and
-  // it reads the counts that size the stage buffers and the kernels' flags, as evaluate() does.
-  // Results are bitwise those of evaluate() on the same input. Throws cellforce::Error as
-  // evaluate() does; the outputs are then left unwritten.
+  // any of out.energies, out.energy, out.virial is given. The host does not wait for the device
+  // (nor for the caller's stream): the box, force field and pointers are checked on the host, the
+  // arrays on the device, and what the kernels find (a coordinate that is not finite, a type index
+  // out of range, a pair whose force is not finite) is raised by synchronize(). The host waits
+  // only with an open axis (the particles' bounds, 2 x dim numbers, plan the grid when the
+  // structure is built), with a skin and the displacement check (the largest displacement, 8
+  // bytes) and with the reuse audit. Results are bitwise those of evaluate() on the same input.
+  // Throws cellforce::Error for bad pointers or physics, before anything is queued.
   void evaluate_device(const DeviceSystemView& system, const ForceField& ff, const DeviceOutputs& out,
                        void* stream);
+  // Waits for the engine's work, reads what the kernels flagged since the last synchronize() and
+  // the stage times and counts of the last evaluation (stats()), and throws cellforce::Error for
+  // the first problem found (naming the particle, or both particles of a pair; the outputs of the
+  // calls since the last synchronize() are then not to be used).
+  void synchronize(const ForceField& ff);
 
   // Resident evaluation, for an MD loop whose state stays on the device (cuda/md_engine.cu):
   // positions (n x dim, wrapped on periodic axes) and types (n, or null) are the caller's device
   // arrays, validated by the caller before its run. The work is queued on the engine's stream()
-  // and the host waits only for the counts that size the stage buffers (valid entries, collision
-  // cells) and, with an open axis and only when the structure is built, the particles' bounds
-  // (2 x dim numbers). Forces stay on the
+  // and the host does not wait, except with an open axis when the structure is built (the
+  // particles' bounds, 2 x dim numbers) and with a skin and the displacement check (the largest
+  // displacement). Forces stay on the
   // device (device_forces(), n x dim); with `request`, so do the energy and virial totals
   // (device_totals(): energy, then w_xx, w_yy, w_zz, w_xy, w_xz, w_yz). The kernels' flags are
   // not read: they accumulate until check_flags(). Stage times are not read either
@@ -75,7 +83,7 @@ class GpuEngine {
   const double* device_forces() const;
   const double* device_totals() const;
   void* stream() const;   // the engine's cudaStream_t
-  void collect_timing();  // stats() gets the stage times of the last evaluation (synchronises)
+  void collect_timing();  // stats() gets the stage times and counts of the last evaluation (synchronises)
 
   // Every pair the traversal finds with r < rc, once per evaluation (a pair found twice appears
   // twice), as (min index, max index), in no particular order. Also sets the candidate and
@@ -94,9 +102,9 @@ class GpuEngine {
   void restore_reuse(const SystemView& built_from, const ForceField& ff, int64_t served);
 
   // Stage times (evaluate) are measured with CUDA events on the engine's stream: stream time from
-  // one stage's start to the next, so they include the host round trips that size the next
-  // buffers (the valid count, the number of cells). Pair counts come from count_pairs() or
-  // visited_pairs(); each call zeroes what it does not compute.
+  // one stage's start to the next. Pair counts come from count_pairs() or visited_pairs(); each
+  // call zeroes what it does not compute. The valid entries and collision cells are read from the
+  // device after evaluate(), synchronize(), collect_timing() and the pair recorder.
   const PipelineStats& stats() const { return stats_; }
   const GpuOptions& options() const { return options_; }
   // The device's name as the driver reports it (e.g. "NVIDIA H100 80GB HBM3").

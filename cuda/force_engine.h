@@ -19,6 +19,7 @@ class CudaForceEngine final : public ForceEngine {
                 ForceResult& result) override;
   void evaluate_device(const DeviceSystemView& system, const ForceField& ff, const DeviceOutputs& out,
                        void* stream) override;
+  void synchronize(const ForceField& ff) override { engine_.synchronize(ff); }
   PipelineStats stats(const SystemView& system, const ForceField& ff, bool counts) override;
   const PipelineStats& stats() const override { return engine_.stats(); }
   std::vector<std::pair<uint32_t, uint32_t>> visited_pairs(const SystemView& system, const ForceField& ff) override {

@@ -1,10 +1,10 @@
 // The CUDA backend's integration and state-access jobs: the MD state lives in device memory for
 // the whole run, and velocity Verlet and Langevin BAOAB (md/md.h's advance(), step for step) run
 // as kernels on the force engine's stream, with the forces from its resident evaluations. The
-// host queues a call's steps without waiting, except for the counts the search reads to size its
-// buffers (valid cell-ID entries, collision cells; with an open axis the particles' bounds; with a
-// skin the largest displacement); the flags (a drift that diverged, a force that is not finite)
-// are read once per advance() call. Nothing of the particles crosses PCIe except in set_state,
+// host queues a call's steps without waiting (the search keeps its counts on the device), except
+// with an open axis (the particles' bounds, on steps that build the structure) and with a skin
+// (the largest displacement); the flags (a drift that diverged, a force that is not finite) are
+// read once per advance() call. Nothing of the particles crosses PCIe except in set_state,
 // get_state and the error path; observables() reads 8 numbers.
 #include <cub/device/device_reduce.cuh>
 #include <thrust/iterator/counting_iterator.h>

@@ -14,16 +14,32 @@
 
 namespace cellforce::cuda {
 
+// What the stages count, kept in device memory: the kernels of later stages read the counts there,
+// so that the host never waits for one to size a buffer. Buffers are sized instead by bounds the
+// host knows (GpuEngine's plan: entries = n x 2^d for the valid entries, min(entries, grid cells)
+// for the runs, min(n, grid cells) for the collision cells, since every collision cell holds at
+// least one particle's home entry). The host reads the counts only when it synchronises anyway
+// (statistics, the pair recorder).
+struct PipelineCounts {
+  unsigned long long valid;                 // valid cell-ID entries (stage 1)
+  uint32_t runs;                            // distinct cells among them (stage 3)
+  uint32_t cell_range[2];                   // collision cells [0, count): {0, count} (stage 3)
+  uint32_t type_start[kMaxCellTypes + 1];   // Gauss-Seidel: cells of type t in [start[t], start[t + 1])
+};
+
+// The counts on the host (synchronises the stream): for the tests and benchmarks of the stages.
+PipelineCounts read_counts(const PipelineCounts* counts, cudaStream_t stream);
+
 // Stage 1 (GPU Gems 3 ch. 32, section 32.2.2): one thread per particle. positions: n x grid.dim
 // doubles, user order. Writes keys and object_ids (n x 2^d, entry i * 2^d + t as on the CPU:
 // key = cell << 1 | phantom, kInvalidCell where unused) and control (n).
 void build_cell_ids(const Grid& grid, const double* positions, std::size_t n, uint32_t* keys,
                     uint32_t* object_ids, Control* control, cudaStream_t stream);
 
-// The count of valid entries, by a device reduction; `scratch` grows as CUB asks. Synchronises
-// the stream to return the count to the host.
-std::size_t count_valid(const uint32_t* keys, std::size_t entries, DeviceBuffer<std::byte>& scratch,
-                        cudaStream_t stream);
+// The count of valid entries into counts->valid, by a device reduction; `scratch` grows as CUB
+// asks.
+void count_valid(const uint32_t* keys, std::size_t entries, PipelineCounts* counts,
+                 DeviceBuffer<std::byte>& scratch, cudaStream_t stream);
 
 // Stage 2 with CUB's device radix sort: stable, on bits [0, key_bits) only, so that invalid
 // entries (all ones in the window) sort last and each cell's H entries precede its P entries.
@@ -45,32 +61,30 @@ void radix_sort_chapter(const uint32_t* keys_in, const uint32_t* values_in, uint
                         uint32_t* values_out, std::size_t entries, int key_bits,
                         ChapterSortScratch& scratch, cudaStream_t stream);
 
-// Stage 3 (section 32.2.5): the collision cells of the first `valid` sorted keys, in cell order,
-// written to `cells` (grown as needed); returns their number (synchronises the stream). Scratch
-// buffers are grown from the counts.
+// Stage 3 (section 32.2.5): the collision cells of the first counts->valid of the `entries`
+// sorted keys, in cell order, written to `cells` with their number in counts->cell_range[1] (and
+// the runs in counts->runs). `run_bound` >= the runs and `cell_bound` >= the collision cells (see
+// PipelineCounts) size the buffers, which grow to them.
 struct CollisionScratch {
   DeviceBuffer<uint8_t> flags;
   DeviceBuffer<uint32_t> run_start;
-  DeviceBuffer<CollisionCell> runs;
-  DeviceBuffer<int> count;
   DeviceBuffer<std::byte> cub;
 };
-std::size_t find_collision_cells(const uint32_t* sorted_keys, std::size_t valid,
-                                 DeviceBuffer<CollisionCell>& cells, CollisionScratch& scratch,
-                                 cudaStream_t stream);
+void find_collision_cells(const uint32_t* sorted_keys, std::size_t entries, std::size_t run_bound,
+                          std::size_t cell_bound, PipelineCounts* counts, DeviceBuffer<CollisionCell>& cells,
+                          CollisionScratch& scratch, cudaStream_t stream);
 
-// Stage 3's option for Gauss-Seidel: splits the `count` cells stably by cell type (cell order kept
-// within a type); type_start[t] .. type_start[t + 1] - 1 are the cells of type t afterwards
-// (synchronises the stream to read the counts).
+// Stage 3's option for Gauss-Seidel: splits the counts->cell_range[1] cells (at most `cell_bound`)
+// stably by cell type (cell order kept within a type); counts->type_start[t] ..
+// counts->type_start[t + 1] - 1 are the cells of type t afterwards, all on the device.
 struct SplitScratch {
   DeviceBuffer<uint32_t> keys, keys_out, order, order_out;
   DeviceBuffer<CollisionCell> cells;
   DeviceBuffer<unsigned> counts;
   DeviceBuffer<std::byte> cub;
 };
-void split_by_type(const Grid& grid, DeviceBuffer<CollisionCell>& cells, std::size_t count,
-                   SplitScratch& scratch, std::size_t type_start[kMaxCellTypes + 1],
-                   cudaStream_t stream);
+void split_by_type(const Grid& grid, DeviceBuffer<CollisionCell>& cells, std::size_t cell_bound,
+                   PipelineCounts* counts, SplitScratch& scratch, cudaStream_t stream);
 
 // Reuse (src/core/reuse.h): the largest squared displacement between the device arrays now and
 // then (n x box.dim, minimum image on periodic axes). Synchronises the stream to return it.

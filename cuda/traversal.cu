@@ -13,11 +13,12 @@ namespace {
 
 template <class Real>
 __global__ void stage_kernel(const Grid grid, const uint32_t* __restrict__ sorted_keys,
-                             const uint32_t* __restrict__ sorted_ids, std::size_t valid,
-                             const double* __restrict__ positions, const uint32_t* __restrict__ types,
+                             const uint32_t* __restrict__ sorted_ids, std::size_t entries,
+                             const unsigned long long* __restrict__ valid, const double* __restrict__ positions,
+                             const uint32_t* __restrict__ types, uint32_t num_types,
                              const Control* __restrict__ control, StagedEntry<Real>* __restrict__ staged) {
   const std::size_t e = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
-  if (e >= valid) return;
+  if (e >= entries || e >= *valid) return;
   const uint32_t i = sorted_ids[e];
   int k[kMaxDim];
   cell_coords(grid, sorted_keys[e] >> 1, k);
@@ -34,30 +35,54 @@ __global__ void stage_kernel(const Grid grid, const uint32_t* __restrict__ sorte
     s.ly = r[1].lo;
     s.lz = r[2].lo;
   }
-  s.meta = uint32_t(control[i]) | (types ? types[i] : 0u) << 16;
+  const uint32_t type = types ? types[i] : 0u;
+  s.meta = uint32_t(control[i]) | (type < num_types ? type : 0u) << 16;
   staged[e] = s;
+}
+
+__global__ void check_input_kernel(const double* __restrict__ positions, const uint32_t* __restrict__ types,
+                                   std::size_t n, int dim, uint32_t num_types, DeviceFlags* flags) {
+  const std::size_t i = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
+  if (i >= n) return;
+  for (int a = 0; a < dim; ++a)
+    if (!isfinite(positions[i * dim + a])) {
+      atomicMin(&flags->bad_coordinate, static_cast<unsigned long long>(i) << 32 | unsigned(a));
+      break;
+    }
+  if (types && types[i] >= num_types)
+    atomicMin(&flags->bad_type, static_cast<unsigned long long>(i) << 32 | types[i]);
 }
 
 }  // namespace
 
 template <class Real>
 void stage_occupants(const Grid& grid, const uint32_t* sorted_keys, const uint32_t* sorted_ids,
-                     std::size_t valid, const double* positions, const uint32_t* types,
-                     const Control* control, StagedEntry<Real>* staged, cudaStream_t stream) {
-  if (valid == 0) return;
+                     std::size_t entries, const unsigned long long* valid, const double* positions,
+                     const uint32_t* types, uint32_t num_types, const Control* control,
+                     StagedEntry<Real>* staged, cudaStream_t stream) {
+  if (entries == 0) return;
   constexpr int kBlock = 256;
-  const unsigned blocks = unsigned((valid + kBlock - 1) / kBlock);
-  stage_kernel<Real><<<blocks, kBlock, 0, stream>>>(grid, sorted_keys, sorted_ids, valid, positions,
-                                                    types, control, staged);
+  const unsigned blocks = unsigned((entries + kBlock - 1) / kBlock);
+  stage_kernel<Real><<<blocks, kBlock, 0, stream>>>(grid, sorted_keys, sorted_ids, entries, valid, positions,
+                                                    types, num_types, control, staged);
   CF_CUDA_CHECK_LAUNCH();
 }
 
 template void stage_occupants<float>(const Grid&, const uint32_t*, const uint32_t*, std::size_t,
-                                     const double*, const uint32_t*, const Control*,
-                                     StagedEntry<float>*, cudaStream_t);
+                                     const unsigned long long*, const double*, const uint32_t*, uint32_t,
+                                     const Control*, StagedEntry<float>*, cudaStream_t);
 template void stage_occupants<double>(const Grid&, const uint32_t*, const uint32_t*, std::size_t,
-                                      const double*, const uint32_t*, const Control*,
-                                      StagedEntry<double>*, cudaStream_t);
+                                      const unsigned long long*, const double*, const uint32_t*, uint32_t,
+                                      const Control*, StagedEntry<double>*, cudaStream_t);
+
+void check_input(const double* positions, const uint32_t* types, std::size_t n, int dim,
+                 uint32_t num_types, DeviceFlags* flags, cudaStream_t stream) {
+  if (n == 0) return;
+  constexpr int kBlock = 256;
+  check_input_kernel<<<unsigned((n + kBlock - 1) / kBlock), kBlock, 0, stream>>>(positions, types, n, dim,
+                                                                                  num_types, flags);
+  CF_CUDA_CHECK_LAUNCH();
+}
 
 void record_pairs(TraversalForm form, int dim, bool wrap, const TraversalArgs<double, double>& args,
                   cudaStream_t stream) {

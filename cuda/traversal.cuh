@@ -41,9 +41,11 @@ struct alignas(32) StagedEntry<double> {
 };
 inline constexpr uint32_t kMaxStagedTypes = 1u << 16;
 
-// Raised by kernels, read once per evaluation by the host (kernels never abort).
+// Raised by kernels, read by the host when it synchronises (kernels never abort).
 struct DeviceFlags {
   unsigned long long bad_pair;     // min over pairs with a non-finite force of min(i,j) << 32 | max(i,j); ~0 if none
+  unsigned long long bad_coordinate;  // device input: min over particles with a non-finite coordinate of i << 32 | axis; ~0 if none
+  unsigned long long bad_type;     // device input: min over particles with a type index out of range of i << 32 | type; ~0 if none
   unsigned long long candidates;   // record mode: pairs tested after the control-bit rule
   unsigned long long interacting;  // record mode: pairs with r < rc
   unsigned long long recorded;     // record mode: pairs found (may exceed the buffer: the host grows it and reruns)
@@ -54,13 +56,14 @@ struct DeviceFlags {
 // Everything a traversal kernel reads and writes (device pointers). Jacobi: slot t of particle i
 // at force[t * force_slot_stride + i * dim] (force_slot_stride = n * dim), written only by the one
 // collision cell of type t that i occupies. Gauss-Seidel: force_slot_stride = 0, one launch per
-// cell type.
+// cell type. The cells a launch covers are cells[range[0]] .. cells[range[1] - 1], with the range
+// in device memory (stage 3's counts); the launch is shaped for max_cells (>= range[1] - range[0]).
 template <class Real, class Accum>
 struct TraversalArgs {
   Grid grid;
-  const CollisionCell* cells = nullptr;  // this launch's cells
-  uint32_t num_cells = 0;
-  uint32_t first_cell = 0;               // index of cells[0] in cell_sums
+  const CollisionCell* cells = nullptr;  // every collision cell
+  const uint32_t* cell_range = nullptr;  // device: this launch's [first, end)
+  uint32_t max_cells = 0;                // host: a bound on the launch's cells
   const StagedEntry<Real>* staged = nullptr;  // sorted order, as the cells' start counts
   const uint32_t* sorted_ids = nullptr;       // particle index of each sorted entry
   std::size_t n = 0;
@@ -89,11 +92,19 @@ struct Switches {
   bool observables = false;  // energy and virial (on the GPU they come together)
 };
 
-// Stages the first `valid` sorted entries: one thread per entry.
+// Stages the first *valid (device memory) of the `entries` sorted entries: one thread per entry.
+// A type index >= num_types (bad device input, flagged by check_input) is staged as type 0.
 template <class Real>
 void stage_occupants(const Grid& grid, const uint32_t* sorted_keys, const uint32_t* sorted_ids,
-                     std::size_t valid, const double* positions, const uint32_t* types,
-                     const Control* control, StagedEntry<Real>* staged, cudaStream_t stream);
+                     std::size_t entries, const unsigned long long* valid, const double* positions,
+                     const uint32_t* types, uint32_t num_types, const Control* control,
+                     StagedEntry<Real>* staged, cudaStream_t stream);
+
+// Device input (compute_device): raises flags->bad_coordinate for the first particle with a
+// coordinate that is not finite and flags->bad_type for the first with a type index >= num_types
+// (types may be null: all type 0).
+void check_input(const double* positions, const uint32_t* types, std::size_t n, int dim,
+                 uint32_t num_types, DeviceFlags* flags, cudaStream_t stream);
 
 // Runs the traversal over args.cells in the given form.
 template <class Real, class Accum>
@@ -111,9 +122,10 @@ template <class Accum>
 void sum_slots(const Accum* force_slots, const Accum* energy_slots, int dim, std::size_t n,
                int copies, double* forces, double* energies, cudaStream_t stream);
 
-// Sums the per-cell energy and virial over `cells` cells in a fixed order into totals[kCellSums].
+// Sums the per-cell energy and virial over cells [0, *count) (count in device memory) in a fixed
+// order into totals[kCellSums].
 template <class Accum>
-void sum_cells(const Accum* cell_sums, std::size_t cells, double* totals, cudaStream_t stream);
+void sum_cells(const Accum* cell_sums, const uint32_t* count, double* totals, cudaStream_t stream);
 
 // The totals of sum_cells to a device energy (1 double) and row-major dim x dim virial, either
 // of which may be null; the virial's unused entries (dim < 3) are not written.

@@ -90,8 +90,8 @@ template <class T, class Real, class Accum, bool Record>
 __global__ void __launch_bounds__(kThreadsPerBlock)
     thread_per_cell(const TraversalArgs<Real, Accum> args) {
   constexpr int D = T::kDim;
-  const uint32_t ci = blockIdx.x * blockDim.x + threadIdx.x;
-  if (ci >= args.num_cells) return;
+  const uint32_t ci = args.cell_range[0] + blockIdx.x * blockDim.x + threadIdx.x;
+  if (ci >= args.cell_range[1]) return;
   const CollisionCell cell = args.cells[ci];
   const unsigned type = cell_type_of_id(args.grid, cell.cell);
   Accum* force = args.force + type * args.force_slot_stride;
@@ -157,7 +157,7 @@ __global__ void __launch_bounds__(kThreadsPerBlock)
   } else if constexpr (T::kObservables) {
     totals.finish();
     for (int k = 0; k < kCellSums; ++k)
-      args.cell_sums[(std::size_t(args.first_cell) + ci) * kCellSums + k] = totals.v[k];
+      args.cell_sums[std::size_t(ci) * kCellSums + k] = totals.v[k];
   }
 }
 
@@ -178,8 +178,8 @@ __global__ void __launch_bounds__(kWarpsPerBlock * 32)
   extern __shared__ __align__(32) unsigned char shared_bytes[];
   const int warp = int(threadIdx.x / 32), lane = int(threadIdx.x % 32);
   ColumnTile<T, Real, Accum>& tile = reinterpret_cast<ColumnTile<T, Real, Accum>*>(shared_bytes)[warp];
-  const uint32_t ci = blockIdx.x * (blockDim.x / 32) + uint32_t(warp);
-  if (ci >= args.num_cells) return;  // the whole warp: the cell index is warp-uniform
+  const uint32_t ci = args.cell_range[0] + blockIdx.x * (blockDim.x / 32) + uint32_t(warp);
+  if (ci >= args.cell_range[1]) return;  // the whole warp: the cell index is warp-uniform
   const CollisionCell cell = args.cells[ci];
   const unsigned type = cell_type_of_id(args.grid, cell.cell);
   Accum* force = args.force + type * args.force_slot_stride;
@@ -276,24 +276,24 @@ __global__ void __launch_bounds__(kWarpsPerBlock * 32)
     totals.finish();
     for (int k = 0; k < kCellSums; ++k) {
       const Accum v = warp_sum(totals.v[k]);
-      if (lane == 0) args.cell_sums[(std::size_t(args.first_cell) + ci) * kCellSums + k] = v;
+      if (lane == 0) args.cell_sums[std::size_t(ci) * kCellSums + k] = v;
     }
   }
 }
 
 template <class T, class Real, class Accum, bool Record>
 void launch(TraversalForm form, const TraversalArgs<Real, Accum>& args, cudaStream_t stream) {
-  if (args.num_cells == 0) return;
+  if (args.max_cells == 0) return;
   if (form == TraversalForm::kThreadPerCell) {
-    const unsigned blocks = (args.num_cells + kThreadsPerBlock - 1) / kThreadsPerBlock;
+    const unsigned blocks = (args.max_cells + kThreadsPerBlock - 1) / kThreadsPerBlock;
     thread_per_cell<T, Real, Accum, Record><<<blocks, kThreadsPerBlock, 0, stream>>>(args);
   } else {
-    // Few cells (a small system): one warp per block spreads them over every multiprocessor;
-    // many cells: kWarpsPerBlock per block, for more resident warps than the per-SM block limit
+    // Few cells (a small system; the bound on them): one warp per block spreads them over every
+    // multiprocessor; many cells: kWarpsPerBlock per block, for more resident warps than the per-SM block limit
     // allows with one.
     const unsigned warps =
-        args.num_cells <= 32u * unsigned(args.multiprocessors) ? 1u : unsigned(kWarpsPerBlock);
-    const unsigned blocks = (args.num_cells + warps - 1) / warps;
+        args.max_cells <= 32u * unsigned(args.multiprocessors) ? 1u : unsigned(kWarpsPerBlock);
+    const unsigned blocks = (args.max_cells + warps - 1) / warps;
     warp_per_cell<T, Real, Accum, Record>
         <<<blocks, warps * 32, warps * sizeof(ColumnTile<T, Real, Accum>), stream>>>(args);
   }

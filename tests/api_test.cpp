@@ -10,10 +10,13 @@
 #include <cellforce/cellforce.hpp>
 
 #include <algorithm>
+#include <atomic>
+#include <chrono>
 #include <cmath>
 #include <cstring>
 #include <limits>
 #include <string>
+#include <thread>
 #include <vector>
 
 #ifdef CELLFORCE_HAVE_CUDA
@@ -498,20 +501,119 @@ TEST(ApiDevice, HostPointersAreRefused) {
   cf_destroy(c);
 }
 
-// A bad particle in device arrays is named as for host arrays, and the outputs stay unwritten.
-TEST(ApiDevice, BadDeviceInputIsNamed) {
+// A bad particle in device arrays is named as for host arrays, by the synchronisation that
+// follows the call (the call itself returns without waiting for the device): a coordinate that is
+// not finite (with its axis), then a type index out of range. A later clean call reports nothing.
+TEST(ApiDevice, BadDeviceInputIsNamedBySynchronize) {
   if (!cf::GpuEngine::unavailable().empty()) GTEST_SKIP() << cf::GpuEngine::unavailable();
   cf_context* c = ready_context();
   ASSERT_EQ(cf_set_option(c, "backend", "cuda"), CF_OK);
+  EXPECT_EQ(cf_synchronize(c), CF_OK);  // nothing pending
   std::vector<double> pos = {1, 1, 1, 3, 1, 1, 5, 5, std::nan(""), 6, 6, 6};
   double* d_pos = device_copy(pos);
-  std::vector<double> sevens(12, 7.0);
-  double* d_f = device_copy(sevens);
-  EXPECT_EQ(cf_compute_device(c, 4, d_pos, nullptr, d_f, nullptr, nullptr, nullptr), CF_ERROR_INPUT);
-  EXPECT_THAT(std::string(cf_last_error(c)), HasSubstr("particle 2"));
-  EXPECT_EQ(host_copy(d_f, 12), sevens);
-  cudaFree(d_pos);
-  cudaFree(d_f);
+  double* d_f = device_copy(std::vector<double>(12, 7.0));
+  EXPECT_EQ(cf_compute_device(c, 4, d_pos, nullptr, d_f, nullptr, nullptr, nullptr), CF_OK) << cf_last_error(c);
+  EXPECT_EQ(cf_synchronize(c), CF_ERROR_INPUT);
+  EXPECT_THAT(std::string(cf_last_error(c)), HasSubstr("particle 2 has a non-finite z coordinate"));
+  EXPECT_EQ(cf_synchronize(c), CF_OK);  // reported once
+
+  pos[8] = 5;
+  const std::vector<uint32_t> types = {0, 5, 0, 0};
+  double* d_pos2 = device_copy(pos);
+  uint32_t* d_types = device_copy(types);
+  EXPECT_EQ(cf_compute_device(c, 4, d_pos2, d_types, d_f, nullptr, nullptr, nullptr), CF_OK) << cf_last_error(c);
+  // cf_compute synchronises first, so it reports the device call's problem.
+  double host_f[12];
+  EXPECT_EQ(cf_compute(c, 4, pos.data(), nullptr, host_f, nullptr, nullptr), CF_ERROR_INPUT);
+  EXPECT_THAT(std::string(cf_last_error(c)), HasSubstr("particle 1 has type index 5 but there are 1 types"));
+
+  // Clean input afterwards: no stale flag, and the forces are those of the host call.
+  EXPECT_EQ(cf_compute_device(c, 4, d_pos2, nullptr, d_f, nullptr, nullptr, nullptr), CF_OK) << cf_last_error(c);
+  EXPECT_EQ(cf_synchronize(c), CF_OK) << cf_last_error(c);
+  EXPECT_EQ(cf_compute(c, 4, pos.data(), nullptr, host_f, nullptr, nullptr), CF_OK) << cf_last_error(c);
+  const std::vector<double> dev_f = host_copy(d_f, 12);
+  EXPECT_EQ(std::memcmp(dev_f.data(), host_f, sizeof host_f), 0);
+  for (void* p : {static_cast<void*>(d_pos), static_cast<void*>(d_pos2), static_cast<void*>(d_types),
+                  static_cast<void*>(d_f)})
+    cudaFree(p);
   cf_destroy(c);
+}
+
+// A gate on a stream: a host function that holds the stream until the test opens it (or, should
+// the call under test wait for the stream, until a timeout, which the test then reports).
+struct Gate {
+  std::atomic<bool> open{false};
+  std::atomic<bool> timed_out{false};
+  static void CUDART_CB hold(void* p) {
+    auto* g = static_cast<Gate*>(p);
+    const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(20);
+    while (!g->open.load()) {
+      if (std::chrono::steady_clock::now() > deadline) {
+        g->timed_out = true;
+        return;
+      }
+      std::this_thread::sleep_for(std::chrono::microseconds(100));
+    }
+  }
+};
+
+// The test: a device call on a user stream that holds pending work returns before that
+// work ends (the stream is still busy when the call returns), and once the stream is synchronised
+// its results are bitwise those of the host call. The positions themselves arrive behind the gate.
+// On a fresh context (its buffers allocated in the call) and again with them in place, for
+// Jacobi and Gauss-Seidel accumulation.
+TEST(ApiDevice, DeviceCallReturnsBeforeThePendingWorkOfItsStream) {
+  if (!cf::GpuEngine::unavailable().empty()) GTEST_SKIP() << cf::GpuEngine::unavailable();
+  for (const char* accumulation : {"jacobi", "gauss-seidel"}) {
+    SCOPED_TRACE(accumulation);
+    const Binary b = binary_liquid(3, 4000, 77);
+    cf::Context ctx = context_for(b, cf::Backend::kCuda, cf::Precision::kMixed);
+    ctx.set_option("accumulation", accumulation);
+    cf::Context reference = context_for(b, cf::Backend::kCuda, cf::Precision::kMixed);
+    reference.set_option("accumulation", accumulation);
+    const cf::ForceResult host = compute(reference, b.config);
+    const std::size_t n = b.config.size(), nd = n * 3;
+    cudaStream_t stream = nullptr;
+    ASSERT_EQ(cudaStreamCreateWithFlags(&stream, cudaStreamNonBlocking), cudaSuccess);
+    double* pinned = nullptr;
+    ASSERT_EQ(cudaMallocHost(reinterpret_cast<void**>(&pinned), nd * sizeof(double)), cudaSuccess);
+    std::memcpy(pinned, b.config.positions.data(), nd * sizeof(double));
+    double *d_pos = nullptr, *d_f = nullptr, *d_energy = nullptr, *d_w = nullptr;
+    ASSERT_EQ(cudaMalloc(reinterpret_cast<void**>(&d_pos), nd * sizeof(double)), cudaSuccess);
+    ASSERT_EQ(cudaMalloc(reinterpret_cast<void**>(&d_f), nd * sizeof(double)), cudaSuccess);
+    ASSERT_EQ(cudaMalloc(reinterpret_cast<void**>(&d_energy), sizeof(double)), cudaSuccess);
+    ASSERT_EQ(cudaMalloc(reinterpret_cast<void**>(&d_w), 9 * sizeof(double)), cudaSuccess);
+    uint32_t* d_types = device_copy(b.config.types);
+    ASSERT_EQ(cudaDeviceSynchronize(), cudaSuccess);
+
+    for (int call = 0; call < 2; ++call) {
+      SCOPED_TRACE(call == 0 ? "fresh context" : "buffers in place");
+      Gate gate;
+      ASSERT_EQ(cudaMemsetAsync(d_pos, 0xff, nd * sizeof(double), stream), cudaSuccess);  // NaNs until the copy
+      ASSERT_EQ(cudaLaunchHostFunc(stream, &Gate::hold, &gate), cudaSuccess);
+      ASSERT_EQ(cudaMemcpyAsync(d_pos, pinned, nd * sizeof(double), cudaMemcpyHostToDevice, stream), cudaSuccess);
+      ctx.compute_device(n, d_pos, d_types, {d_f, nullptr, d_energy, d_w}, stream);
+      const cudaError_t busy = cudaStreamQuery(stream);
+      gate.open = true;
+      ASSERT_EQ(cudaStreamSynchronize(stream), cudaSuccess);
+      EXPECT_FALSE(gate.timed_out) << "compute_device waited for the stream's pending work";
+      EXPECT_EQ(busy, cudaErrorNotReady) << "the stream had finished when compute_device returned";
+      ctx.synchronize();
+      cf::ForceResult dev;
+      dev.dim = 3;
+      dev.forces = host_copy(d_f, nd);
+      dev.energies = host.energies;  // not asked of the device call
+      dev.energy = host_copy(d_energy, 1)[0];
+      const std::vector<double> w = host_copy(d_w, 9);
+      for (int r = 0; r < 3; ++r)
+        for (int c = 0; c < 3; ++c) dev.virial[r][c] = w[std::size_t(r * 3 + c)];
+      EXPECT_TRUE(cftest::bitwise_equal(host, dev));
+    }
+    for (void* p : {static_cast<void*>(d_pos), static_cast<void*>(d_types), static_cast<void*>(d_f),
+                    static_cast<void*>(d_energy), static_cast<void*>(d_w)})
+      cudaFree(p);
+    cudaFreeHost(pinned);
+    cudaStreamDestroy(stream);
+  }
 }
 #endif

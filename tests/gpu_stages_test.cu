@@ -44,9 +44,10 @@ void expect_stages_equal(const Configuration& c, double cutoff) {
       d_ids_sorted(std::max<std::size_t>(entries, 1));
   cuda::DeviceBuffer<Control> d_control(std::max<std::size_t>(sys.n, 1));
   cuda::DeviceBuffer<std::byte> scratch;
+  cuda::DeviceBuffer<cuda::PipelineCounts> d_counts(1);
   cuda::build_cell_ids(g, d_pos.data(), sys.n, d_keys.data(), d_ids.data(), d_control.data(), 0);
-  const std::size_t valid = cuda::count_valid(d_keys.data(), entries, scratch, 0);
-  CF_CUDA_CHECK(cudaDeviceSynchronize());
+  cuda::count_valid(d_keys.data(), entries, d_counts.data(), scratch, 0);
+  const std::size_t valid = cuda::read_counts(d_counts.data(), 0).valid;
 
   EXPECT_EQ(valid, host.valid);
   EXPECT_EQ(download(d_keys, entries), host.keys) << "cell-ID array";
@@ -77,8 +78,17 @@ void expect_stages_equal(const Configuration& c, double cutoff) {
   cpu::find_collision_cells(host.keys.data(), host.valid, host_cells);
   cuda::DeviceBuffer<CollisionCell> d_cells;
   cuda::CollisionScratch collision_scratch;
-  const std::size_t ncells =
-      cuda::find_collision_cells(d_keys_sorted.data(), valid, d_cells, collision_scratch, 0);
+  // Buffers sized by the engine's bounds: runs <= min(entries, grid cells), collision cells <=
+  // min(n, grid cells).
+  const std::size_t run_bound = std::min<std::size_t>(entries, g.num_cells);
+  const std::size_t cell_bound = std::min<std::size_t>(sys.n, g.num_cells);
+  cuda::find_collision_cells(d_keys_sorted.data(), entries, run_bound, cell_bound, d_counts.data(), d_cells,
+                             collision_scratch, 0);
+  const cuda::PipelineCounts counts = cuda::read_counts(d_counts.data(), 0);
+  const std::size_t ncells = counts.cell_range[1];
+  EXPECT_EQ(counts.cell_range[0], 0u);
+  EXPECT_LE(counts.runs, run_bound);
+  EXPECT_LE(ncells, cell_bound);
   ASSERT_EQ(ncells, host_cells.size()) << "collision cells";
   const auto cells = download(d_cells, ncells);
   for (std::size_t i = 0; i < ncells; ++i) {

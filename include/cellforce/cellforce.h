@@ -90,11 +90,19 @@ CELLFORCE_API cf_status cf_compute_energies(cf_context* ctx, size_t n, const dou
 
 /* As cf_compute, with every pointer a device pointer on the context's CUDA device (the cuda
  * backend, or auto with a device) and the work ordered on `stream` (a cudaStream_t; NULL: the
- * legacy default stream): the results are ready when the stream reaches this call's point. This
- * version synchronises the host (it reads the positions back to validate them and plan the grid);
- * the results are bitwise those of cf_compute on the same input. */
+ * legacy default stream): the results are ready when the stream reaches this call's point. The
+ * call returns without waiting for the device or the stream (pointers and physics are checked
+ * before anything is queued; an open axis, a skin with the displacement check and the neighbour
+ * audit make it wait). The arrays are checked on the device: a non-finite coordinate, a type index
+ * out of range or a pair whose force is not finite is reported by the next cf_synchronize (or
+ * cf_compute, which synchronises first), and the outputs since the last cf_synchronize are then
+ * not to be used. The results are bitwise those of cf_compute on the same input. */
 CELLFORCE_API cf_status cf_compute_device(cf_context* ctx, size_t n, const double* positions, const uint32_t* types,
                             double* forces, double* energy, double* virial, void* stream);
+
+/* Waits for the cf_compute_device calls queued so far; CF_ERROR_INPUT (with cf_last_error naming
+ * the particle or pair) when their kernels found bad input. CF_OK at once when none is pending. */
+CELLFORCE_API cf_status cf_synchronize(cf_context* ctx);
 
 /* Why the last call on ctx failed ("" after a success); with ctx NULL, why the last cf_create of
  * this thread failed. The text stays valid until the next call on ctx. */

@@ -184,11 +184,22 @@ class CELLFORCE_API Context {
   // The work is ordered after what `stream` (a cudaStream_t; null: the legacy default stream)
   // already holds, and the results are ready when the stream reaches this call's point: work the
   // caller queues on `stream` afterwards sees them. Needs the cuda backend (or auto with a
-  // device). This version synchronises the host: it reads the positions back to validate them
-  // and plan the grid, and reads the counts that size the engine's buffers (a sync-free pipeline
-  // is in progress). Results are bitwise those of compute() on the same input and backend.
+  // device). The call does not wait for the device or the stream: it checks the pointers and the
+  // physics on the host (and throws for them before queueing anything), queues the work and
+  // returns. The arrays are checked on the device; a coordinate that is not finite, a type index
+  // out of range or a pair whose force is not finite is raised as cellforce::Error by the next
+  // synchronize() (or the next compute() or count_pairs(), which synchronise first), and the
+  // outputs of the calls since the last synchronize() are then not to be used. The host waits
+  // here only with an open axis (2 x dim numbers, the particles' bounds, when the neighbour
+  // structure is built), with a skin and the displacement check (8 bytes per call), and with the
+  // neighbour audit. Results are bitwise those of compute() on the same input and backend.
   void compute_device(std::size_t n, const double* positions, const uint32_t* types, const Outputs& out,
                       void* stream = nullptr);
+  // Waits for the compute_device calls queued so far and throws cellforce::Error for the first
+  // problem their kernels found (naming the particle, or both particles of a pair); afterwards
+  // statistics() describes the last of them. Returns at once when none is pending. Changing the
+  // backend or an engine option drops what pending calls found unchecked.
+  void synchronize();
   // Pairs tested and within the cutoff for host arrays (an extra pass on CUDA; it counts as one
   // more use of a reused structure).
   PairCounts count_pairs(std::size_t n, const double* positions, const uint32_t* types);

@@ -139,6 +139,10 @@ cf_status cf_compute_device(cf_context* ctx, size_t n, const double* positions, 
   });
 }
 
+cf_status cf_synchronize(cf_context* ctx) {
+  return on(ctx, [&](cellforce::Context& c) { c.synchronize(); });
+}
+
 const char* cf_last_error(const cf_context* ctx) {
   return ctx ? ctx->last_error.c_str() : create_error.c_str();
 }

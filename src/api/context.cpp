@@ -70,6 +70,7 @@ struct Context::Impl {
   std::unique_ptr<ForceEngine> engine;
   ForceResult result;  // compute()'s staging (the engine's layout), reused across calls
   Statistics statistics;
+  bool device_pending = false;  // compute_device calls since the last synchronize()
   // Molecular dynamics: the engine holding the state, and what set_state gave it.
   std::unique_ptr<MdEngine> md;
   IntegratorOptions integrator;
@@ -92,7 +93,8 @@ struct Context::Impl {
   }
   ForceEngine& named_engine() { return md ? md->forces() : get_engine(); }
   void engine_changed() {
-    engine.reset();
+    engine.reset();  // unchecked compute_device work is waited for by the engine's destructor
+    device_pending = false;
     md.reset();  // the state must be set again
   }
 
@@ -118,6 +120,14 @@ struct Context::Impl {
     if (!has_cutoff) throw Error("no cutoff: call set_cutoff (cf_set_cutoff) before computing");
     if (ff.types.empty()) throw Error("no particle types: add one with add_type (cf_add_type) before computing");
     ff.validate();
+  }
+
+  // The device's verdict on the compute_device calls since the last one (throws what it found).
+  void synchronize() {
+    if (!engine || !device_pending) return;
+    device_pending = false;
+    engine->synchronize(ff);
+    record_statistics();
   }
 
   void record_statistics() {
@@ -269,6 +279,7 @@ void Context::set_option(std::string_view key, std::string_view value) {
 
 void Context::compute(std::size_t n, const double* positions, const uint32_t* types, const Outputs& out) {
   Impl& s = *impl_;
+  s.synchronize();
   s.check_ready();
   check_output(positions, "positions", n);
   check_output(out.forces, "forces", n);
@@ -296,11 +307,14 @@ void Context::compute_device(std::size_t n, const double* positions, const uint3
     throw Error("compute_device needs the cuda backend; this context runs on the CPU (set_backend)");
   engine.evaluate_device(DeviceSystemView{s.box, n, positions, types}, s.ff,
                          DeviceOutputs{out.forces, out.energies, out.energy, out.virial}, stream);
-  s.record_statistics();
+  s.device_pending = true;  // statistics and errors come with synchronize()
 }
+
+void Context::synchronize() { impl_->synchronize(); }
 
 PairCounts Context::count_pairs(std::size_t n, const double* positions, const uint32_t* types) {
   Impl& s = *impl_;
+  s.synchronize();
   s.check_ready();
   const SystemView system{s.box, n, positions, types};  // the engine validates it
   ForceEngine& engine = s.get_engine();

@@ -19,6 +19,7 @@ class CpuForceEngine final : public ForceEngine {
   void evaluate_device(const DeviceSystemView&, const ForceField&, const DeviceOutputs&, void*) override {
     throw Error("device arrays need the cuda backend; this context runs on the CPU (backend cpu)");
   }
+  void synchronize(const ForceField&) override {}  // nothing is queued: evaluate() returns with its results
   PipelineStats stats(const SystemView&, const ForceField&, bool) override {
     return engine_.stats();  // the CPU engine counts pairs on every evaluation
   }

@@ -46,9 +46,13 @@ class ForceEngine {
 
   // Device arrays in and out, work ordered after what `stream` (a cudaStream_t; null: the legacy
   // default stream) already holds, results ready when the stream reaches the point of the call.
-  // Throws cellforce::Error on a backend without a device.
+  // Throws cellforce::Error on a backend without a device. The host need not wait for the device:
+  // problems the device finds in the arrays are raised by synchronize().
   virtual void evaluate_device(const DeviceSystemView& system, const ForceField& ff,
                                const DeviceOutputs& out, void* stream) = 0;
+  // Waits for the work of evaluate_device() calls and throws cellforce::Error for what their
+  // kernels flagged (naming the particle or pair); also makes stats() theirs. A no-op on the CPU.
+  virtual void synchronize(const ForceField& ff) = 0;
 
   // The last evaluation's stage times; with `counts`, also the candidate and interacting pair
   // counts (the CUDA engine counts them in an extra pass over the same system, which with a skin

@@ -70,6 +70,9 @@ inline void set_virial(ForceResult& result, int dim, const double w[kVirialCompo
 // axis or parameter: non-finite coordinates, non-positive or non-finite box edges, cutoff not
 // positive or beyond half a periodic edge, type index out of range, bad force-field values.
 void validate_system(const SystemView& system, const ForceField& ff);
+// The checks of validate_system that need no array: the dimension, the force field, the box edges
+// and the cutoff against them, the particle count (for arrays that live on a device).
+void validate_physics(const Box& box, const ForceField& ff, std::size_t n);
 
 // The error for a pair whose force is not finite: coincident (r2 == 0) or so close that the
 // Lennard-Jones force overflows in the precision used. Names both particles and their positions.

@@ -9,9 +9,8 @@
 
 namespace cellforce {
 
-void validate_system(const SystemView& system, const ForceField& ff) {
+void validate_physics(const Box& box, const ForceField& ff, std::size_t n) {
   static constexpr const char* kAxis[kMaxDim] = {"x", "y", "z"};
-  const Box& box = system.box;
   if (box.dim != 2 && box.dim != 3)
     throw Error("dimension is " + std::to_string(box.dim) + "; it must be 2 or 3");
   ff.validate();
@@ -29,9 +28,14 @@ void validate_system(const SystemView& system, const ForceField& ff) {
       throw Error(s.str());
     }
   }
+  if (n > kMaxParticles) throw Error("too many particles: " + std::to_string(n));
+}
+
+void validate_system(const SystemView& system, const ForceField& ff) {
+  static constexpr const char* kAxis[kMaxDim] = {"x", "y", "z"};
+  const Box& box = system.box;
+  validate_physics(box, ff, system.n);
   if (system.n > 0 && system.positions == nullptr) throw Error("positions array is null");
-  if (system.n > kMaxParticles)
-    throw Error("too many particles: " + std::to_string(system.n));
   for (std::size_t i = 0; i < system.n; ++i) {
     for (int a = 0; a < box.dim; ++a) {
       const double x = system.positions[i * box.dim + a];

@@ -67,8 +67,9 @@ int main(int argc, char** argv) {
     const double t_ids = time_ms([&] {
       cuda::build_cell_ids(g, pos.data(), n, keys.data(), ids.data(), control.data(), 0);
     });
-    std::size_t valid = 0;
-    const double t_count = time_ms([&] { valid = cuda::count_valid(keys.data(), entries, scratch, 0); });
+    cuda::DeviceBuffer<cuda::PipelineCounts> counts(1);
+    const double t_count = time_ms([&] { cuda::count_valid(keys.data(), entries, counts.data(), scratch, 0); });
+    const std::size_t valid = cuda::read_counts(counts.data(), 0).valid;
     const double t_sort = time_ms([&] {
       cuda::radix_sort_cub(keys.data(), ids.data(), keys_out.data(), ids_out.data(), entries,
                            g.key_bits, scratch, 0);
@@ -93,10 +94,12 @@ int main(int argc, char** argv) {
     }
     cuda::DeviceBuffer<CollisionCell> cells_out;
     cuda::CollisionScratch collision_scratch;
-    std::size_t ncells = 0;
     const double t_cells = time_ms([&] {
-      ncells = cuda::find_collision_cells(keys_out.data(), valid, cells_out, collision_scratch, 0);
+      cuda::find_collision_cells(keys_out.data(), entries, std::min<std::size_t>(entries, g.num_cells),
+                                 std::min<std::size_t>(n, g.num_cells), counts.data(), cells_out,
+                                 collision_scratch, 0);
     });
+    const std::size_t ncells = cuda::read_counts(counts.data(), 0).cell_range[1];
     // Stage 1 moves at least: positions read, keys and object IDs written, control written.
     const double bytes = double(n) * (g.dim * 8.0 + double(std::size_t(1) << g.dim) * 8.0 + 2.0);
     std::printf("| %zu | %u^3 | %zu | %zu | %d | %.4f | %.4f | %.4f | %.4f | %.4f | %zu | %.0f |\n",
