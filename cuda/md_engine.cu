@@ -6,6 +6,15 @@
 // (the largest displacement); the flags (a drift that diverged, a force that is not finite) are
 // read once per advance() call. Nothing of the particles crosses PCIe except in set_state,
 // get_state and the error path; observables() reads 8 numbers.
+//
+// FIRE (minimize(), md/minimize.h's algorithm) runs as kernels on the same stream: per step one
+// kernel steps back (on an uphill step) and kicks, a reduction sums v^2, one kernel mixes, caps,
+// drifts and wraps (md/fire_step.h's per-particle arithmetic, the host's bits), the force engine
+// evaluates (with energy and virial), and one reduction gives P = F.v, sum F^2 and the largest
+// |F_i| with its particle. The scalar decisions (dt, alpha, the downhill count, convergence) are
+// the host's FireSchedule: each step the host reads back those few numbers (FireScalars: 56
+// bytes, with the evaluation's energy and a non-finite-position flag) and the force engine's
+// flags, one synchronisation per step; the particles stay on the device.
 #include <cub/device/device_reduce.cuh>
 #include <thrust/iterator/counting_iterator.h>
 #include <thrust/iterator/transform_iterator.h>
@@ -18,10 +27,12 @@
 #include "check.cuh"
 #include "core/box.h"
 #include "core/error.h"
+#include "core/hd.h"
 #include "core/random.h"
 #include "core/text.h"
 #include "device_buffer.cuh"
 #include "force_engine.h"  // cuda/force_engine.h
+#include "md/fire_step.h"
 #include "traversal.cuh"   // kCellSums
 
 namespace cellforce {
@@ -97,6 +108,106 @@ struct KineticTerm {
     return 0.5 * mass[i] * v2;
   }
 };
+
+// ---- FIRE ----
+
+// What one FIRE reduction gives over the particles after an evaluation: P = F.v and sum F^2 over
+// every coordinate, and the largest |F_i|^2 with its particle (largest_force's choice: a NaN is
+// the largest of all, ties go to the smallest index).
+struct ForceSums {
+  double power;
+  double f2;
+  double largest2;
+  unsigned long long particle;
+};
+
+// The numbers the host reads back per FIRE step.
+struct FireScalars {
+  ForceSums forces;                 // of the last evaluation, with the velocities now
+  double v2;                        // sum v^2 after the kick (the mixing's |v|)
+  double energy;                    // the last evaluation's potential energy (its totals[0])
+  unsigned long long bad_position;  // min over non-finite coordinates of axis x n + particle; ~0 if none
+};
+
+// Particle i's terms of ForceSums (its per-particle |F_i|^2 summed as largest_force sums it).
+struct ForceTerm {
+  const double* f;
+  const double* v;
+  int dim;
+  __host__ __device__ ForceSums operator()(std::size_t i) const {
+    double p = 0, f2 = 0;
+    for (int a = 0; a < dim; ++a) {
+      const double fa = f[i * dim + a];
+      p = p + mul_rn(fa, v[i * dim + a]);
+      f2 = f2 + mul_rn(fa, fa);
+    }
+    return ForceSums{p, f2, f2, i};
+  }
+};
+
+struct CombineForceSums {
+  __host__ __device__ ForceSums operator()(const ForceSums& a, const ForceSums& b) const {
+    const bool a_nan = a.largest2 != a.largest2, b_nan = b.largest2 != b.largest2;
+    bool take_b;
+    if (a_nan != b_nan) take_b = b_nan;
+    else if (a_nan || a.largest2 == b.largest2) take_b = b.particle < a.particle;
+    else take_b = b.largest2 > a.largest2;
+    return ForceSums{a.power + b.power, a.f2 + b.f2, take_b ? b.largest2 : a.largest2,
+                     take_b ? b.particle : a.particle};
+  }
+};
+
+// Particle i's v^2.
+struct SpeedTerm {
+  const double* v;
+  int dim;
+  __host__ __device__ double operator()(std::size_t i) const {
+    double v2 = 0;
+    for (int a = 0; a < dim; ++a) v2 = v2 + mul_rn(v[i * dim + a], v[i * dim + a]);
+    return v2;
+  }
+};
+
+// An uphill step's step back by half a step (x -= half_dt v, v = 0) when `uphill`, then the kick
+// v += (dt / m) F; per particle.
+__global__ void fire_kick_kernel(double* __restrict__ x, double* __restrict__ v, const double* __restrict__ f,
+                                 const double* __restrict__ mass, double dt, double half_dt, bool uphill,
+                                 std::size_t n, int dim) {
+  const std::size_t i = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
+  if (i >= n) return;
+  const std::size_t k = i * dim;
+  if (uphill) fire_step_back(x + k, v + k, half_dt, dim);
+  fire_kick(v + k, f + k, dt, mass[i], dim);
+}
+
+struct WrapBox {
+  int dim;
+  double length[kMaxDim];
+  bool periodic[kMaxDim];
+};
+
+// The velocity mixing (the sums from the device: sums->v2, sums->forces.f2), the displacement cap
+// and the drift, then the wrap on periodic axes; a coordinate that is not finite raises
+// sums->bad_position (axis x n + particle, the smallest: the host's wrap names the same one).
+__global__ void fire_drift_kernel(double* __restrict__ x, double* __restrict__ v, const double* __restrict__ f,
+                                  FireScalars* sums, double alpha, double dt, double max_displacement,
+                                  WrapBox box, std::size_t n) {
+  const std::size_t i = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
+  if (i >= n) return;
+  const int dim = box.dim;
+  const std::size_t k = i * dim;
+  double mix = 0;
+  if (fire_mix_factor(alpha, sums->v2, sums->forces.f2, mix)) fire_mix(v + k, f + k, alpha, mix, dim);
+  fire_cap(v + k, dt, max_displacement, dim);
+  fire_drift(x + k, v + k, dt, dim);
+  for (int a = 0; a < dim; ++a) {
+    const double xa = x[k + a];
+    if (!isfinite(xa))
+      atomicMin(&sums->bad_position, static_cast<unsigned long long>(a) * n + i);
+    else if (box.periodic[a])
+      x[k + a] = wrap_coordinate(xa, box.length[a]);
+  }
+}
 
 template <class T>
 void upload(DeviceBuffer<T>& d, const std::vector<T>& h, cudaStream_t stream) {
@@ -247,6 +358,40 @@ class CudaMdEngine final : public MdEngine {
     evaluate(true);
     check(step_, step_);
   }
+  FireResult minimize(const FireSettings& settings) override {
+    const OnDevice on(gpu_.options().device);
+    check_fire_settings(settings);
+    const std::size_t nd = n_ * std::size_t(box_.dim);
+    // The state to come back to when FIRE throws: a copy on the device.
+    fire_start_.reserve(std::max<std::size_t>(2 * nd, 1));
+    if (nd) {
+      CF_CUDA_CHECK(cudaMemcpyAsync(fire_start_.data(), positions_.data(), nd * sizeof(double),
+                                    cudaMemcpyDeviceToDevice, stream_));
+      CF_CUDA_CHECK(cudaMemcpyAsync(fire_start_.data() + nd, velocities_.data(), nd * sizeof(double),
+                                    cudaMemcpyDeviceToDevice, stream_));
+    }
+    try {
+      return fire(settings);
+    } catch (...) {
+      try {
+        try {
+          gpu_.check_flags(box_, n_, positions_.data(), ff_);  // clears what the failed evaluation raised
+        } catch (const Error&) {
+        }
+        if (nd) {
+          CF_CUDA_CHECK(cudaMemcpyAsync(positions_.data(), fire_start_.data(), nd * sizeof(double),
+                                        cudaMemcpyDeviceToDevice, stream_));
+          CF_CUDA_CHECK(cudaMemcpyAsync(velocities_.data(), fire_start_.data() + nd, nd * sizeof(double),
+                                        cudaMemcpyDeviceToDevice, stream_));
+        }
+        evaluate(true);  // the start's forces again, and its energy and virial
+        check(step_, step_);
+      } catch (...) {  // the start was evaluated before: FIRE's error is the one to report
+      }
+      throw;
+    }
+  }
+
   ForceEngine& forces() override { return forces_; }
   const MdCounters& counters() const override { return counters_; }
   void reset_counters() override { counters_ = MdCounters{}; }
@@ -349,6 +494,130 @@ class CudaMdEngine final : public MdEngine {
     add_reuse(counters_, gpu_.stats());
   }
 
+  // FIRE on the state (minimize() restores the start when this throws): the loop of
+  // minimize_fire, its per-particle arithmetic in kernels, its decisions on the host.
+  FireResult fire(const FireSettings& settings) {
+    const int dim = box_.dim;
+    const std::size_t nd = n_ * std::size_t(dim);
+    fire_scalars_.reserve(1);
+    CF_CUDA_CHECK(cudaMemsetAsync(fire_scalars_.data(), 0xff, sizeof(FireScalars), stream_));  // no bad position
+    if (nd) CF_CUDA_CHECK(cudaMemsetAsync(velocities_.data(), 0, nd * sizeof(double), stream_));
+    WrapBox wrap{};
+    wrap.dim = dim;
+    for (int a = 0; a < dim; ++a) {
+      wrap.length[a] = box_.length[a];
+      wrap.periodic[a] = box_.periodic[a];
+    }
+
+    FireResult result;
+    FireScalars now = fire_evaluate();
+    LargestForce fmax = largest_of(now.forces);
+    result.initial_energy = now.energy;
+    result.initial_max_force = fmax.magnitude;
+    result.initial_max_force_particle = fmax.particle;
+
+    FireSchedule schedule(settings);
+    int64_t step = 0;
+    for (; step < settings.max_steps && !(fmax.magnitude < settings.force_tolerance); ++step) {
+      if (!std::isfinite(fmax.magnitude)) throw_fire_force_not_finite(fmax.particle);
+      const bool uphill = schedule.take_step(now.forces.power, step);
+      const double dt = schedule.dt();
+      // n_ > 0 here: without particles the largest force is 0, converged.
+      fire_kick_kernel<<<blocks_for(n_), kBlock, 0, stream_>>>(positions_.data(), velocities_.data(),
+                                                               gpu_.device_forces(), masses_.data(), dt, 0.5 * dt,
+                                                               uphill, n_, dim);
+      CF_CUDA_CHECK_LAUNCH();
+      auto speeds = thrust::make_transform_iterator(thrust::counting_iterator<std::size_t>(0),
+                                                    SpeedTerm{velocities_.data(), dim});
+      std::size_t bytes = 0;
+      CF_CUDA_CHECK(cub::DeviceReduce::Sum(nullptr, bytes, speeds, &fire_scalars_.data()->v2, n_, stream_));
+      reduce_scratch_.reserve(std::max<std::size_t>(bytes, 1));
+      CF_CUDA_CHECK(
+          cub::DeviceReduce::Sum(reduce_scratch_.data(), bytes, speeds, &fire_scalars_.data()->v2, n_, stream_));
+      fire_drift_kernel<<<blocks_for(n_), kBlock, 0, stream_>>>(positions_.data(), velocities_.data(),
+                                                                gpu_.device_forces(), fire_scalars_.data(),
+                                                                schedule.alpha(), dt, settings.max_displacement,
+                                                                wrap, n_);
+      CF_CUDA_CHECK_LAUNCH();
+      now = fire_evaluate();
+      fmax = largest_of(now.forces);
+    }
+
+    result.steps = step;
+    result.final_energy = now.energy;
+    result.final_max_force = fmax.magnitude;
+    result.final_max_force_particle = fmax.particle;
+    result.converged = fmax.magnitude < settings.force_tolerance;
+    if (!result.converged && settings.require_convergence)
+      throw_fire_not_converged(step, fmax, settings.force_tolerance);
+    if (nd) CF_CUDA_CHECK(cudaMemsetAsync(velocities_.data(), 0, nd * sizeof(double), stream_));
+    CF_CUDA_CHECK(cudaStreamSynchronize(stream_));
+    return result;
+  }
+
+  // One FIRE evaluation at the positions now (energy and virial), its ForceSums with the
+  // velocities now, its energy, and the drift's flag: the numbers the host reads per step, with
+  // the force engine's flags (one synchronisation). Throws for a pair whose force is not finite
+  // and for a position that is not finite (that diagnosis first: an evaluation of such positions
+  // may fail on its own).
+  FireScalars fire_evaluate() {
+    FireScalars* d = fire_scalars_.data();
+    try {
+      evaluate(true);
+    } catch (const Error&) {
+      throw_if_position_not_finite();
+      throw;
+    }
+    const ForceSums none{0, 0, -1, 0};  // largest_force's answer without particles
+    if (n_) {
+      auto terms = thrust::make_transform_iterator(thrust::counting_iterator<std::size_t>(0),
+                                                   ForceTerm{gpu_.device_forces(), velocities_.data(), box_.dim});
+      std::size_t bytes = 0;
+      CF_CUDA_CHECK(cub::DeviceReduce::Reduce(nullptr, bytes, terms, &d->forces, n_, CombineForceSums{}, none,
+                                              stream_));
+      reduce_scratch_.reserve(std::max<std::size_t>(bytes, 1));
+      CF_CUDA_CHECK(cub::DeviceReduce::Reduce(reduce_scratch_.data(), bytes, terms, &d->forces, n_,
+                                              CombineForceSums{}, none, stream_));
+    }
+    CF_CUDA_CHECK(
+        cudaMemcpyAsync(&d->energy, gpu_.device_totals(), sizeof(double), cudaMemcpyDeviceToDevice, stream_));
+    FireScalars host{};
+    CF_CUDA_CHECK(cudaMemcpyAsync(&host, d, sizeof host, cudaMemcpyDeviceToHost, stream_));
+    try {
+      gpu_.check_flags(box_, n_, positions_.data(), ff_);  // synchronises the stream
+    } catch (const Error&) {
+      throw_if_position_not_finite();
+      throw;
+    }
+    counters_.bytes_to_host += sizeof host;
+    if (!n_) host.forces = none;
+    if (host.bad_position != ~0ull) throw_position_not_finite(host.bad_position);
+    return host;
+  }
+
+  static LargestForce largest_of(const ForceSums& s) {
+    return LargestForce{s.largest2 < 0 ? 0.0 : std::sqrt(s.largest2), std::size_t(s.particle)};
+  }
+
+  // The error path of FIRE's drift flag: the flag, then the coordinate it names, to the host.
+  void throw_if_position_not_finite() {
+    unsigned long long key = ~0ull;
+    CF_CUDA_CHECK(cudaMemcpyAsync(&key, &fire_scalars_.data()->bad_position, sizeof key, cudaMemcpyDeviceToHost,
+                                  stream_));
+    CF_CUDA_CHECK(cudaStreamSynchronize(stream_));
+    if (key != ~0ull) throw_position_not_finite(key);
+  }
+  [[noreturn]] void throw_position_not_finite(unsigned long long key) {
+    const std::size_t i = std::size_t(key % n_);
+    const int axis = int(key / n_);
+    double value = 0;
+    CF_CUDA_CHECK(cudaMemcpyAsync(&value, positions_.data() + i * std::size_t(box_.dim) + std::size_t(axis),
+                                  sizeof value, cudaMemcpyDeviceToHost, stream_));
+    CF_CUDA_CHECK(cudaStreamSynchronize(stream_));
+    counters_.bytes_to_host += sizeof key + sizeof value;
+    throw_fire_position_not_finite(i, axis, value);
+  }
+
   void reset_flags() { CF_CUDA_CHECK(cudaMemsetAsync(flags_.data(), 0xff, sizeof(MdFlags), stream_)); }
 
   // Reads the integration's and the force engine's flags (synchronises) and throws for the first
@@ -386,6 +655,8 @@ class CudaMdEngine final : public MdEngine {
   DeviceBuffer<uint32_t> types_;
   DeviceBuffer<MdFlags> flags_;
   DeviceBuffer<double> scratch_result_;
+  DeviceBuffer<FireScalars> fire_scalars_;
+  DeviceBuffer<double> fire_start_;  // positions, then velocities, before minimize()
   DeviceBuffer<std::byte> reduce_scratch_;
   bool observed_ = false;
   MdCounters counters_;

@@ -419,30 +419,15 @@ Thermo Context::thermo() {
 }
 
 MinimizeResult Context::minimize(const MinimizeOptions& options) {
-  Impl& s = *impl_;
-  MdEngine& md = s.get_md();
-  MdState state;
-  md.get_state(state);
   FireSettings fire;
   fire.force_tolerance = options.force_tolerance;
   fire.max_steps = options.max_steps;
   fire.dt = options.dt;
   fire.dt_max = options.dt_max;
   fire.max_displacement = options.max_displacement;
-  ForceResult result;
-  FireResult r;
-  try {
-    r = minimize_fire(state, s.masses, fire, [&](MdState& st) {
-      md.forces().evaluate(st.config.view(), s.md_ff, Request{true, true}, result);
-      st.forces = result.forces;
-      return result.energy;
-    });
-  } catch (...) {
-    md.reevaluate();  // FIRE's evaluations overwrote the engine's forces: the state's again
-    throw;
-  }
-  state.velocities.assign(state.velocities.size(), 0.0);
-  md.set_state(state, s.masses, s.md_ff);
+  // In place where the state lives (CUDA: kernels on the device); after a throw the engine holds
+  // the state it had, with its forces.
+  const FireResult r = impl_->get_md().minimize(fire);
   MinimizeResult out;
   out.steps = r.steps;
   out.initial_energy = r.initial_energy;

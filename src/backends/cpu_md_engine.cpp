@@ -1,5 +1,5 @@
-// The CPU backend's integration job: the host integrators of md/md.h on host arrays, the forces
-// from the CPU force engine.
+// The CPU backend's integration job: the host integrators of md/md.h and FIRE (md/minimize.h) on
+// host arrays, the forces from the CPU force engine.
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -79,6 +79,26 @@ class CpuMdEngine final : public MdEngine {
     counters_.force_seconds += force_seconds;
     counters_.integration_seconds += total - force_seconds;
     counters_.host_wait_seconds += total;
+  }
+
+  FireResult minimize(const FireSettings& settings) override {
+    check_fire_settings(settings);
+    const MdState start = state_;  // the state to come back to when FIRE throws
+    try {
+      // Every evaluation through evaluate(): the state's forces and result_'s energy and virial
+      // are always those of its positions, the last evaluation's at the end.
+      return minimize_fire(state_, masses_, settings, [&](MdState&) {
+        evaluate(true);
+        return result_.energy;
+      });
+    } catch (...) {
+      state_ = start;
+      try {
+        evaluate(true);  // the start's forces again, and its energy and virial
+      } catch (...) {    // the start was evaluated before: FIRE's error is the one to report
+      }
+      throw;
+    }
   }
 
   void get_state(MdState& state) override { state = state_; }

@@ -1,9 +1,9 @@
 // The backends' integration and state-access jobs: an MdEngine holds the MD state (positions,
 // velocities, forces, types, masses) where its backend computes (host memory for the CPU; device
 // memory for CUDA, for the whole run) and advances it with the integrators of md/md.h (velocity
-// Verlet, Langevin BAOAB). The state crosses to the host only when asked for (get_state,
-// observables). One implementation per backend: src/backends/cpu_md_engine.cpp and
-// cuda/md_engine.cu.
+// Verlet, Langevin BAOAB) and minimises it with FIRE (md/minimize.h). The state crosses to the host
+// only when asked for (get_state, observables). One implementation per backend:
+// src/backends/cpu_md_engine.cpp and cuda/md_engine.cu.
 #pragma once
 
 #include <cstdint>
@@ -13,6 +13,7 @@
 
 #include "backends/force_engine.h"
 #include "md/md.h"
+#include "md/minimize.h"
 
 namespace cellforce {
 
@@ -60,6 +61,15 @@ class MdEngine {
   // an integration that diverged or a force that is not finite throws cellforce::Error naming the
   // particle(s) and the steps the call covered.
   virtual void advance(int64_t steps, const IntegratorSettings& settings, bool observe) = 0;
+
+  // FIRE (md/minimize.h's minimize_fire, its algorithm and contract) on the state now, in place:
+  // every evaluation computes energy and virial; on return the state holds the final positions,
+  // their forces and zero velocities (step and time unchanged). Throws cellforce::Error for
+  // settings out of range, a force or position that is not finite (naming the particle), and,
+  // with require_convergence, no convergence within max_steps (naming the particle with the
+  // largest force). After a throw the state is the one before the call, its forces evaluated
+  // again (as reevaluate() does). On a device backend the particles stay on the device.
+  virtual FireResult minimize(const FireSettings& settings) = 0;
 
   // The state now, into `state` (positions, velocities, forces; step and time): a download on a
   // device backend.

@@ -8,6 +8,7 @@
 
 #include "core/box.h"
 #include "core/error.h"
+#include "md/fire_step.h"
 
 namespace cellforce {
 namespace {
@@ -18,7 +19,26 @@ std::string number(double v) {
   return buf;
 }
 
-void check_settings(const FireSettings& s) {
+// Positions into [0, L) on periodic axes. Every FIRE step moves a particle by at most
+// 1.5 x max_displacement (half a step back, then one forward), so a coordinate that is not
+// finite here means the forces were not.
+void wrap_positions(MdState& s) {
+  const Box& box = s.config.box;
+  const int dim = box.dim;
+  const std::size_t n = s.config.size();
+  for (int a = 0; a < dim; ++a) {
+    const double length = box.length[a];
+    for (std::size_t i = 0; i < n; ++i) {
+      double& x = s.config.positions[i * std::size_t(dim) + std::size_t(a)];
+      if (!std::isfinite(x)) throw_fire_position_not_finite(i, a, x);
+      if (box.periodic[a]) x = wrap_coordinate(x, length);
+    }
+  }
+}
+
+}  // namespace
+
+void check_fire_settings(const FireSettings& s) {
   auto positive = [](double v, const char* name) {
     if (!(v > 0) || !std::isfinite(v))
       throw Error(std::string("FIRE: ") + name + " must be a finite number > 0, got " + number(v));
@@ -40,26 +60,39 @@ void check_settings(const FireSettings& s) {
   if (s.n_delay < 0) throw Error("FIRE: n_delay must be at least 0, got " + std::to_string(s.n_delay));
 }
 
-// Positions into [0, L) on periodic axes. Every FIRE step moves a particle by at most
-// 1.5 x max_displacement (half a step back, then one forward), so a coordinate that is not
-// finite here means the forces were not.
-void wrap_positions(MdState& s) {
-  const Box& box = s.config.box;
-  const int dim = box.dim;
-  const std::size_t n = s.config.size();
-  for (int a = 0; a < dim; ++a) {
-    const double length = box.length[a];
-    for (std::size_t i = 0; i < n; ++i) {
-      double& x = s.config.positions[i * std::size_t(dim) + std::size_t(a)];
-      if (!std::isfinite(x))
-        throw Error("FIRE: particle " + std::to_string(i) + " has a non-finite position (" +
-                    std::string(1, "xyz"[a]) + " = " + number(x) + "): its force was not finite");
-      if (box.periodic[a]) x = wrap_coordinate(x, length);
+FireSchedule::FireSchedule(const FireSettings& settings)
+    : s_(settings), dt_min_(0.02 * settings.dt), dt_(settings.dt), alpha_(settings.alpha_start) {}
+
+bool FireSchedule::take_step(double power, int64_t step) {
+  if (power > 0) {
+    if (++downhill_ > s_.n_delay) {
+      dt_ = std::min(dt_ * s_.f_inc, s_.dt_max);
+      alpha_ *= s_.f_alpha;
     }
+    return false;
   }
+  downhill_ = 0;
+  if (step >= s_.n_delay) {  // the initial delay: the first n_delay steps keep dt
+    if (dt_ * s_.f_dec >= dt_min_) dt_ *= s_.f_dec;
+    alpha_ = s_.alpha_start;
+  }
+  return true;
 }
 
-}  // namespace
+void throw_fire_force_not_finite(std::size_t particle) {
+  throw Error("FIRE: the force on particle " + std::to_string(particle) + " is not finite");
+}
+
+void throw_fire_position_not_finite(std::size_t particle, int axis, double value) {
+  throw Error("FIRE: particle " + std::to_string(particle) + " has a non-finite position (" +
+              std::string(1, "xyz"[axis]) + " = " + number(value) + "): its force was not finite");
+}
+
+void throw_fire_not_converged(int64_t steps, const LargestForce& largest, double tolerance) {
+  throw Error("FIRE did not converge in " + std::to_string(steps) + " steps: particle " +
+              std::to_string(largest.particle) + " still has the largest force, |F| = " + number(largest.magnitude) +
+              " (tolerance " + number(tolerance) + "); raise max_steps or force_tolerance");
+}
 
 LargestForce largest_force(const MdState& s) {
   const std::size_t dim = std::size_t(s.config.box.dim);
@@ -80,7 +113,7 @@ LargestForce largest_force(const MdState& s) {
 
 FireResult minimize_fire(MdState& s, const std::vector<double>& masses, const FireSettings& settings,
                          const ForceEnergyFunction& compute_forces) {
-  check_settings(settings);
+  check_fire_settings(settings);
   const std::size_t n = s.config.size();
   const std::size_t dim = std::size_t(s.config.box.dim);
   const std::size_t nd = n * dim;
@@ -95,60 +128,37 @@ FireResult minimize_fire(MdState& s, const std::vector<double>& masses, const Fi
   result.initial_max_force = fmax.magnitude;
   result.initial_max_force_particle = fmax.particle;
 
-  const double dt_min = 0.02 * settings.dt;  // Guenole et al.'s dt_min = 0.02 dt_MD
-  double dt = settings.dt;
-  double alpha = settings.alpha_start;
-  int64_t downhill = 0;  // downhill steps in a row (P > 0)
+  FireSchedule schedule(settings);
   int64_t step = 0;
   for (; step < settings.max_steps && !(fmax.magnitude < settings.force_tolerance); ++step) {
-    if (!std::isfinite(fmax.magnitude))
-      throw Error("FIRE: the force on particle " + std::to_string(fmax.particle) + " is not finite");
+    if (!std::isfinite(fmax.magnitude)) throw_fire_force_not_finite(fmax.particle);
     double power = 0;
     for (std::size_t k = 0; k < nd; ++k) power += s.forces[k] * s.velocities[k];
-    if (power > 0) {
-      if (++downhill > settings.n_delay) {
-        dt = std::min(dt * settings.f_inc, settings.dt_max);
-        alpha *= settings.f_alpha;
-      }
-    } else {
-      downhill = 0;
-      if (step >= settings.n_delay) {  // the initial delay: the first n_delay steps keep dt
-        if (dt * settings.f_dec >= dt_min) dt *= settings.f_dec;
-        alpha = settings.alpha_start;
-      }
-      // Back by half a step (with the new dt), where the climb began, and start from rest.
-      for (std::size_t k = 0; k < nd; ++k) s.config.positions[k] -= 0.5 * dt * s.velocities[k];
-      std::fill(s.velocities.begin(), s.velocities.end(), 0.0);
-    }
+    const bool uphill = schedule.take_step(power, step);
+    const double dt = schedule.dt(), alpha = schedule.alpha();
+    double* x = s.config.positions.data();
+    double* v = s.velocities.data();
+    const double* f = s.forces.data();
+    const int d = int(dim);
 
-    // Semi-implicit Euler: kick, mix the velocity towards the force direction, cap, drift.
+    // Uphill: back by half a step (with the new dt), where the climb began, and start from rest.
+    // Then the semi-implicit Euler step: kick, mix the velocity towards the force direction, cap,
+    // drift (md/fire_step.h, per particle).
     for (std::size_t i = 0; i < n; ++i) {
-      const double h = dt / masses[i];
-      for (std::size_t a = 0; a < dim; ++a) s.velocities[i * dim + a] += h * s.forces[i * dim + a];
+      if (uphill) fire_step_back(x + i * dim, v + i * dim, 0.5 * dt, d);
+      fire_kick(v + i * dim, f + i * dim, dt, masses[i], d);
     }
     double v2 = 0, f2 = 0;
     for (std::size_t k = 0; k < nd; ++k) {
-      v2 += s.velocities[k] * s.velocities[k];
-      f2 += s.forces[k] * s.forces[k];
+      v2 += v[k] * v[k];
+      f2 += f[k] * f[k];
     }
-    if (f2 > 0 && std::isfinite(v2)) {
-      const double mix = alpha * std::sqrt(v2) / std::sqrt(f2);
-      for (std::size_t k = 0; k < nd; ++k) s.velocities[k] = (1 - alpha) * s.velocities[k] + mix * s.forces[k];
-    }
+    double mix = 0;
+    const bool mixes = fire_mix_factor(alpha, v2, f2, mix);
     for (std::size_t i = 0; i < n; ++i) {
-      double* v = &s.velocities[i * dim];
-      double largest = 0;  // |v| as largest component x norm of the scaled vector: no overflow
-      for (std::size_t a = 0; a < dim; ++a) largest = std::max(largest, std::abs(v[a]));
-      if (largest > 0) {
-        double u2 = 0;
-        for (std::size_t a = 0; a < dim; ++a) u2 += (v[a] / largest) * (v[a] / largest);
-        const double step_length = dt * largest * std::sqrt(u2);
-        if (step_length > settings.max_displacement) {
-          const double scale = settings.max_displacement / step_length;
-          for (std::size_t a = 0; a < dim; ++a) v[a] *= scale;
-        }
-      }
-      for (std::size_t a = 0; a < dim; ++a) s.config.positions[i * dim + a] += dt * v[a];
+      if (mixes) fire_mix(v + i * dim, f + i * dim, alpha, mix, d);
+      fire_cap(v + i * dim, dt, settings.max_displacement, d);
+      fire_drift(x + i * dim, v + i * dim, dt, d);
     }
     wrap_positions(s);
     energy = compute_forces(s);
@@ -161,9 +171,7 @@ FireResult minimize_fire(MdState& s, const std::vector<double>& masses, const Fi
   result.final_max_force_particle = fmax.particle;
   result.converged = fmax.magnitude < settings.force_tolerance;
   if (!result.converged && settings.require_convergence)
-    throw Error("FIRE did not converge in " + std::to_string(step) + " steps: particle " +
-                std::to_string(fmax.particle) + " still has the largest force, |F| = " + number(fmax.magnitude) +
-                " (tolerance " + number(settings.force_tolerance) + "); raise max_steps or force_tolerance");
+    throw_fire_not_converged(step, fmax, settings.force_tolerance);
   std::fill(s.velocities.begin(), s.velocities.end(), 0.0);
   return result;
 }

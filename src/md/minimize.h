@@ -61,6 +61,38 @@ struct LargestForce {
 };
 LargestForce largest_force(const MdState& state);
 
+// Throws cellforce::Error for settings out of range (names the setting and its value).
+void check_fire_settings(const FireSettings& settings);
+
+// FIRE's decisions between steps, made from one number per step, the power P = F.v at the step's
+// start: the time step, the mixing factor and the count of downhill steps. minimize_fire and the
+// device backends' FIRE (MdEngine::minimize) share it, so that they take the same decisions.
+class FireSchedule {
+ public:
+  explicit FireSchedule(const FireSettings& settings);
+  // Takes step `step` (0, 1, ...) whose power is `power` (a NaN counts as uphill): grows dt and
+  // shrinks alpha after n_delay downhill steps in a row; on an uphill step scales dt by f_dec
+  // (not below 0.02 x the initial dt; never within the first n_delay steps) and resets alpha.
+  // Returns true for an uphill step: the caller steps the positions back by 0.5 x dt() (the new
+  // dt) and sets the velocities to zero before the kick.
+  bool take_step(double power, int64_t step);
+  double dt() const { return dt_; }
+  double alpha() const { return alpha_; }
+
+ private:
+  FireSettings s_;
+  double dt_min_;  // Guenole et al.'s dt_min = 0.02 dt_MD
+  double dt_, alpha_;
+  int64_t downhill_ = 0;  // downhill steps in a row (P > 0)
+};
+
+// FIRE's errors, one wording for every implementation: a force that is not finite (naming its
+// particle), a position that is not finite (particle, axis, value), and no convergence within
+// `steps` (naming the particle with the largest force and that force).
+[[noreturn]] void throw_fire_force_not_finite(std::size_t particle);
+[[noreturn]] void throw_fire_position_not_finite(std::size_t particle, int axis, double value);
+[[noreturn]] void throw_fire_not_converged(int64_t steps, const LargestForce& largest, double tolerance);
+
 // Minimises the potential energy with FIRE until max_i |F_i| < settings.force_tolerance.
 // masses: per particle. Positions are wrapped into the box on periodic axes after every step.
 // On return state holds the final positions, their forces, and zero velocities (the run then
