@@ -225,8 +225,9 @@ class CELLFORCE_API Context {
   // force evaluation when the last step did not observe).
   Thermo thermo();
   // FIRE on the state's positions (velocities are left zero); throws naming the particle with the
-  // largest force when it does not converge within max_steps. Runs on the host for now, its
-  // forces from the backend.
+  // largest force when it does not converge within max_steps, and then leaves the state as it was.
+  // Runs where the state lives: with cuda, kernels on the device, the host reading 56 bytes of
+  // sums per FIRE step for its step-size decisions (one synchronisation per step).
   MinimizeResult minimize(const MinimizeOptions& options);
   NeighborState neighbor_state();
   // After set_state: rebuild the structure from the positions it was built from, set its count,
