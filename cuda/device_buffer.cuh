@@ -21,7 +21,8 @@ class DeviceBuffer {
   explicit DeviceBuffer(std::size_t n) { reserve(n); }
   ~DeviceBuffer() {
     // A destructor cannot throw: an error here shows up at the next checked CUDA call. cudaFree
-    // also frees stream-ordered memory (after waiting for the device).
+    // also frees stream-ordered memory, without waiting for the work that uses it: the owner of a
+    // bound buffer synchronises its stream first.
     if (ptr_) cudaFree(ptr_);
   }
   DeviceBuffer(const DeviceBuffer&) = delete;

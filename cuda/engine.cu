@@ -134,6 +134,9 @@ struct GpuEngine::Impl {
   }
 
   ~Impl() {
+    // Queued work may still use the buffers and the pinned table: stream-ordered memory is freed
+    // without waiting for it, so wait here (a destructor cannot throw; errors are ignored).
+    if (stream) cudaStreamSynchronize(stream);
     for (cudaEvent_t e : events)
       if (e) cudaEventDestroy(e);
     if (joined) cudaEventDestroy(joined);
@@ -180,7 +183,9 @@ struct GpuEngine::Impl {
     CF_CUDA_CHECK(cudaEventRecord(table_copied, stream));
   }
 
-  // Host-array calls read their own flags: any a resident run left are dropped.
+  // Host-array calls read their own flags: any that resident evaluations or compute_device left
+  // are dropped (the MD engine reads its own after each call; the API synchronizes before a
+  // host-array call).
   void per_call_flags() {
     if (!accumulate_flags) return;
     accumulate_flags = false;
@@ -220,7 +225,8 @@ struct GpuEngine::Impl {
   const double* pos = nullptr;
   const uint32_t* typ = nullptr;
   // Resident evaluations (evaluate_resident): the open axes' bounds of the particles as two corner
-  // points for plan_grid, and flags that accumulate until check_flags() resets them.
+  // points for plan_grid, and flags that accumulate until check_flags() or synchronize() resets
+  // them.
   double corners[2 * kMaxDim] = {};
   std::size_t corner_count = 0;
   bool plan_from_corners = false, accumulate_flags = false;
@@ -260,8 +266,6 @@ struct GpuEngine::Impl {
   }
 
   cudaEvent_t joined = nullptr, finished = nullptr;  // the caller's stream <-> the engine's
-  std::vector<double> host_positions;                 // evaluate_device's host copies
-  std::vector<uint32_t> host_types;
 
   // Stages 1-3 on the uploaded positions: cell IDs, count, sort, collision cells (split by type
   // for Gauss-Seidel). With a skin, keeps the build's positions (and, for the audit, its keys).

@@ -72,7 +72,7 @@ class GpuEngine {
   // displacement). Forces stay on the
   // device (device_forces(), n x dim); with `request`, so do the energy and virial totals
   // (device_totals(): energy, then w_xx, w_yy, w_zz, w_xy, w_xz, w_yz). The kernels' flags are
-  // not read: they accumulate until check_flags(). Stage times are not read either
+  // not read: they accumulate until check_flags() (or synchronize()). Stage times are not read either
   // (collect_timing() reads the last evaluation's). The reuse audit does not run here.
   void evaluate_resident(const Box& box, std::size_t n, const double* positions, const uint32_t* types,
                          const ForceField& ff, const Request& request);

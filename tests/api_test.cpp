@@ -15,6 +15,7 @@
 #include <cmath>
 #include <cstring>
 #include <limits>
+#include <memory>
 #include <string>
 #include <thread>
 #include <vector>
@@ -561,7 +562,8 @@ struct Gate {
 // work ends (the stream is still busy when the call returns), and once the stream is synchronised
 // its results are bitwise those of the host call. The positions themselves arrive behind the gate.
 // On a fresh context (its buffers allocated in the call) and again with them in place, for
-// Jacobi and Gauss-Seidel accumulation.
+// Jacobi and Gauss-Seidel accumulation. A context destroyed with its work still queued waits for
+// it (stream-ordered buffers are not freed under running kernels: memcheck runs this test).
 TEST(ApiDevice, DeviceCallReturnsBeforeThePendingWorkOfItsStream) {
   if (!cf::GpuEngine::unavailable().empty()) GTEST_SKIP() << cf::GpuEngine::unavailable();
   for (const char* accumulation : {"jacobi", "gauss-seidel"}) {
@@ -584,6 +586,14 @@ TEST(ApiDevice, DeviceCallReturnsBeforeThePendingWorkOfItsStream) {
     ASSERT_EQ(cudaMalloc(reinterpret_cast<void**>(&d_energy), sizeof(double)), cudaSuccess);
     ASSERT_EQ(cudaMalloc(reinterpret_cast<void**>(&d_w), 9 * sizeof(double)), cudaSuccess);
     uint32_t* d_types = device_copy(b.config.types);
+    {  // Every kernel of the device path loaded once, ungated: with lazy module loading a first
+       // launch may synchronise the context, which is no part of what is tested here.
+      cf::Context warm = context_for(b, cf::Backend::kCuda, cf::Precision::kMixed);
+      warm.set_option("accumulation", accumulation);
+      ASSERT_EQ(cudaMemcpy(d_pos, pinned, nd * sizeof(double), cudaMemcpyHostToDevice), cudaSuccess);
+      warm.compute_device(n, d_pos, d_types, {d_f, nullptr, d_energy, d_w}, nullptr);
+      warm.synchronize();
+    }
     ASSERT_EQ(cudaDeviceSynchronize(), cudaSuccess);
 
     for (int call = 0; call < 2; ++call) {
@@ -608,6 +618,20 @@ TEST(ApiDevice, DeviceCallReturnsBeforeThePendingWorkOfItsStream) {
       for (int r = 0; r < 3; ++r)
         for (int c = 0; c < 3; ++c) dev.virial[r][c] = w[std::size_t(r * 3 + c)];
       EXPECT_TRUE(cftest::bitwise_equal(host, dev));
+    }
+    {  // A context destroyed while its call still waits behind the gate: the destructor waits.
+      Gate gate;
+      ASSERT_EQ(cudaLaunchHostFunc(stream, &Gate::hold, &gate), cudaSuccess);
+      auto doomed = std::make_unique<cf::Context>(context_for(b, cf::Backend::kCuda, cf::Precision::kMixed));
+      doomed->compute_device(n, d_pos, d_types, {d_f, nullptr, d_energy, d_w}, stream);
+      std::thread opener([&] {
+        std::this_thread::sleep_for(std::chrono::milliseconds(200));
+        gate.open = true;
+      });
+      doomed.reset();
+      opener.join();
+      EXPECT_EQ(cudaStreamSynchronize(stream), cudaSuccess);
+      EXPECT_FALSE(gate.timed_out);
     }
     for (void* p : {static_cast<void*>(d_pos), static_cast<void*>(d_types), static_cast<void*>(d_f),
                     static_cast<void*>(d_energy), static_cast<void*>(d_w)})

@@ -93,7 +93,7 @@ struct Context::Impl {
   }
   ForceEngine& named_engine() { return md ? md->forces() : get_engine(); }
   void engine_changed() {
-    engine.reset();  // unchecked compute_device work is waited for by the engine's destructor
+    engine.reset();  // the engine's destructor waits for its queued work; what it flagged is dropped
     device_pending = false;
     md.reset();  // the state must be set again
   }
@@ -305,9 +305,10 @@ void Context::compute_device(std::size_t n, const double* positions, const uint3
   ForceEngine& engine = s.get_engine();
   if (engine.backend() != Backend::kCuda)
     throw Error("compute_device needs the cuda backend; this context runs on the CPU (set_backend)");
+  s.device_pending = true;  // statistics and errors come with synchronize() (also after a throw
+                            // here, which may leave work queued)
   engine.evaluate_device(DeviceSystemView{s.box, n, positions, types}, s.ff,
                          DeviceOutputs{out.forces, out.energies, out.energy, out.virial}, stream);
-  s.device_pending = true;  // statistics and errors come with synchronize()
 }
 
 void Context::synchronize() { impl_->synchronize(); }
