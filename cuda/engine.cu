@@ -101,6 +101,7 @@ struct GpuEngine::Impl {
   cuda::CollisionScratch collision;
   cuda::SplitScratch split;
   DeviceBuffer<cuda::PipelineCounts> counts;  // stage 1-3 counts, read by the later stages
+  DeviceBuffer<uint32_t> tile_start;           // warp per tile: the cells' first row tiles
   DeviceBuffer<std::byte> staged, table, force_slots, energy_slots, cell_sums;
   DeviceBuffer<double> forces, energies, totals;
   DeviceBuffer<cuda::DeviceFlags> flags;
@@ -118,7 +119,7 @@ struct GpuEngine::Impl {
   template <class F>
   void for_each_buffer(F&& f) {
     f(positions), f(types), f(keys), f(object_ids), f(sorted_keys), f(sorted_ids), f(control), f(cub);
-    f(cells), f(counts), f(staged), f(table), f(force_slots), f(energy_slots), f(cell_sums);
+    f(cells), f(counts), f(tile_start), f(staged), f(table), f(force_slots), f(energy_slots), f(cell_sums);
     f(forces), f(energies), f(totals), f(flags), f(pairs), f(build_positions);
     f(chapter_sort.keys), f(chapter_sort.values), f(chapter_sort.counts), f(chapter_sort.digit_totals);
     f(collision.flags), f(collision.run_start), f(collision.cub);
@@ -320,6 +321,10 @@ struct GpuEngine::Impl {
                                collision, stream);
     if (o.accumulation == Accumulation::kGaussSeidel)
       cuda::split_by_type(g, cells, max_cells, counts.data(), split, stream);
+    if (o.traversal == TraversalForm::kWarpPerTile) {  // the tiles of the cells in their final order
+      tile_start.reserve(max_cells + 1);
+      cuda::tile_starts(cells.data(), counts.data()->cell_range, max_cells, tile_start.data(), cub, stream);
+    }
     record(kCellsFound);
     st.entries = entries;
     st.valid_entries = st.collision_cells = 0;  // on the device until read_counts()
@@ -349,6 +354,8 @@ struct GpuEngine::Impl {
     args.cells = cells.data();
     args.cell_range = counts.data()->cell_range;
     args.max_cells = uint32_t(max_cells);
+    args.tile_start = tile_start.data();
+    args.max_tiles = uint32_t(cuda::max_tiles(entries, max_cells));
     args.staged = as<cuda::StagedEntry<Real>>(staged);
     args.sorted_ids = sorted_ids.data();
     args.n = sys.n;
@@ -369,6 +376,9 @@ struct GpuEngine::Impl {
     const bool observables = req.energy || req.virial;
     const std::size_t n = sys.n, dim = std::size_t(g.dim);
     const int copies = gs ? 1 : g.num_types();
+    // Energy and virial sums per collision cell, or per row tile for the warp-per-tile form.
+    const bool tiles = o.traversal == TraversalForm::kWarpPerTile;
+    const std::size_t sums = tiles ? cuda::max_tiles(entries, max_cells) : max_cells;
     cuda::TraversalArgs<Real, Accum> args = prepare<Real, Accum>(g, sys, ff, ff.mode);
 
     force_slots.reserve(std::max<std::size_t>(copies * n * dim, 1) * sizeof(Accum));
@@ -378,7 +388,7 @@ struct GpuEngine::Impl {
     if (observables) {
       energy_slots.reserve(std::max<std::size_t>(copies * n, 1) * sizeof(Accum));
       CF_CUDA_CHECK(cudaMemsetAsync(energy_slots.data(), 0, copies * n * sizeof(Accum), stream));
-      cell_sums.reserve(std::max<std::size_t>(max_cells, 1) * cuda::kCellSums * sizeof(Accum));
+      cell_sums.reserve(std::max<std::size_t>(sums, 1) * cuda::kCellSums * sizeof(Accum));
       args.energy = as<Accum>(energy_slots);
       args.energy_slot_stride = gs ? 0 : n;
       args.cell_sums = as<Accum>(cell_sums);
@@ -406,7 +416,8 @@ struct GpuEngine::Impl {
                            stream);
     if (observables) {
       totals.reserve(cuda::kCellSums);
-      cuda::sum_cells<Accum>(as<Accum>(cell_sums), &counts.data()->cell_range[1], totals.data(), stream);
+      cuda::sum_cells<Accum>(as<Accum>(cell_sums), tiles ? tile_start.data() + max_cells : &counts.data()->cell_range[1],
+                             totals.data(), stream);
     }
     record(kAccumulated);
   }

@@ -6,6 +6,12 @@
 // form) instantiated in double for one type, truncation and no observables, with one launch over
 // all cells: it records what that loop finds, so that the tests check the traversal's geometry.
 // The Gauss-Seidel launches per cell type are checked through their forces.
+#include <cub/device/device_scan.cuh>
+#include <thrust/iterator/counting_iterator.h>
+#include <thrust/iterator/transform_iterator.h>
+
+#include <algorithm>
+
 #include "traversal_impl.cuh"
 
 namespace cellforce::cuda {
@@ -74,6 +80,30 @@ template void stage_occupants<float>(const Grid&, const uint32_t*, const uint32_
 template void stage_occupants<double>(const Grid&, const uint32_t*, const uint32_t*, std::size_t,
                                       const unsigned long long*, const double*, const uint32_t*, uint32_t,
                                       const Control*, StagedEntry<double>*, cudaStream_t);
+
+namespace {
+
+struct TileCount {
+  const CollisionCell* cells;
+  const uint32_t* cell_range;
+  __device__ uint32_t operator()(uint32_t c) const {
+    if (c >= cell_range[1]) return 0;
+    const CollisionCell cell = cells[c];
+    return (cell.h + cell.p + 31u) / 32u;
+  }
+};
+
+}  // namespace
+
+void tile_starts(const CollisionCell* cells, const uint32_t* cell_range, std::size_t cell_bound,
+                 uint32_t* tile_start, DeviceBuffer<std::byte>& scratch, cudaStream_t stream) {
+  auto counts = thrust::make_transform_iterator(thrust::counting_iterator<uint32_t>(0), TileCount{cells, cell_range});
+  std::size_t bytes = 0;
+  CF_CUDA_CHECK(cub::DeviceScan::ExclusiveSum(nullptr, bytes, counts, tile_start, int(cell_bound + 1), stream));
+  scratch.reserve(std::max<std::size_t>(bytes, 1));
+  CF_CUDA_CHECK(
+      cub::DeviceScan::ExclusiveSum(scratch.data(), bytes, counts, tile_start, int(cell_bound + 1), stream));
+}
 
 void check_input(const double* positions, const uint32_t* types, std::size_t n, int dim,
                  uint32_t num_types, DeviceFlags* flags, cudaStream_t stream) {

@@ -13,6 +13,7 @@
 #include "core/grid.h"
 #include "core/cell_totals.h"
 #include "core/lj.h"
+#include "device_buffer.cuh"
 #include "engine.h"
 
 namespace cellforce::cuda {
@@ -64,6 +65,10 @@ struct TraversalArgs {
   const CollisionCell* cells = nullptr;  // every collision cell
   const uint32_t* cell_range = nullptr;  // device: this launch's [first, end)
   uint32_t max_cells = 0;                // host: a bound on the launch's cells
+  // Warp per row tile: tile_start[c] = the row tiles (of 32 occupants) of cells before c, over
+  // max_cells + 1 entries (the last: every tile), from tile_starts(); max_tiles bounds them.
+  const uint32_t* tile_start = nullptr;
+  uint32_t max_tiles = 0;
   const StagedEntry<Real>* staged = nullptr;  // sorted order, as the cells' start counts
   const uint32_t* sorted_ids = nullptr;       // particle index of each sorted entry
   std::size_t n = 0;
@@ -105,6 +110,15 @@ void stage_occupants(const Grid& grid, const uint32_t* sorted_keys, const uint32
 // (types may be null: all type 0).
 void check_input(const double* positions, const uint32_t* types, std::size_t n, int dim,
                  uint32_t num_types, DeviceFlags* flags, cudaStream_t stream);
+
+// For the warp-per-tile form: tile_start[c] for c in [0, cell_bound] = the row tiles (ceil(m / 32)
+// for a cell of m occupants) of the collision cells before c, cells beyond the count
+// (counts->cell_range[1]) having none, so tile_start[cell_bound] is the number of tiles. `scratch`
+// grows as CUB asks.
+void tile_starts(const CollisionCell* cells, const uint32_t* cell_range, std::size_t cell_bound,
+                 uint32_t* tile_start, DeviceBuffer<std::byte>& scratch, cudaStream_t stream);
+// A bound on the tiles: sum over cells of ceil(m / 32) <= entries / 32 + cells.
+inline std::size_t max_tiles(std::size_t entries, std::size_t cell_bound) { return entries / 32 + cell_bound + 1; }
 
 // Runs the traversal over args.cells in the given form.
 template <class Real, class Accum>

@@ -1,13 +1,14 @@
 // Stage 4, traversal (GPU Gems 3 ch. 32, section 32.2.5), as kernels: each collision cell tests
 // every H occupant against every other occupant, H and P, skips the pairs that the control-bit
 // rule assigns to another cell, and evaluates Lennard-Jones directly for the pairs with r < rc.
-// Two forms:
+// Three forms:
 //  - thread per cell (the chapter's): one thread walks its cell's pairs serially;
 //  - warp per cell (the chapter's future work): a warp shares one cell. Rows of 32 H occupants
 //    are held in registers, columns of 32 occupants staged in shared memory; in step k lane l
 //    pairs its row occupant with column occupant (l + k) mod 32, so that no two lanes touch one
 //    column accumulator in a step. A __syncwarp after each step orders the steps.
-// Both write each occupant's sums into the cell's own output slot (Jacobi) or, one cell type per
+//  - warp per row tile (below): each tile of 32 occupants of a cell is one warp's work.
+// All write each occupant's sums into the cell's own output slot (Jacobi) or, one cell type per
 // launch, into the single output (Gauss-Seidel), with no atomics: every addition happens in an
 // order fixed by the cell's layout, so results are bitwise reproducible.
 //
@@ -281,12 +282,130 @@ __global__ void __launch_bounds__(kWarpsPerBlock * 32)
   }
 }
 
+// ---- warp per row tile ------------------------------------------------------------------------
+// A collision cell's occupants (H first, then P) in rows of 32; each row tile of each cell is one
+// warp's work, so a cell of m occupants keeps ceil(m / 32) warps busy. A warp computes the whole
+// force on each of its row occupants from every column occupant of the cell that the chapter's
+// rule pairs it with here (H x H; H x P unless the control bits give the pair to another cell;
+// never P x P), so each pair is evaluated from both sides and nothing but the row's own sums is
+// written: a particle's slot is written by the one warp that holds its row in the one cell of that
+// type it occupies, with no atomics, in a fixed order. Row tiles of P occupants only need the H
+// columns. Twice the pair evaluations of warp_per_cell, for ceil(m / 32) times its parallelism:
+// what a small system needs. Energy and virial: half of each pair from each side, summed per row
+// tile (args.cell_sums is indexed by the global tile) and then over the tiles in a fixed order.
+template <class T, class Real, class Accum, bool Record>
+__global__ void __launch_bounds__(kWarpsPerBlock * 32)
+    warp_per_tile(const TraversalArgs<Real, Accum> args) {
+  constexpr int D = T::kDim;
+  __shared__ StagedEntry<Real> column_tiles[kWarpsPerBlock][32];
+  const int warp = int(threadIdx.x / 32), lane = int(threadIdx.x % 32);
+  StagedEntry<Real>* column = column_tiles[warp];
+  const uint32_t first_cell = args.cell_range[0], end_cell = args.cell_range[1];
+  const uint32_t w = args.tile_start[first_cell] + blockIdx.x * (blockDim.x / 32) + uint32_t(warp);
+  if (w >= args.tile_start[end_cell]) return;  // the whole warp: the tile index is warp-uniform
+  // The cell holding tile w: the last c in [first_cell, end_cell) with tile_start[c] <= w (every
+  // collision cell has at least one tile, so tile_start increases strictly over the cells).
+  uint32_t lo = first_cell, hi = end_cell;
+  while (hi - lo > 1) {
+    const uint32_t mid = lo + (hi - lo) / 2;
+    if (args.tile_start[mid] <= w) lo = mid;
+    else hi = mid;
+  }
+  const CollisionCell cell = args.cells[lo];
+  const uint32_t row = (w - args.tile_start[lo]) * 32u;
+  const unsigned type = cell_type_of_id(args.grid, cell.cell);
+  Accum* force = args.force + type * args.force_slot_stride;
+  Accum* energy = T::kObservables ? args.energy + type * args.energy_slot_stride : nullptr;
+  const LJParams<Real> single = args.table[0];
+  const StagedEntry<Real>* occ = args.staged + cell.start;
+  const uint32_t* ids = args.sorted_ids + cell.start;
+  const uint32_t h = cell.h, m = cell.h + cell.p;
+  CellTotals<Accum, true, true> totals;  // core/cell_totals.h
+  unsigned long long candidates = 0, interacting = 0;
+  bool impossible = false;
+
+  const uint32_t a = row + uint32_t(lane);
+  const bool row_ok = a < m, a_home = a < h;
+  const StagedEntry<Real> A = row_ok ? occ[a] : StagedEntry<Real>{};
+  const uint32_t ia = row_ok ? ids[a] : 0;
+  if (row_ok && ia >= args.n) impossible = true;
+  Accum fa[D] = {};
+  Accum ea = 0;
+  const uint32_t columns = row >= h ? h : m;  // a tile of P rows pairs with H columns only
+  for (uint32_t col = 0; col < columns; col += 32) {
+    const uint32_t own = col + uint32_t(lane);
+    if (own < columns) column[lane] = occ[own];
+    __syncwarp();
+    const uint32_t count = columns - col < 32u ? columns - col : 32u;
+    for (uint32_t k = 0; k < count; ++k) {
+      const uint32_t b = col + k;
+      const StagedEntry<Real> B = column[k];  // the same address for every lane: a broadcast
+      const bool b_home = b < h;
+      // H x H; H x P (either way round) unless the control-bit rule gives it to another cell.
+      const bool test = row_ok && b != a &&
+                        (a_home ? (b_home || !skip_pair(type, control_of(A.meta), control_of(B.meta)))
+                                : (b_home && !skip_pair(type, control_of(A.meta), control_of(B.meta))));
+      if (!test) continue;
+      // Each pair is seen from both sides; it is counted (and recorded) from one: the H side of an
+      // H x P pair, the lower slot of an H x H pair.
+      const bool canonical = a_home && (!b_home || a < b);
+      if (canonical) ++candidates;
+      Real d[3];
+      const Real r2 = separation<T>(A, B, args.length, args.inv_length, d);
+      Real fr, e = 0;
+      if (!lj_pair<T::kMode, T::kObservables>(r2, args.rc2, pair_params<T>(args, single, A.meta, B.meta), fr, e))
+        continue;
+      if (canonical) ++interacting;
+      if constexpr (Record) {
+        if (canonical) {
+          const uint32_t ib = ids[b];
+          if (ia >= args.n || ib >= args.n) impossible = true;
+          else record_pair(args, ia, ib);
+        }
+      } else {
+        if (!isfinite(fr)) flag_bad_pair(args.flags, ia, ids[b]);
+        for (int c = 0; c < D; ++c) fa[c] += Accum(mul_rn(fr, d[c]));  // no FMA, as warp_per_cell
+        if constexpr (T::kObservables) {
+          const Real half_e = Real(0.5) * e;
+          ea += Accum(half_e);
+          totals.template add<D>(half_e, Real(0.5) * fr, d);
+        }
+      }
+    }
+    __syncwarp();
+  }
+  if (impossible) args.flags->impossible = 1;
+  if constexpr (!Record) {
+    if (row_ok && ia < args.n) {
+      for (int c = 0; c < D; ++c) force[std::size_t(ia) * D + c] += fa[c];
+      if constexpr (T::kObservables) energy[ia] += ea;
+    }
+  }
+  if constexpr (Record) {
+    candidates = warp_sum(candidates);
+    interacting = warp_sum(interacting);
+    if (lane == 0) {
+      atomicAdd(&args.flags->candidates, candidates);
+      atomicAdd(&args.flags->interacting, interacting);
+    }
+  } else if constexpr (T::kObservables) {
+    totals.finish();
+    for (int k = 0; k < kCellSums; ++k) {
+      const Accum v = warp_sum(totals.v[k]);
+      if (lane == 0) args.cell_sums[std::size_t(w) * kCellSums + k] = v;
+    }
+  }
+}
+
 template <class T, class Real, class Accum, bool Record>
 void launch(TraversalForm form, const TraversalArgs<Real, Accum>& args, cudaStream_t stream) {
   if (args.max_cells == 0) return;
   if (form == TraversalForm::kThreadPerCell) {
     const unsigned blocks = (args.max_cells + kThreadsPerBlock - 1) / kThreadsPerBlock;
     thread_per_cell<T, Real, Accum, Record><<<blocks, kThreadsPerBlock, 0, stream>>>(args);
+  } else if (form == TraversalForm::kWarpPerTile) {
+    const unsigned blocks = (args.max_tiles + kWarpsPerBlock - 1) / kWarpsPerBlock;
+    if (blocks) warp_per_tile<T, Real, Accum, Record><<<blocks, kWarpsPerBlock * 32, 0, stream>>>(args);
   } else {
     // Few cells (a small system; the bound on them): one warp per block spreads them over every
     // multiprocessor; many cells: kWarpsPerBlock per block, for more resident warps than the per-SM block limit

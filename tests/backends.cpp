@@ -39,10 +39,11 @@ const std::vector<Backend>& backends() {
                 return cellforce::make_cpu_force_engine(choice_from(spec, cellforce::Backend::kCpu));
               }},
 #ifdef CELLFORCE_HAVE_CUDA
-      // The CUDA engine in both traversal forms and with the chapter's sort; they skip where no
-      // CUDA device exists.
+      // The CUDA engine in its three traversal forms and with the chapter's sort; they skip where
+      // no CUDA device exists.
       gpu_backend("gpuwarp", cellforce::TraversalForm::kWarpPerCell, cellforce::SortMethod::kCub),
       gpu_backend("gputhread", cellforce::TraversalForm::kThreadPerCell, cellforce::SortMethod::kCub),
+      gpu_backend("gputile", cellforce::TraversalForm::kWarpPerTile, cellforce::SortMethod::kCub),
       gpu_backend("gpuchaptersort", cellforce::TraversalForm::kWarpPerCell,
                   cellforce::SortMethod::kChapter),
 #endif

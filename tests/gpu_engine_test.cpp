@@ -29,7 +29,9 @@ using cellforce::Precision;
 using cellforce::Request;
 using cellforce::TraversalForm;
 
-const char* name_of(TraversalForm f) { return f == TraversalForm::kWarpPerCell ? "warp" : "thread"; }
+const char* name_of(TraversalForm f) {
+  return f == TraversalForm::kWarpPerCell ? "warp" : f == TraversalForm::kThreadPerCell ? "thread" : "tile";
+}
 const char* name_of(Precision p) { return cellforce::to_string(p); }
 const char* name_of(Accumulation a) { return a == Accumulation::kJacobi ? "jacobi" : "gaussseidel"; }
 
@@ -96,7 +98,7 @@ TEST_P(GpuVsCpu, SameResultsAsCpuOfSamePrecision) {
 
 INSTANTIATE_TEST_SUITE_P(
     Scenes, GpuVsCpu,
-    ::testing::Combine(::testing::Values(TraversalForm::kWarpPerCell, TraversalForm::kThreadPerCell),
+    ::testing::Combine(::testing::Values(TraversalForm::kWarpPerCell, TraversalForm::kThreadPerCell, TraversalForm::kWarpPerTile),
                        ::testing::Values(Precision::kDouble, Precision::kMixed, Precision::kSingle),
                        ::testing::Values(Accumulation::kJacobi, Accumulation::kGaussSeidel),
                        ::testing::Values("random3d_periodic", "random2d_periodic", "slab3d",
@@ -140,7 +142,7 @@ TEST_P(GpuCandidates, CountsEqualCpu) {
 
 INSTANTIATE_TEST_SUITE_P(
     Scenes, GpuCandidates,
-    ::testing::Combine(::testing::Values(TraversalForm::kWarpPerCell, TraversalForm::kThreadPerCell),
+    ::testing::Combine(::testing::Values(TraversalForm::kWarpPerCell, TraversalForm::kThreadPerCell, TraversalForm::kWarpPerTile),
                        ::testing::ValuesIn(all_scene_names())),
     [](const ::testing::TestParamInfo<std::tuple<TraversalForm, std::string>>& p) {
       return std::string(name_of(std::get<0>(p.param))) + "_" + std::get<1>(p.param);
@@ -183,7 +185,7 @@ TEST_P(GpuDenseCluster, ExactAgainstBruteForce) {
 }
 
 INSTANTIATE_TEST_SUITE_P(Forms, GpuDenseCluster,
-                         ::testing::Values(TraversalForm::kWarpPerCell, TraversalForm::kThreadPerCell),
+                         ::testing::Values(TraversalForm::kWarpPerCell, TraversalForm::kThreadPerCell, TraversalForm::kWarpPerTile),
                          [](const ::testing::TestParamInfo<TraversalForm>& p) {
                            return std::string(name_of(p.param));
                          });

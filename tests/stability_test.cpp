@@ -349,6 +349,7 @@ TEST_P(Stability, CoincidentParticles) {
   args.input = write("co.xyz", "3\nLattice=\"6 0 0 0 6 0 0 0 6\"\nA 0.5 0.5 0.5\nA 3.5 4.5 4.5\nA 3.5 4.5 4.5\n");
   args.backend.backend = name == "cpu" ? cellforce::Backend::kCpu : cellforce::Backend::kCuda;
   args.backend.traversal = name == "gputhread" ? cellforce::TraversalForm::kThreadPerCell
+                           : name == "gputile"  ? cellforce::TraversalForm::kWarpPerTile
                                                 : cellforce::TraversalForm::kWarpPerCell;
   args.backend.sort = name == "gpuchaptersort" ? cellforce::SortMethod::kChapter : cellforce::SortMethod::kCub;
   args.backend.precision = GetParam().precision;

@@ -111,12 +111,15 @@ def number(pattern: str, text: str) -> float:
     return float(m.group(1)) if m else math.nan
 
 
-def cellforce_steps_per_second(binary: str, cells: int, precision: str, steps: int, folder: Path) -> dict:
+def cellforce_steps_per_second(binary: str, cells: int, precision: str, steps: int, folder: Path,
+                               traversal: str | None = None) -> dict:
     scene = folder / f"inlj_{cells}_{precision}.toml"
     scene.write_text(SCENE.format(cells=cells, density=DENSITY, cutoff=CUTOFF, t0=T0, dt=DT, steps=steps,
                                   precision=precision, thermo_every=steps))
-    p = subprocess.run([str(Path(binary).resolve()), "run", str(scene), "--quiet"], capture_output=True, text=True,
-                       cwd=folder)
+    command = [str(Path(binary).resolve()), "run", str(scene), "--quiet"]
+    if traversal:
+        command += ["--traversal", traversal]
+    p = subprocess.run(command, capture_output=True, text=True, cwd=folder)
     if p.returncode != 0:
         raise RuntimeError(f"cellforce run failed ({p.returncode}): {p.stderr.strip()[-2000:]}")
     out = p.stdout
@@ -142,6 +145,8 @@ def main() -> int:
     ap.add_argument("--seconds", type=float, default=3.0, help="target timed seconds per run (sets the steps)")
     ap.add_argument("--warmup", type=int, default=50)
     ap.add_argument("--skip-openmm", action="store_true")
+    ap.add_argument("--traversals", nargs="+", default=[None],
+                    help="cellforce's CUDA traversal forms to time (warp, thread, tile; default: the run's own)")
     ap.add_argument("--md", required=True)
     ap.add_argument("--json", required=True)
     args = ap.parse_args()
@@ -156,11 +161,14 @@ def main() -> int:
             cf_steps = max(100, int(args.seconds * 4.0e7 / n))
             for precision in args.precisions:
                 row = {"cells": cells, "particles": n, "precision": precision}
-                try:
-                    row["cellforce"] = cellforce_steps_per_second(args.cellforce, cells, precision, cf_steps, Path(tmp))
-                except Exception as e:  # noqa: BLE001 - reported in the table
-                    row["cellforce"] = {"error": str(e)}
-                    failed = True
+                for traversal in args.traversals:
+                    key = "cellforce" if traversal is None else f"cellforce-{traversal}"
+                    try:
+                        row[key] = cellforce_steps_per_second(args.cellforce, cells, precision, cf_steps, Path(tmp),
+                                                              traversal)
+                    except Exception as e:  # noqa: BLE001 - reported in the table
+                        row[key] = {"error": str(e)}
+                        failed = True
                 if not args.skip_openmm:
                     try:
                         row["openmm"] = openmm_steps_per_second(cells, precision, omm_steps, args.warmup)
@@ -184,26 +192,28 @@ def main() -> int:
              "cellforce: forces and integration as reported by its run summary (device time per step); engine: "
              "the force engine's time per evaluation (stage events, sampled); step / engine is the ratio the "
              "issue bounds by 1.3.", "",
-             "| N | precision | cellforce steps/s | OpenMM CUDA steps/s | cellforce / OpenMM | cellforce ms/step "
-             "| forces ms/step | integration ms/step | host+waits ms/step | engine ms/evaluation | step / engine | "
-             "bytes/step |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
-    for r in rows:
-        c, o = r.get("cellforce", {}), r.get("openmm", {})
+             "| N | precision | traversal | cellforce steps/s | OpenMM CUDA steps/s | cellforce / OpenMM | "
+             "cellforce ms/step | forces ms/step | integration ms/step | host+waits ms/step | engine ms/evaluation | "
+             "step / engine | bytes/step |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r, key in [(r, k) for r in rows for k in r if k.startswith("cellforce")]:
+        c, o = r.get(key, {}), r.get("openmm", {})
+        traversal = key.partition("-")[2] or "default"
         cf_rate, omm_rate = c.get("steps_per_second", math.nan), o.get("steps_per_second", math.nan)
         ratio = cf_rate / omm_rate if omm_rate and not math.isnan(omm_rate) else math.nan
         step_over_engine = c.get("ms_per_step", math.nan) / c.get("engine_ms_per_evaluation", math.nan) \
             if c.get("engine_ms_per_evaluation") else math.nan
         def f(v, fmt="{:.4g}"):
             return "error" if v is None else ("-" if isinstance(v, float) and math.isnan(v) else fmt.format(v))
-        lines.append(f"| {r['particles']:,} | {r['precision']} | {f(cf_rate) if 'error' not in c else 'error'} | "
+        lines.append(f"| {r['particles']:,} | {r['precision']} | {traversal} | "
+                     f"{f(cf_rate) if 'error' not in c else 'error'} | "
                      f"{f(omm_rate) if 'error' not in o else ('error' if o else '-')} | {f(ratio, '{:.3f}')} | "
                      f"{f(c.get('ms_per_step', math.nan))} | {f(c.get('forces_ms_per_step', math.nan))} | "
                      f"{f(c.get('integration_ms_per_step', math.nan))} | {f(c.get('host_ms_per_step', math.nan))} | "
                      f"{f(c.get('engine_ms_per_evaluation', math.nan))} | {f(step_over_engine, '{:.3f}')} | "
                      f"{f(c.get('bytes_per_step', math.nan))} |")
     errors = [f"- {r['particles']:,} {r['precision']} {k}: {r[k]['error'][:400]}"
-              for r in rows for k in ("cellforce", "openmm") if isinstance(r.get(k), dict) and "error" in r[k]]
+              for r in rows for k in r if isinstance(r.get(k), dict) and "error" in r[k]]
     if errors:
         lines += ["", "Errors:"] + errors
     Path(args.md).write_text("\n".join(lines) + "\n")

@@ -190,6 +190,11 @@ Scene scene_for(const RunArgs& args) {
       throw Error("--precision " + quote_excerpt(args.precision) + ": expected " + name_list(kPrecisionNames));
     scene.backend.precision = *precision;
   }
+  if (!args.traversal.empty()) {
+    const auto form = parse_name(args.traversal, kTraversalNames);
+    if (!form) throw Error("--traversal " + quote_excerpt(args.traversal) + ": expected " + name_list(kTraversalNames));
+    scene.backend.traversal = *form;
+  }
   if (!args.thermo_file.empty()) scene.output.thermo_file = args.thermo_file;
   if (!(args.skin < 0)) scene.backend.reuse.skin = args.skin;  // NaN too: validate_reuse names it
   if (!args.trajectory.empty()) scene.output.trajectory = args.trajectory;

@@ -22,6 +22,8 @@ enum class TraversalForm : uint8_t {
   kWarpPerCell,    // cooperative: a warp shares one cell, occupants staged 32 at a time in shared
                    // memory, partial sums added in a fixed order (the chapter's future work)
   kThreadPerCell,  // the chapter's: one thread walks one collision cell
+  kWarpPerTile,    // a warp per tile of 32 occupants of a cell, each pair from both sides (no
+                   // writes but its own rows): parallel work for small systems
 };
 
 // The CUDA pipeline's stage 2; both are stable and sort only the bits the grid needs.
@@ -75,7 +77,12 @@ inline const char* to_string(Accumulation accumulation) {
 }
 
 inline const char* to_string(TraversalForm form) {
-  return form == TraversalForm::kWarpPerCell ? "warp-per-cell" : "thread-per-cell";
+  switch (form) {
+    case TraversalForm::kWarpPerCell: return "warp-per-cell";
+    case TraversalForm::kThreadPerCell: return "thread-per-cell";
+    case TraversalForm::kWarpPerTile: return "warp-per-tile";
+  }
+  return "?";
 }
 
 inline const char* to_string(SortMethod sort) { return sort == SortMethod::kCub ? "cub" : "chapter"; }

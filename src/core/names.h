@@ -33,7 +33,7 @@ inline constexpr Named<Accumulation> kAccumulationNames[] = {
     {"jacobi", Accumulation::kJacobi}, {"gauss-seidel", Accumulation::kGaussSeidel}};
 inline constexpr Named<CellRule> kCellRuleNames[] = {{"tight", CellRule::kTight}, {"chapter", CellRule::kChapter}};
 inline constexpr Named<TraversalForm> kTraversalNames[] = {
-    {"warp", TraversalForm::kWarpPerCell}, {"thread", TraversalForm::kThreadPerCell}};
+    {"warp", TraversalForm::kWarpPerCell}, {"thread", TraversalForm::kThreadPerCell}, {"tile", TraversalForm::kWarpPerTile}};
 inline constexpr Named<SortMethod> kSortNames[] = {{"cub", SortMethod::kCub}, {"chapter", SortMethod::kChapter}};
 
 // The value named `name` exactly, or nothing.

@@ -56,6 +56,8 @@ int main(int argc, char** argv) {
   std::vector<Variant> variants;
   for (Precision p : {Precision::kSingle, Precision::kMixed, Precision::kDouble})
     variants.push_back({p, TraversalForm::kWarpPerCell, SortMethod::kCub});
+  for (Precision p : {Precision::kSingle, Precision::kMixed})
+    variants.push_back({p, TraversalForm::kWarpPerTile, SortMethod::kCub});
   if (chapter_sort) variants.push_back({Precision::kMixed, TraversalForm::kWarpPerCell, SortMethod::kChapter});
   if (thread_form)
     for (Precision p : {Precision::kSingle, Precision::kDouble})
