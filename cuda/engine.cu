@@ -102,6 +102,7 @@ struct GpuEngine::Impl {
   cuda::SplitScratch split;
   DeviceBuffer<cuda::PipelineCounts> counts;  // stage 1-3 counts, read by the later stages
   DeviceBuffer<uint32_t> tile_start;           // warp per tile: the cells' first row tiles
+  TraversalForm form = TraversalForm::kWarpPerCell;  // the traversal of the structure in use
   DeviceBuffer<std::byte> staged, table, force_slots, energy_slots, cell_sums;
   DeviceBuffer<double> forces, energies, totals;
   DeviceBuffer<cuda::DeviceFlags> flags;
@@ -287,6 +288,7 @@ struct GpuEngine::Impl {
     const std::size_t run_bound = std::min<std::size_t>(entries, g.num_cells);
     const std::size_t cap = std::max<std::size_t>(entries, 1);
     counts.reserve(1);
+    form = resolve_traversal(o.traversal, max_cells, multiprocessors);
     keys.reserve(cap);
     object_ids.reserve(cap);
     sorted_keys.reserve(cap);
@@ -321,7 +323,7 @@ struct GpuEngine::Impl {
                                collision, stream);
     if (o.accumulation == Accumulation::kGaussSeidel)
       cuda::split_by_type(g, cells, max_cells, counts.data(), split, stream);
-    if (o.traversal == TraversalForm::kWarpPerTile) {  // the tiles of the cells in their final order
+    if (form == TraversalForm::kWarpPerTile) {  // the tiles of the cells in their final order
       tile_start.reserve(max_cells + 1);
       cuda::tile_starts(cells.data(), counts.data()->cell_range, max_cells, tile_start.data(), cub, stream);
     }
@@ -377,7 +379,7 @@ struct GpuEngine::Impl {
     const std::size_t n = sys.n, dim = std::size_t(g.dim);
     const int copies = gs ? 1 : g.num_types();
     // Energy and virial sums per collision cell, or per row tile for the warp-per-tile form.
-    const bool tiles = o.traversal == TraversalForm::kWarpPerTile;
+    const bool tiles = form == TraversalForm::kWarpPerTile;
     const std::size_t sums = tiles ? cuda::max_tiles(entries, max_cells) : max_cells;
     cuda::TraversalArgs<Real, Accum> args = prepare<Real, Accum>(g, sys, ff, ff.mode);
 
@@ -400,11 +402,11 @@ struct GpuEngine::Impl {
     sw.mode = ff.mode;
     sw.observables = observables;
     if (!gs) {
-      cuda::traverse(o.traversal, sw, args, stream);
+      cuda::traverse(form, sw, args, stream);
     } else {
       for (int t = 0; t < g.num_types(); ++t) {  // one pass per cell type, in type order
         args.cell_range = counts.data()->type_start + t;
-        cuda::traverse(o.traversal, sw, args, stream);
+        cuda::traverse(form, sw, args, stream);
       }
     }
     record(kTraversed);
@@ -784,7 +786,7 @@ std::vector<std::pair<uint32_t, uint32_t>> GpuEngine::record(const SystemView& s
       args.pairs = s.pairs.data();
       args.pair_capacity = s.pairs.capacity();
     }
-    cuda::record_pairs(options_.traversal, g.dim, g.any_wrap_inside_cell(), args, s.stream);
+    cuda::record_pairs(s.form, g.dim, g.any_wrap_inside_cell(), args, s.stream);
     CF_CUDA_CHECK(cudaMemcpyAsync(&flags, s.flags.data(), sizeof(flags), cudaMemcpyDeviceToHost, s.stream));
     CF_CUDA_CHECK(cudaStreamSynchronize(s.stream));
     if (flags.impossible)
@@ -820,6 +822,8 @@ std::vector<std::pair<uint32_t, uint32_t>> GpuEngine::visited_pairs(const System
 void GpuEngine::count_pairs(const SystemView& system, const ForceField& ff) {
   (void)record(system, ff, false);
 }
+
+TraversalForm GpuEngine::traversal() const { return impl_->form; }
 
 std::string GpuEngine::device_name() const {
   cudaDeviceProp prop{};

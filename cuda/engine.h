@@ -22,7 +22,7 @@ namespace cellforce {
 struct GpuOptions {
   Precision precision = Precision::kDouble;
   Accumulation accumulation = Accumulation::kJacobi;
-  TraversalForm traversal = TraversalForm::kWarpPerCell;
+  TraversalForm traversal = TraversalForm::kAuto;  // kAuto: resolve_traversal() at each build
   SortMethod sort = SortMethod::kCub;
   GridOptions grid;
   ReuseOptions reuse;  // skin > 0: stages 1-3 reused while no particle moved more than skin / 2
@@ -107,6 +107,8 @@ class GpuEngine {
   // device after evaluate(), synchronize(), collect_timing() and the pair recorder.
   const PipelineStats& stats() const { return stats_; }
   const GpuOptions& options() const { return options_; }
+  // The traversal form in use: options().traversal, or what kAuto chose at the last build.
+  TraversalForm traversal() const;
   // The device's name as the driver reports it (e.g. "NVIDIA H100 80GB HBM3").
   std::string device_name() const;
 

@@ -58,11 +58,14 @@ void CudaForceEngine::restore_reuse(const SystemView& built_from, const ForceFie
   engine_.restore_reuse(built_from, ff, served);
 }
 
-std::string CudaForceEngine::description() const {
-  return "CUDA on " + engine_.device_name() + ", " + to_string(engine_.options().traversal) + ", " +
-         to_string(engine_.options().sort) + " sort";
+// The traversal in use (auto: what it chose at the last build, "auto: warp-per-tile").
+std::string CudaForceEngine::traversal() const {
+  const std::string used = to_string(engine_.traversal());
+  return engine_.options().traversal == TraversalForm::kAuto ? "auto: " + used : used;
 }
-std::string CudaForceEngine::traversal() const { return to_string(engine_.options().traversal); }
+std::string CudaForceEngine::description() const {
+  return "CUDA on " + engine_.device_name() + ", " + traversal() + ", " + to_string(engine_.options().sort) + " sort";
+}
 std::string CudaForceEngine::sort() const { return to_string(engine_.options().sort); }
 
 std::unique_ptr<ForceEngine> make_cuda_force_engine(const EngineChoice& choice) {

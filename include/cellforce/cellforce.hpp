@@ -171,8 +171,9 @@ class CELLFORCE_API Context {
   //   neighbor-audit  true | false (count pairs a reused structure misses; slow, CPU diagnostics)
   //   accumulation  jacobi | gauss-seidel
   //   cell-rule     tight | chapter
-  //   traversal     warp | thread | tile     (CUDA: warp per cell, the chapter's thread per cell,
-  //                                           warp per 32-occupant tile of a cell)
+  //   traversal     auto | warp | thread | tile   (CUDA: warp per cell, the chapter's thread per
+  //                                           cell, warp per 32-occupant tile of a cell; auto, the
+  //                                           default: tile for few cells per SM, else warp)
   //   sort          cub | chapter            (CUDA)
   void set_option(std::string_view key, std::string_view value);
 

@@ -28,7 +28,7 @@ struct EngineChoice {
   Precision precision = Precision::kDouble;
   Accumulation accumulation = Accumulation::kJacobi;
   CellRule rule = CellRule::kTight;
-  TraversalForm traversal = TraversalForm::kWarpPerCell;  // CUDA only
+  TraversalForm traversal = TraversalForm::kAuto;         // CUDA only
   SortMethod sort = SortMethod::kCub;                     // CUDA only
   ReuseOptions reuse;                                     // skin, check, every, audit
   int device = 0;                                         // CUDA device ordinal

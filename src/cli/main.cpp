@@ -181,7 +181,7 @@ void add_backend_options(CLI::App* cmd, EngineChoice& b) {
       ->transform(one_of(cli::kAccumulations));
   cmd->add_option("--cell-rule", b.rule, "tight (c >= rc + h) or chapter (c >= 3h)")
       ->transform(one_of(cli::kCellRules));
-  cmd->add_option("--traversal", b.traversal, "CUDA traversal: warp (a warp per cell), thread (a thread per cell) or tile (a warp per 32 occupants of a cell)")
+  cmd->add_option("--traversal", b.traversal, "CUDA traversal: auto (the default: tile for few cells per multiprocessor, else warp), warp (a warp per cell), thread (a thread per cell) or tile (a warp per 32 occupants of a cell)")
       ->transform(one_of(cli::kTraversals));
   cmd->add_option("--sort", b.sort, "CUDA sort: cub or chapter (the chapter's radix sort)")
       ->transform(one_of(cli::kSorts));
@@ -252,7 +252,7 @@ int main(int argc, char** argv) {
       ->check(CLI::IsMember({"cpu", "cuda", "auto"}));
   run_cmd->add_option("--precision", ra.precision, "Override the scene's precision: single, mixed or double")
       ->check(CLI::IsMember({"single", "mixed", "double"}));
-  run_cmd->add_option("--traversal", ra.traversal, "CUDA traversal: warp (default), thread or tile");
+  run_cmd->add_option("--traversal", ra.traversal, "CUDA traversal: auto (default), warp, thread or tile");
   run_cmd->add_option("--thermo-file", ra.thermo_file, "Write the thermodynamics to this CSV file");
   run_cmd->add_option("--trajectory", ra.trajectory, "Write an H5MD trajectory to this file");
   run_cmd->add_option("--trajectory-every", ra.trajectory_every, "Steps between trajectory frames")

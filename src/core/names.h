@@ -33,7 +33,8 @@ inline constexpr Named<Accumulation> kAccumulationNames[] = {
     {"jacobi", Accumulation::kJacobi}, {"gauss-seidel", Accumulation::kGaussSeidel}};
 inline constexpr Named<CellRule> kCellRuleNames[] = {{"tight", CellRule::kTight}, {"chapter", CellRule::kChapter}};
 inline constexpr Named<TraversalForm> kTraversalNames[] = {
-    {"warp", TraversalForm::kWarpPerCell}, {"thread", TraversalForm::kThreadPerCell}, {"tile", TraversalForm::kWarpPerTile}};
+    {"warp", TraversalForm::kWarpPerCell}, {"thread", TraversalForm::kThreadPerCell}, {"tile", TraversalForm::kWarpPerTile},
+    {"auto", TraversalForm::kAuto}};
 inline constexpr Named<SortMethod> kSortNames[] = {{"cub", SortMethod::kCub}, {"chapter", SortMethod::kChapter}};
 
 // The value named `name` exactly, or nothing.
