@@ -7,7 +7,8 @@
 //    are held in registers, columns of 32 occupants staged in shared memory; in step k lane l
 //    pairs its row occupant with column occupant (l + k) mod 32, so that no two lanes touch one
 //    column accumulator in a step. A __syncwarp after each step orders the steps.
-//  - warp per row tile (below): each tile of 32 occupants of a cell is one warp's work.
+//  - block per row tile (below): each tile of 32 occupants of a cell is one block's work, its
+//    warps taking the column tiles in turn.
 // All write each occupant's sums into the cell's own output slot (Jacobi) or, one cell type per
 // launch, into the single output (Gauss-Seidel), with no atomics: every addition happens in an
 // order fixed by the cell's layout, so results are bitwise reproducible.
@@ -282,27 +283,37 @@ __global__ void __launch_bounds__(kWarpsPerBlock * 32)
   }
 }
 
-// ---- warp per row tile ------------------------------------------------------------------------
+// ---- block per row tile ------------------------------------------------------------------------
 // A collision cell's occupants (H first, then P) in rows of 32; each row tile of each cell is one
-// warp's work, so a cell of m occupants keeps ceil(m / 32) warps busy. A warp computes the whole
-// force on each of its row occupants from every column occupant of the cell that the chapter's
-// rule pairs it with here (H x H; H x P unless the control bits give the pair to another cell;
-// never P x P), so each pair is evaluated from both sides and nothing but the row's own sums is
-// written: a particle's slot is written by the one warp that holds its row in the one cell of that
-// type it occupies, with no atomics, in a fixed order. Row tiles of P occupants only need the H
-// columns. Twice the pair evaluations of warp_per_cell, for ceil(m / 32) times its parallelism:
+// block's work, so a cell of m occupants keeps ceil(m / 32) blocks busy. The block computes the
+// whole force on each of its row occupants from every column occupant of the cell that the
+// chapter's rule pairs it with here (H x H; H x P unless the control bits give the pair to another
+// cell; never P x P), so each pair is evaluated from both sides and nothing but the row's own sums
+// is written: a particle's slot is written by the one block that holds its row in the one cell of
+// that type it occupies, with no atomics. The block's warps take the column tiles in turn (warp k:
+// tiles k, k + kWarpsPerBlock, ...) and their partial sums are added in warp order in shared
+// memory, so the order is fixed and the result bitwise repeatable. Row tiles of P occupants only
+// need the H columns. Twice the pair evaluations of warp_per_cell, for many times its parallelism:
 // what a small system needs. Energy and virial: half of each pair from each side, summed per row
 // tile (args.cell_sums is indexed by the global tile) and then over the tiles in a fixed order.
+template <class T, class Real, class Accum>
+struct RowTileSums {
+  Accum force[kWarpsPerBlock][T::kDim][32];
+  Accum energy[kWarpsPerBlock][T::kObservables ? 32 : 1];
+  Accum totals[kWarpsPerBlock][T::kObservables ? kCellSums : 1];
+};
+
 template <class T, class Real, class Accum, bool Record>
 __global__ void __launch_bounds__(kWarpsPerBlock * 32)
     warp_per_tile(const TraversalArgs<Real, Accum> args) {
   constexpr int D = T::kDim;
   __shared__ StagedEntry<Real> column_tiles[kWarpsPerBlock][32];
+  __shared__ RowTileSums<T, Real, Accum> partial;
   const int warp = int(threadIdx.x / 32), lane = int(threadIdx.x % 32);
   StagedEntry<Real>* column = column_tiles[warp];
   const uint32_t first_cell = args.cell_range[0], end_cell = args.cell_range[1];
-  const uint32_t w = args.tile_start[first_cell] + blockIdx.x * (blockDim.x / 32) + uint32_t(warp);
-  if (w >= args.tile_start[end_cell]) return;  // the whole warp: the tile index is warp-uniform
+  const uint32_t w = args.tile_start[first_cell] + blockIdx.x;
+  if (w >= args.tile_start[end_cell]) return;  // the whole block: the tile index is block-uniform
   // The cell holding tile w: the last c in [first_cell, end_cell) with tile_start[c] <= w (every
   // collision cell has at least one tile, so tile_start increases strictly over the cells).
   uint32_t lo = first_cell, hi = end_cell;
@@ -314,8 +325,6 @@ __global__ void __launch_bounds__(kWarpsPerBlock * 32)
   const CollisionCell cell = args.cells[lo];
   const uint32_t row = (w - args.tile_start[lo]) * 32u;
   const unsigned type = cell_type_of_id(args.grid, cell.cell);
-  Accum* force = args.force + type * args.force_slot_stride;
-  Accum* energy = T::kObservables ? args.energy + type * args.energy_slot_stride : nullptr;
   const LJParams<Real> single = args.table[0];
   const StagedEntry<Real>* occ = args.staged + cell.start;
   const uint32_t* ids = args.sorted_ids + cell.start;
@@ -332,7 +341,7 @@ __global__ void __launch_bounds__(kWarpsPerBlock * 32)
   Accum fa[D] = {};
   Accum ea = 0;
   const uint32_t columns = row >= h ? h : m;  // a tile of P rows pairs with H columns only
-  for (uint32_t col = 0; col < columns; col += 32) {
+  for (uint32_t col = uint32_t(warp) * 32u; col < columns; col += 32u * kWarpsPerBlock) {
     const uint32_t own = col + uint32_t(lane);
     if (own < columns) column[lane] = occ[own];
     __syncwarp();
@@ -375,12 +384,6 @@ __global__ void __launch_bounds__(kWarpsPerBlock * 32)
     __syncwarp();
   }
   if (impossible) args.flags->impossible = 1;
-  if constexpr (!Record) {
-    if (row_ok && ia < args.n) {
-      for (int c = 0; c < D; ++c) force[std::size_t(ia) * D + c] += fa[c];
-      if constexpr (T::kObservables) energy[ia] += ea;
-    }
-  }
   if constexpr (Record) {
     candidates = warp_sum(candidates);
     interacting = warp_sum(interacting);
@@ -388,11 +391,37 @@ __global__ void __launch_bounds__(kWarpsPerBlock * 32)
       atomicAdd(&args.flags->candidates, candidates);
       atomicAdd(&args.flags->interacting, interacting);
     }
-  } else if constexpr (T::kObservables) {
-    totals.finish();
-    for (int k = 0; k < kCellSums; ++k) {
-      const Accum v = warp_sum(totals.v[k]);
-      if (lane == 0) args.cell_sums[std::size_t(w) * kCellSums + k] = v;
+  } else {
+    // The warps' partial sums, added in warp order by warp 0 (and the totals by one thread each).
+    for (int c = 0; c < D; ++c) partial.force[warp][c][lane] = fa[c];
+    if constexpr (T::kObservables) {
+      partial.energy[warp][lane] = ea;
+      totals.finish();
+      for (int k = 0; k < kCellSums; ++k) {
+        const Accum v = warp_sum(totals.v[k]);
+        if (lane == 0) partial.totals[warp][k] = v;
+      }
+    }
+    __syncthreads();
+    if (warp == 0 && row_ok && ia < args.n) {
+      Accum* force = args.force + type * args.force_slot_stride;
+      for (int c = 0; c < D; ++c) {
+        Accum f = partial.force[0][c][lane];
+        for (int k = 1; k < kWarpsPerBlock; ++k) f += partial.force[k][c][lane];
+        force[std::size_t(ia) * D + c] += f;
+      }
+      if constexpr (T::kObservables) {
+        Accum e = partial.energy[0][lane];
+        for (int k = 1; k < kWarpsPerBlock; ++k) e += partial.energy[k][lane];
+        args.energy[type * args.energy_slot_stride + ia] += e;
+      }
+    }
+    if constexpr (T::kObservables) {
+      if (threadIdx.x < unsigned(kCellSums)) {
+        Accum v = partial.totals[0][threadIdx.x];
+        for (int k = 1; k < kWarpsPerBlock; ++k) v += partial.totals[k][threadIdx.x];
+        args.cell_sums[std::size_t(w) * kCellSums + threadIdx.x] = v;
+      }
     }
   }
 }
@@ -403,9 +432,8 @@ void launch(TraversalForm form, const TraversalArgs<Real, Accum>& args, cudaStre
   if (form == TraversalForm::kThreadPerCell) {
     const unsigned blocks = (args.max_cells + kThreadsPerBlock - 1) / kThreadsPerBlock;
     thread_per_cell<T, Real, Accum, Record><<<blocks, kThreadsPerBlock, 0, stream>>>(args);
-  } else if (form == TraversalForm::kWarpPerTile) {
-    const unsigned blocks = (args.max_tiles + kWarpsPerBlock - 1) / kWarpsPerBlock;
-    if (blocks) warp_per_tile<T, Real, Accum, Record><<<blocks, kWarpsPerBlock * 32, 0, stream>>>(args);
+  } else if (form == TraversalForm::kWarpPerTile) {  // a block per row tile
+    if (args.max_tiles) warp_per_tile<T, Real, Accum, Record><<<args.max_tiles, kWarpsPerBlock * 32, 0, stream>>>(args);
   } else {
     // Few cells (a small system; the bound on them): one warp per block spreads them over every
     // multiprocessor; many cells: kWarpsPerBlock per block, for more resident warps than the per-SM block limit

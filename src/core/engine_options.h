@@ -22,17 +22,18 @@ enum class TraversalForm : uint8_t {
   kWarpPerCell,    // cooperative: a warp shares one cell, occupants staged 32 at a time in shared
                    // memory, partial sums added in a fixed order (the chapter's future work)
   kThreadPerCell,  // the chapter's: one thread walks one collision cell
-  kWarpPerTile,    // a warp per tile of 32 occupants of a cell, each pair from both sides (no
-                   // writes but its own rows): parallel work for small systems
+  kWarpPerTile,    // a block per tile of 32 occupants of a cell, its warps sharing the columns,
+                   // each pair from both sides (no writes but its own rows): parallel work for
+                   // small systems
   kAuto,           // chosen by the engine at each build from the cells and the device (below)
 };
 
-// kAuto's choice: warp per tile while the collision cells (bounded by min(n, grid cells)) are at
-// most this many per multiprocessor, else warp per cell. Measured on the H100 (132 SMs), in.lj,
-// cellforce run, mixed: tile/warp steps/s 1.65 at 216 cells, 1.53 at 512, 1.26 at 1000, 0.99 at
-// 1728, 0.89 at 2744 (validation/reports/performance.md). A rule of the system and the device,
-// not a timing: the choice, and so the bits, are the same on every run.
-inline constexpr int kTileCellsPerMultiprocessor = 10;
+// kAuto's choice: a block per row tile while the collision cells (bounded by min(n, grid cells))
+// are at most this many per multiprocessor, else warp per cell. Measured on the H100 (132 SMs),
+// in.lj, cellforce run, mixed: tile/warp steps/s 3.19 at 216 cells, 1.92 at 512, 1.44 at 1000,
+// 1.07 at 1728, 0.91 at 2744 (validation/reports/performance.md). A rule of the system and the
+// device, not a timing: the choice, and so the bits, are the same on every run.
+inline constexpr int kTileCellsPerMultiprocessor = 16;
 inline TraversalForm resolve_traversal(TraversalForm form, std::size_t cell_bound, int multiprocessors) {
   if (form != TraversalForm::kAuto) return form;
   return cell_bound <= std::size_t(kTileCellsPerMultiprocessor) * std::size_t(multiprocessors)
