@@ -101,7 +101,7 @@ struct GpuEngine::Impl {
   cuda::CollisionScratch collision;
   cuda::SplitScratch split;
   DeviceBuffer<cuda::PipelineCounts> counts;  // stage 1-3 counts, read by the later stages
-  DeviceBuffer<uint32_t> tile_start;           // warp per tile: the cells' first row tiles
+  DeviceBuffer<uint32_t> tile_start;           // tile form: the cells' first row tiles
   TraversalForm form = TraversalForm::kWarpPerCell;  // the traversal of the structure in use
   DeviceBuffer<std::byte> staged, table, force_slots, energy_slots, cell_sums;
   DeviceBuffer<double> forces, energies, totals;
@@ -378,7 +378,7 @@ struct GpuEngine::Impl {
     const bool observables = req.energy || req.virial;
     const std::size_t n = sys.n, dim = std::size_t(g.dim);
     const int copies = gs ? 1 : g.num_types();
-    // Energy and virial sums per collision cell, or per row tile for the warp-per-tile form.
+    // Energy and virial sums per collision cell, or per row tile for the tile form.
     const bool tiles = form == TraversalForm::kWarpPerTile;
     const std::size_t sums = tiles ? cuda::max_tiles(entries, max_cells) : max_cells;
     cuda::TraversalArgs<Real, Accum> args = prepare<Real, Accum>(g, sys, ff, ff.mode);
@@ -823,7 +823,10 @@ void GpuEngine::count_pairs(const SystemView& system, const ForceField& ff) {
   (void)record(system, ff, false);
 }
 
-TraversalForm GpuEngine::traversal() const { return impl_->form; }
+TraversalForm GpuEngine::traversal() const {
+  if (options_.traversal != TraversalForm::kAuto) return options_.traversal;
+  return impl_->entries > 0 || stats_.builds > 0 ? impl_->form : TraversalForm::kAuto;  // auto: chosen at a build
+}
 
 std::string GpuEngine::device_name() const {
   cudaDeviceProp prop{};

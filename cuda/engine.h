@@ -107,7 +107,8 @@ class GpuEngine {
   // device after evaluate(), synchronize(), collect_timing() and the pair recorder.
   const PipelineStats& stats() const { return stats_; }
   const GpuOptions& options() const { return options_; }
-  // The traversal form in use: options().traversal, or what kAuto chose at the last build.
+  // The traversal form in use: options().traversal, or what kAuto chose at the last build (kAuto
+  // before the first).
   TraversalForm traversal() const;
   // The device's name as the driver reports it (e.g. "NVIDIA H100 80GB HBM3").
   std::string device_name() const;

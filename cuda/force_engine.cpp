@@ -58,10 +58,12 @@ void CudaForceEngine::restore_reuse(const SystemView& built_from, const ForceFie
   engine_.restore_reuse(built_from, ff, served);
 }
 
-// The traversal in use (auto: what it chose at the last build, "auto: warp-per-tile").
+// The traversal in use (auto: what it chose at the last build, "auto: block-per-tile"; plain
+// "auto" before the first build).
 std::string CudaForceEngine::traversal() const {
-  const std::string used = to_string(engine_.traversal());
-  return engine_.options().traversal == TraversalForm::kAuto ? "auto: " + used : used;
+  const TraversalForm used = engine_.traversal();
+  if (engine_.options().traversal != TraversalForm::kAuto || used == TraversalForm::kAuto) return to_string(used);
+  return std::string("auto: ") + to_string(used);
 }
 std::string CudaForceEngine::description() const {
   return "CUDA on " + engine_.device_name() + ", " + traversal() + ", " + to_string(engine_.options().sort) + " sort";

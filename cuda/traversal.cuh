@@ -65,7 +65,7 @@ struct TraversalArgs {
   const CollisionCell* cells = nullptr;  // every collision cell
   const uint32_t* cell_range = nullptr;  // device: this launch's [first, end)
   uint32_t max_cells = 0;                // host: a bound on the launch's cells
-  // Warp per row tile: tile_start[c] = the row tiles (of 32 occupants) of cells before c, over
+  // Tile form (a block per row tile): tile_start[c] = the row tiles (of 32 occupants) of cells before c, over
   // max_cells + 1 entries (the last: every tile), from tile_starts(); max_tiles bounds them.
   const uint32_t* tile_start = nullptr;
   uint32_t max_tiles = 0;
@@ -111,7 +111,7 @@ void stage_occupants(const Grid& grid, const uint32_t* sorted_keys, const uint32
 void check_input(const double* positions, const uint32_t* types, std::size_t n, int dim,
                  uint32_t num_types, DeviceFlags* flags, cudaStream_t stream);
 
-// For the warp-per-tile form: tile_start[c] for c in [0, cell_bound] = the row tiles (ceil(m / 32)
+// For the tile form (a block per row tile): tile_start[c] for c in [0, cell_bound] = the row tiles (ceil(m / 32)
 // for a cell of m occupants) of the collision cells before c, cells beyond the count
 // (counts->cell_range[1]) having none, so tile_start[cell_bound] is the number of tiles. `scratch`
 // grows as CUB asks.

@@ -36,7 +36,8 @@ struct Traits {
 };
 
 constexpr int kThreadsPerBlock = 128;          // thread per cell: cells per block
-constexpr int kWarpsPerBlock = 4;              // warp per cell: most cells (warps) per block
+constexpr int kWarpsPerBlock = 4;              // warp per cell: most cells (warps) per block;
+                                               // tile form: the warps sharing a row tile
 constexpr uint32_t kControlMask = 0xffffu;
 
 __device__ __forceinline__ Control control_of(uint32_t meta) { return Control(meta & kControlMask); }

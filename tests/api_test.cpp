@@ -27,6 +27,7 @@
 #endif
 
 #include "cli/forces.h"
+#include "core/engine_options.h"
 #include "io/configuration_file.h"
 #include "io/hdf5.h"
 #include "oracle.h"
@@ -101,6 +102,24 @@ const cf::Precision kPrecisions[] = {cf::Precision::kDouble, cf::Precision::kMix
 }  // namespace
 
 // ---- the C++ API ----------------------------------------------------------------------------------
+
+// traversal = auto: the tile form up to kTileCellsPerMultiprocessor collision cells per SM, warp
+// per cell beyond; an explicit form is kept whatever the size.
+TEST(EngineOptions, AutoTraversalRule) {
+  const std::size_t limit = std::size_t(cf::kTileCellsPerMultiprocessor) * 132;
+  EXPECT_EQ(cf::resolve_traversal(cf::TraversalForm::kAuto, 216, 132), cf::TraversalForm::kWarpPerTile);
+  EXPECT_EQ(cf::resolve_traversal(cf::TraversalForm::kAuto, limit, 132), cf::TraversalForm::kWarpPerTile);
+  EXPECT_EQ(cf::resolve_traversal(cf::TraversalForm::kAuto, limit + 1, 132), cf::TraversalForm::kWarpPerCell);
+  EXPECT_EQ(cf::resolve_traversal(cf::TraversalForm::kAuto, 13824, 132), cf::TraversalForm::kWarpPerCell);
+  for (cf::TraversalForm f : {cf::TraversalForm::kWarpPerCell, cf::TraversalForm::kThreadPerCell,
+                              cf::TraversalForm::kWarpPerTile})
+    for (std::size_t cells : {std::size_t(1), limit + 1})
+      EXPECT_EQ(cf::resolve_traversal(f, cells, 132), f);
+  cf::Context ctx(3);
+  ctx.set_option("traversal", "auto");
+  ctx.set_option("traversal", "tile");
+  EXPECT_THROW(ctx.set_option("traversal", "block"), cf::Error);
+}
 
 TEST(Api, ComputeMatchesTheBruteForceOnEveryBackendAndPrecision) {
   for (int dim : {3, 2}) {

@@ -1,6 +1,7 @@
 // Properties of the CUDA engine that the shared test bodies (pipeline_test.cpp, which run it as
-// the gpuwarp and gputhread backends against the brute force) do not state: the GPU equals the CPU
-// engine of the same precision, both traversal forms test exactly the CPU's candidate pairs, and
+// the gpuwarp, gputhread and gputile backends against the brute force) do not state: the GPU
+// equals the CPU engine of the same precision, every traversal form tests exactly the CPU's
+// candidate pairs, and
 // scenes that stress the cooperative kernel (many 32-occupant tiles, a pair buffer that must grow)
 // stay exact. Skips with a message where no CUDA device exists; compiled only with CUDA.
 #ifdef CELLFORCE_HAVE_CUDA
@@ -14,6 +15,7 @@
 #include "engine.h"  // cuda/engine.h
 #include "oracle.h"
 #include "reference/brute_force.h"
+#include "scene/lattice.h"
 #include "scenes.h"
 
 namespace cftest {
@@ -30,7 +32,13 @@ using cellforce::Request;
 using cellforce::TraversalForm;
 
 const char* name_of(TraversalForm f) {
-  return f == TraversalForm::kWarpPerCell ? "warp" : f == TraversalForm::kThreadPerCell ? "thread" : "tile";
+  switch (f) {
+    case TraversalForm::kWarpPerCell: return "warp";
+    case TraversalForm::kThreadPerCell: return "thread";
+    case TraversalForm::kWarpPerTile: return "tile";
+    case TraversalForm::kAuto: return "auto";
+  }
+  return "?";
 }
 const char* name_of(Precision p) { return cellforce::to_string(p); }
 const char* name_of(Accumulation a) { return a == Accumulation::kJacobi ? "jacobi" : "gaussseidel"; }
@@ -189,6 +197,44 @@ INSTANTIATE_TEST_SUITE_P(Forms, GpuDenseCluster,
                          [](const ::testing::TestParamInfo<TraversalForm>& p) {
                            return std::string(name_of(p.param));
                          });
+
+// ---- the tile form on liquid cells ------------------------------------------------------------------
+// A jittered fcc liquid (10,976 particles, 4 x 4 x 4 cells of ~171 home and ~600 phantom
+// occupants): row tiles straddle the H/P boundary, H-row tiles walk every column tile, P-row tiles
+// the H ones, and the block's four warps share each tile's columns. Forces, per-particle energies,
+// energy and virial equal the brute force to 1e-12 (double), Jacobi and Gauss-Seidel; the pairs
+// found are the brute force's, each once; auto chooses this form here.
+TEST(GpuTileForm, LiquidCellsMatchTheBruteForce) {
+  CF_SKIP_WITHOUT_DEVICE();
+  cellforce::Configuration c = cellforce::make_lattice(cellforce::Lattice::kFcc, 14, 0.8442);
+  cellforce::jitter(c, 0.2, 17);
+  cellforce::ForceField ff;
+  ff.cutoff = 2.5;
+  ff.types = {{"A", 1.0, 1.0}};
+  const auto view = c.view();
+  ForceResult ref;
+  cellforce::brute_force(view, ff, Request{true, true}, ref);
+  for (Accumulation acc : {Accumulation::kJacobi, Accumulation::kGaussSeidel}) {
+    SCOPED_TRACE(name_of(acc));
+    GpuOptions o;
+    o.traversal = TraversalForm::kWarpPerTile;
+    o.accumulation = acc;
+    GpuEngine gpu(o);
+    ForceResult got;
+    gpu.evaluate(view, ff, Request{true, true}, got);
+    EXPECT_GT(gpu.stats().valid_entries / gpu.stats().collision_cells, 600u);  // cells of many tiles
+    EXPECT_TRUE(forces_match(ref, got, 1e-12));
+    EXPECT_TRUE(energies_match(ref, got, 1e-12));
+    EXPECT_TRUE(total_energy_matches(ref, got, 1e-12));
+    EXPECT_TRUE(virial_matches(ref, got, 1e-12));
+    EXPECT_TRUE(pair_sets_equal(cellforce::brute_force_pairs(view, ff), gpu.visited_pairs(view, ff)));
+  }
+  GpuEngine automatic;  // the default: auto
+  EXPECT_EQ(automatic.traversal(), TraversalForm::kAuto);  // nothing built yet
+  ForceResult got;
+  automatic.evaluate(view, ff, Request{false, false}, got);
+  EXPECT_EQ(automatic.traversal(), TraversalForm::kWarpPerTile);  // 64 cells: few per SM
+}
 
 // ---- the engine object ------------------------------------------------------------------------------
 // One engine, scenes of different sizes and dimensions in turn: buffers grow and shrink in use

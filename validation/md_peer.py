@@ -146,7 +146,7 @@ def main() -> int:
     ap.add_argument("--warmup", type=int, default=50)
     ap.add_argument("--skip-openmm", action="store_true")
     ap.add_argument("--traversals", nargs="+", default=[None],
-                    help="cellforce's CUDA traversal forms to time (warp, thread, tile; default: the run's own)")
+                    help="cellforce's CUDA traversal forms to time (auto, warp, thread, tile; default: the run's own)")
     ap.add_argument("--md", required=True)
     ap.add_argument("--json", required=True)
     args = ap.parse_args()

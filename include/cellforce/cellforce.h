@@ -72,7 +72,8 @@ CELLFORCE_API cf_status cf_set_pair(cf_context* ctx, uint32_t a, uint32_t b, dou
  *   cutoff-mode   truncate | shift | force-shift
  *   skin          a length >= 0 (Verlet skin of the neighbour structure; 0 rebuilds every call)
  *   device        CUDA device ordinal      accumulation  jacobi | gauss-seidel
- *   cell-rule     tight | chapter          traversal     warp | thread      sort  cub | chapter */
+ *   cell-rule     tight | chapter          sort          cub | chapter
+ *   traversal     auto | warp | thread | tile (CUDA; auto, the default, picks tile or warp) */
 CELLFORCE_API cf_status cf_set_option(cf_context* ctx, const char* key, const char* value);
 
 /* Host arrays. positions: n * dim (finite; any periodic image); types: n indices into the types

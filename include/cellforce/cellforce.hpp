@@ -172,7 +172,7 @@ class CELLFORCE_API Context {
   //   accumulation  jacobi | gauss-seidel
   //   cell-rule     tight | chapter
   //   traversal     auto | warp | thread | tile   (CUDA: warp per cell, the chapter's thread per
-  //                                           cell, warp per 32-occupant tile of a cell; auto, the
+  //                                           cell, block per 32-occupant tile of a cell; auto, the
   //                                           default: tile for few cells per SM, else warp)
   //   sort          cub | chapter            (CUDA)
   void set_option(std::string_view key, std::string_view value);

@@ -181,7 +181,7 @@ void add_backend_options(CLI::App* cmd, EngineChoice& b) {
       ->transform(one_of(cli::kAccumulations));
   cmd->add_option("--cell-rule", b.rule, "tight (c >= rc + h) or chapter (c >= 3h)")
       ->transform(one_of(cli::kCellRules));
-  cmd->add_option("--traversal", b.traversal, "CUDA traversal: auto (the default: tile for few cells per multiprocessor, else warp), warp (a warp per cell), thread (a thread per cell) or tile (a warp per 32 occupants of a cell)")
+  cmd->add_option("--traversal", b.traversal, "CUDA traversal: auto (the default: tile for few cells per multiprocessor, else warp), warp (a warp per cell), thread (a thread per cell) or tile (a block per 32 occupants of a cell)")
       ->transform(one_of(cli::kTraversals));
   cmd->add_option("--sort", b.sort, "CUDA sort: cub or chapter (the chapter's radix sort)")
       ->transform(one_of(cli::kSorts));

@@ -14,7 +14,7 @@ struct RunArgs {
   int64_t steps = -1;         // >= 0: overrides the scene's [run] steps
   std::string backend;        // non-empty: overrides [run] backend
   std::string precision;      // non-empty: overrides [run] precision
-  std::string traversal;      // non-empty: the CUDA traversal form (warp, thread, tile)
+  std::string traversal;      // non-empty: the CUDA traversal form (auto, warp, thread, tile)
   std::string thermo_file;    // non-empty: overrides [output] thermo_file
   std::string restart;        // non-empty: continue from this checkpoint (same scene)
   std::string trajectory;     // non-empty: overrides [output] trajectory

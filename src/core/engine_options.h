@@ -95,7 +95,7 @@ inline const char* to_string(TraversalForm form) {
   switch (form) {
     case TraversalForm::kWarpPerCell: return "warp-per-cell";
     case TraversalForm::kThreadPerCell: return "thread-per-cell";
-    case TraversalForm::kWarpPerTile: return "warp-per-tile";
+    case TraversalForm::kWarpPerTile: return "block-per-tile";  // option value "tile"
     case TraversalForm::kAuto: return "auto";
   }
   return "?";
