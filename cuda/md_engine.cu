@@ -494,8 +494,8 @@ class CudaMdEngine final : public MdEngine {
     add_reuse(counters_, gpu_.stats());
   }
 
-  // FIRE on the state (minimize() restores the start when this throws): the loop of
-  // minimize_fire, its per-particle arithmetic in kernels, its decisions on the host.
+  // FIRE on the state (minimize() restores the start when this throws): md/minimize.h's run_fire,
+  // its per-particle arithmetic in kernels, its decisions on the host.
   FireResult fire(const FireSettings& settings) {
     const int dim = box_.dim;
     const std::size_t nd = n_ * std::size_t(dim);
@@ -509,19 +509,7 @@ class CudaMdEngine final : public MdEngine {
       wrap.periodic[a] = box_.periodic[a];
     }
 
-    FireResult result;
-    FireScalars now = fire_evaluate();
-    LargestForce fmax = largest_of(now.forces);
-    result.initial_energy = now.energy;
-    result.initial_max_force = fmax.magnitude;
-    result.initial_max_force_particle = fmax.particle;
-
-    FireSchedule schedule(settings);
-    int64_t step = 0;
-    for (; step < settings.max_steps && !(fmax.magnitude < settings.force_tolerance); ++step) {
-      if (!std::isfinite(fmax.magnitude)) throw_fire_force_not_finite(fmax.particle);
-      const bool uphill = schedule.take_step(now.forces.power, step);
-      const double dt = schedule.dt();
+    const FireResult result = run_fire(settings, fire_evaluate(), [&](bool uphill, double dt, double alpha) {
       // n_ > 0 here: without particles the largest force is 0, converged.
       fire_kick_kernel<<<blocks_for(n_), kBlock, 0, stream_>>>(positions_.data(), velocities_.data(),
                                                                gpu_.device_forces(), masses_.data(), dt, 0.5 * dt,
@@ -535,32 +523,23 @@ class CudaMdEngine final : public MdEngine {
       CF_CUDA_CHECK(
           cub::DeviceReduce::Sum(reduce_scratch_.data(), bytes, speeds, &fire_scalars_.data()->v2, n_, stream_));
       fire_drift_kernel<<<blocks_for(n_), kBlock, 0, stream_>>>(positions_.data(), velocities_.data(),
-                                                                gpu_.device_forces(), fire_scalars_.data(),
-                                                                schedule.alpha(), dt, settings.max_displacement,
-                                                                wrap, n_);
+                                                                gpu_.device_forces(), fire_scalars_.data(), alpha,
+                                                                dt, settings.max_displacement, wrap, n_);
       CF_CUDA_CHECK_LAUNCH();
-      now = fire_evaluate();
-      fmax = largest_of(now.forces);
-    }
-
-    result.steps = step;
-    result.final_energy = now.energy;
-    result.final_max_force = fmax.magnitude;
-    result.final_max_force_particle = fmax.particle;
-    result.converged = fmax.magnitude < settings.force_tolerance;
-    if (!result.converged && settings.require_convergence)
-      throw_fire_not_converged(step, fmax, settings.force_tolerance);
+      return fire_evaluate();
+    });
     if (nd) CF_CUDA_CHECK(cudaMemsetAsync(velocities_.data(), 0, nd * sizeof(double), stream_));
     CF_CUDA_CHECK(cudaStreamSynchronize(stream_));
     return result;
   }
 
   // One FIRE evaluation at the positions now (energy and virial), its ForceSums with the
-  // velocities now, its energy, and the drift's flag: the numbers the host reads per step, with
+  // velocities now, its energy, and the drift's flag (FireScalars): the numbers the host reads per
+  // step, with
   // the force engine's flags (one synchronisation). Throws for a pair whose force is not finite
   // and for a position that is not finite (that diagnosis first: an evaluation of such positions
   // may fail on its own).
-  FireScalars fire_evaluate() {
+  FireEvaluation fire_evaluate() {
     FireScalars* d = fire_scalars_.data();
     try {
       evaluate(true);
@@ -592,7 +571,7 @@ class CudaMdEngine final : public MdEngine {
     counters_.bytes_to_host += sizeof host;
     if (!n_) host.forces = none;
     if (host.bad_position != ~0ull) throw_position_not_finite(host.bad_position);
-    return host;
+    return FireEvaluation{host.energy, largest_of(host.forces), host.forces.power};
   }
 
   static LargestForce largest_of(const ForceSums& s) {

@@ -88,6 +88,17 @@ __device__ __forceinline__ V warp_sum(V v) {
   return v;
 }
 
+// Record mode: a warp's candidate and interacting pair counts, added to the flags once per warp.
+__device__ __forceinline__ void add_pair_counts(DeviceFlags* flags, unsigned long long candidates,
+                                                unsigned long long interacting, int lane) {
+  candidates = warp_sum(candidates);
+  interacting = warp_sum(interacting);
+  if (lane == 0) {
+    atomicAdd(&flags->candidates, candidates);
+    atomicAdd(&flags->interacting, interacting);
+  }
+}
+
 // ---- thread per collision cell ----------------------------------------------------------------
 template <class T, class Real, class Accum, bool Record>
 __global__ void __launch_bounds__(kThreadsPerBlock)
@@ -269,12 +280,7 @@ __global__ void __launch_bounds__(kWarpsPerBlock * 32)
   }
   if (impossible) args.flags->impossible = 1;
   if constexpr (Record) {
-    candidates = warp_sum(candidates);
-    interacting = warp_sum(interacting);
-    if (lane == 0) {
-      atomicAdd(&args.flags->candidates, candidates);
-      atomicAdd(&args.flags->interacting, interacting);
-    }
+    add_pair_counts(args.flags, candidates, interacting, lane);
   } else if constexpr (T::kObservables) {
     totals.finish();
     for (int k = 0; k < kCellSums; ++k) {
@@ -386,12 +392,7 @@ __global__ void __launch_bounds__(kWarpsPerBlock * 32)
   }
   if (impossible) args.flags->impossible = 1;
   if constexpr (Record) {
-    candidates = warp_sum(candidates);
-    interacting = warp_sum(interacting);
-    if (lane == 0) {
-      atomicAdd(&args.flags->candidates, candidates);
-      atomicAdd(&args.flags->interacting, interacting);
-    }
+    add_pair_counts(args.flags, candidates, interacting, lane);
   } else {
     // The warps' partial sums, added in warp order by warp 0 (and the totals by one thread each).
     for (int c = 0; c < D; ++c) partial.force[warp][c][lane] = fa[c];

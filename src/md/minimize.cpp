@@ -111,6 +111,29 @@ LargestForce largest_force(const MdState& s) {
   return out;
 }
 
+FireResult run_fire(const FireSettings& settings, const FireEvaluation& start, const FireStep& step) {
+  FireResult result;
+  FireEvaluation now = start;
+  result.initial_energy = now.energy;
+  result.initial_max_force = now.largest.magnitude;
+  result.initial_max_force_particle = now.largest.particle;
+  FireSchedule schedule(settings);
+  int64_t k = 0;
+  for (; k < settings.max_steps && !(now.largest.magnitude < settings.force_tolerance); ++k) {
+    if (!std::isfinite(now.largest.magnitude)) throw_fire_force_not_finite(now.largest.particle);
+    const bool uphill = schedule.take_step(now.power, k);
+    now = step(uphill, schedule.dt(), schedule.alpha());
+  }
+  result.steps = k;
+  result.final_energy = now.energy;
+  result.final_max_force = now.largest.magnitude;
+  result.final_max_force_particle = now.largest.particle;
+  result.converged = now.largest.magnitude < settings.force_tolerance;
+  if (!result.converged && settings.require_convergence)
+    throw_fire_not_converged(k, now.largest, settings.force_tolerance);
+  return result;
+}
+
 FireResult minimize_fire(MdState& s, const std::vector<double>& masses, const FireSettings& settings,
                          const ForceEnergyFunction& compute_forces) {
   check_fire_settings(settings);
@@ -120,27 +143,19 @@ FireResult minimize_fire(MdState& s, const std::vector<double>& masses, const Fi
   if (masses.size() != n)
     throw Error("FIRE: " + std::to_string(masses.size()) + " masses for " + std::to_string(n) + " particles");
 
-  FireResult result;
   s.velocities.assign(nd, 0.0);
-  double energy = compute_forces(s);
-  LargestForce fmax = largest_force(s);
-  result.initial_energy = energy;
-  result.initial_max_force = fmax.magnitude;
-  result.initial_max_force_particle = fmax.particle;
-
-  FireSchedule schedule(settings);
-  int64_t step = 0;
-  for (; step < settings.max_steps && !(fmax.magnitude < settings.force_tolerance); ++step) {
-    if (!std::isfinite(fmax.magnitude)) throw_fire_force_not_finite(fmax.particle);
-    double power = 0;
-    for (std::size_t k = 0; k < nd; ++k) power += s.forces[k] * s.velocities[k];
-    const bool uphill = schedule.take_step(power, step);
-    const double dt = schedule.dt(), alpha = schedule.alpha();
+  auto evaluate = [&] {  // the velocities are zero or unchanged since the step: P from them
+    FireEvaluation e;
+    e.energy = compute_forces(s);
+    e.largest = largest_force(s);
+    for (std::size_t k = 0; k < nd; ++k) e.power += s.forces[k] * s.velocities[k];
+    return e;
+  };
+  const FireResult result = run_fire(settings, evaluate(), [&](bool uphill, double dt, double alpha) {
     double* x = s.config.positions.data();
     double* v = s.velocities.data();
     const double* f = s.forces.data();
     const int d = int(dim);
-
     // Uphill: back by half a step (with the new dt), where the climb began, and start from rest.
     // Then the semi-implicit Euler step: kick, mix the velocity towards the force direction, cap,
     // drift (md/fire_step.h, per particle).
@@ -161,17 +176,8 @@ FireResult minimize_fire(MdState& s, const std::vector<double>& masses, const Fi
       fire_drift(x + i * dim, v + i * dim, dt, d);
     }
     wrap_positions(s);
-    energy = compute_forces(s);
-    fmax = largest_force(s);
-  }
-
-  result.steps = step;
-  result.final_energy = energy;
-  result.final_max_force = fmax.magnitude;
-  result.final_max_force_particle = fmax.particle;
-  result.converged = fmax.magnitude < settings.force_tolerance;
-  if (!result.converged && settings.require_convergence)
-    throw_fire_not_converged(step, fmax, settings.force_tolerance);
+    return evaluate();
+  });
   std::fill(s.velocities.begin(), s.velocities.end(), 0.0);
   return result;
 }

@@ -93,6 +93,23 @@ class FireSchedule {
 [[noreturn]] void throw_fire_position_not_finite(std::size_t particle, int axis, double value);
 [[noreturn]] void throw_fire_not_converged(int64_t steps, const LargestForce& largest, double tolerance);
 
+// What FIRE reads after each force evaluation: the potential energy, the largest |F_i| and
+// P = F.v with the velocities at that point.
+struct FireEvaluation {
+  double energy = 0;
+  LargestForce largest;
+  double power = 0;
+};
+// Moves the state by one FIRE step (step back by 0.5 dt and zero the velocities when `uphill`;
+// kick, mix with `alpha`, cap, drift, wrap), evaluates the forces there and returns what FIRE reads.
+using FireStep = std::function<FireEvaluation(bool uphill, double dt, double alpha)>;
+
+// FIRE's loop, shared by every implementation: from the evaluation at the start, steps until the
+// largest force is below the tolerance or max_steps pass, the decisions made by FireSchedule and
+// the moves by `step`. Throws for a force that is not finite and, with require_convergence, when
+// it does not converge. The caller checks the settings and zeroes the velocities before and after.
+FireResult run_fire(const FireSettings& settings, const FireEvaluation& start, const FireStep& step);
+
 // Minimises the potential energy with FIRE until max_i |F_i| < settings.force_tolerance.
 // masses: per particle. Positions are wrapped into the box on periodic axes after every step.
 // On return state holds the final positions, their forces, and zero velocities (the run then
