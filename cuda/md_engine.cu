@@ -316,6 +316,10 @@ class CudaMdEngine final : public MdEngine {
   }
 
   int64_t step() const override { return step_; }
+  std::size_t state_bytes() const override {
+    return positions_.bytes() + velocities_.bytes() + masses_.bytes() + types_.bytes() + flags_.bytes() +
+           scratch_result_.bytes() + fire_scalars_.bytes() + fire_start_.bytes() + reduce_scratch_.bytes();
+  }
 
   Observables observables() override {
     const OnDevice on(gpu_.options().device);

@@ -117,6 +117,10 @@ struct RunStatistics {
   // structure served.
   int64_t builds = 0;
   double largest_served_displacement = 0;
+  // Memory held now (device memory with cuda, host memory on the CPU): the force engine's stage
+  // buffers (as of the last sampled evaluation) and the MD state (positions, velocities, masses,
+  // types and the integrator's and minimiser's working arrays).
+  std::size_t buffer_bytes = 0, state_bytes = 0;
   // With neighbor-audit: pairs within the cutoff that a reused structure missed or repeated.
   std::size_t missed_pairs = 0, repeated_pairs = 0;
 };

@@ -480,6 +480,8 @@ RunStatistics Context::run_statistics() const {
   r.largest_served_displacement = c.served;
   r.missed_pairs = c.missed_pairs;
   r.repeated_pairs = c.repeated_pairs;
+  r.buffer_bytes = impl_->md->forces().stats().buffer_bytes;
+  r.state_bytes = impl_->md->state_bytes();
   return r;
 }
 

@@ -103,6 +103,11 @@ class CpuMdEngine final : public MdEngine {
 
   void get_state(MdState& state) override { state = state_; }
   int64_t step() const override { return state_.step; }
+  std::size_t state_bytes() const override {
+    return sizeof(double) * (state_.config.positions.size() + state_.velocities.size() + state_.forces.size() +
+                             masses_.size()) +
+           sizeof(uint32_t) * state_.config.types.size();
+  }
 
   Observables observables() override {
     if (!observed_) evaluate(true);

@@ -75,6 +75,8 @@ class MdEngine {
   // device backend.
   virtual void get_state(MdState& state) = 0;
   virtual int64_t step() const = 0;
+  // Bytes the state and the integrator's working arrays hold where the backend computes.
+  virtual std::size_t state_bytes() const = 0;
 
   // Kinetic energy now, potential energy and virial at the current positions: those of the last
   // evaluation when it computed them, else from one more evaluation (which computes them).

@@ -14,6 +14,7 @@
 #include <vector>
 
 #include "backends/force_engine.h"
+#include "cli/bench.h"
 #include "cli/forces.h"
 #include "cli/options.h"
 #include "cli/run.h"
@@ -267,6 +268,40 @@ int main(int argc, char** argv) {
   run_cmd->add_flag("--overwrite", ra.overwrite,
                     "Replace the thermo, trajectory and checkpoint files of an earlier run (refused otherwise)");
 
+  BenchArgs ba;
+  ba.engine.precision = Precision::kMixed;
+  CLI::App* bench_cmd = app.add_subcommand(
+      "bench", "Time MD steps of the LAMMPS in.lj fluid (fcc at density 0.8442, rc 2.5, T 1.44, NVE, dt 0.005) "
+               "at several sizes: steps/s, particle-steps/s, stage times, memory per particle, median force "
+               "error against double precision, NVE drift; a table, and JSON rows with --json");
+  bench_cmd->add_option("--sizes", ba.sizes, "Particle counts (each runs the nearest fcc size, 4 c^3; default "
+                                             "32000 256000 1048576 4194304)");
+  bench_cmd->add_option("--cells", ba.cells, "fcc unit cells per axis instead (4 c^3 particles)")
+      ->check(CLI::PositiveNumber);
+  add_backend_options(bench_cmd, ba.engine);
+  bench_cmd->add_option("--skin", ba.engine.reuse.skin,
+                        "Build the cell structure for rc + skin and reuse it while no particle moved more than "
+                        "skin/2 (default 0: rebuild every step)")
+      ->check(CLI::NonNegativeNumber);
+  bench_cmd->add_flag("--chapter", ba.chapter,
+                      "The chapter's configuration: a thread per cell, its radix sort, cells >= 1.5 x 2h, a "
+                      "rebuild every step");
+  bench_cmd->add_option("--cutoff-mode", ba.mode, "truncate (in.lj, the default), shift or force-shift")
+      ->transform(one_of(cli::kCutoffModes));
+  bench_cmd->add_option("--seconds", ba.seconds, "Timed seconds per size (sets the steps)")
+      ->check(CLI::PositiveNumber)->capture_default_str();
+  bench_cmd->add_option("--steps", ba.steps, "Timed steps per size instead of --seconds")->check(CLI::PositiveNumber);
+  bench_cmd->add_option("--warmup", ba.warmup, "Steps before the timing (excluded)")
+      ->check(CLI::PositiveNumber)->capture_default_str();
+  bench_cmd->add_option("--samples", ba.samples, "Energy samples over the timed steps, for the NVE drift")
+      ->check(CLI::Range(2, 100000))->capture_default_str();
+  bench_cmd->add_flag("!--no-reference", ba.reference, "Skip the force error against double precision");
+  bench_cmd->add_option("--label", ba.label, "The rows' configuration name (default: default, or chapter)");
+  bench_cmd->add_option("--save-final", ba.save_final,
+                        "Write PREFIX-<n>.positions.f64 and PREFIX-<n>.forces.f64: the last step's positions and "
+                        "forces, n x 3 little-endian doubles, for an outside check of the force error");
+  bench_cmd->add_option("--json", ba.json, "Write the rows here (rewritten whole after every size)");
+
   CLI11_PARSE(app, argc, argv);
   // A file that outgrows `ulimit -f` gets an error from the write (EFBIG), not a kill by SIGXFSZ.
   std::signal(SIGXFSZ, SIG_IGN);
@@ -274,11 +309,12 @@ int main(int argc, char** argv) {
     if (run_cmd->parsed()) return run_md(ra);
     if (forces_cmd->parsed()) return run_forces(fa);
     if (evaluate_cmd->parsed()) return evaluate(ev);
+    if (bench_cmd->parsed()) return run_bench(ba);
   } catch (const std::bad_alloc&) {
     // The sizes are checked before allocating (core/memory.h); what still runs out names itself
     // where it can (reporting_bad_alloc), and this is the rest.
     std::fprintf(stderr, "out of memory (std::bad_alloc) in cellforce %s: the machine has %.3g GB\n",
-                 run_cmd->parsed() ? "run" : forces_cmd->parsed() ? "forces" : "evaluate", double(physical_memory()) / 1e9);
+                 run_cmd->parsed() ? "run" : forces_cmd->parsed() ? "forces" : bench_cmd->parsed() ? "bench" : "evaluate", double(physical_memory()) / 1e9);
     return 1;
   } catch (const std::exception& e) {
     std::fprintf(stderr, "%s\n", e.what());

@@ -23,6 +23,7 @@
 #include "core/text.h"
 #include "io/h5md_writer.h"
 #include "io/output_paths.h"
+#include "io/text_file.h"
 #include "md/checkpoint.h"
 #include "md/md.h"
 #include "md/minimize.h"
@@ -154,25 +155,6 @@ void check_covers(const std::vector<int64_t>& steps, int64_t checkpoint_step, in
                 what + " up to step " + std::to_string(last) +
                 " only: continuing would leave a gap (is the checkpoint from another run? --overwrite starts "
                 "afresh instead)");
-}
-
-void write_text_atomically(const std::string& path, const std::vector<std::string>& lines) {
-  const std::string tmp = path + ".partial-" + std::to_string(::getpid());
-  {
-    errno = 0;
-    std::ofstream out(tmp, std::ios::trunc);
-    for (const std::string& line : lines) out << line << '\n';
-    out.flush();
-    if (!out) {
-      const int code = errno;
-      std::remove(tmp.c_str());
-      throw Error(path + ": cannot write the thermo file" + (code ? std::string(": ") + std::strerror(code) : ""));
-    }
-  }
-  if (std::rename(tmp.c_str(), path.c_str()) != 0) {
-    std::remove(tmp.c_str());
-    throw Error(path + ": cannot move the thermo file into place");
-  }
 }
 
 // The scene with the command line's overrides applied.
@@ -314,7 +296,7 @@ class RunFiles {
                    output_.trajectory, args.restart, "trajectory frames");
     if (!output_.thermo_file.empty()) {
       if (rows.empty()) rows.push_back("step,time,temperature,kinetic_energy,potential_energy,total_energy,pressure");
-      write_text_atomically(output_.thermo_file, rows);
+      write_text_atomically(output_.thermo_file, rows, "the thermo file");
       csv_ = std::make_unique<std::ofstream>(output_.thermo_file, std::ios::app);
       if (!*csv_) throw Error(output_.thermo_file + ": cannot write the thermo file");
     }

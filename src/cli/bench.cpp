@@ -1,0 +1,280 @@
+#include "cli/bench.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <new>
+#include <nlohmann/json.hpp>
+#include <optional>
+
+#include <cellforce/cellforce.hpp>
+
+#include "cli/engine_context.h"
+#include "cli/options.h"
+#include "core/error.h"
+#include "core/memory.h"
+#include "core/names.h"
+#include "io/text_file.h"
+#include "md/md.h"
+#include "scene/scene.h"
+
+#ifndef CELLFORCE_VERSION
+#define CELLFORCE_VERSION "unknown"
+#endif
+
+namespace cellforce {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+double seconds_since(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
+
+// fcc unit cells per axis whose 4 c^3 particles are nearest to n.
+int fcc_cells_for(double n) {
+  const int c = std::max(1, int(std::lround(std::cbrt(n / 4.0))));
+  return c;
+}
+
+// Least-squares slope of y against x.
+double slope(const std::vector<double>& x, const std::vector<double>& y) {
+  const double n = double(x.size());
+  double sx = 0, sy = 0;
+  for (std::size_t i = 0; i < x.size(); ++i) sx += x[i], sy += y[i];
+  const double mx = sx / n, my = sy / n;
+  double sxy = 0, sxx = 0;
+  for (std::size_t i = 0; i < x.size(); ++i) sxy += (x[i] - mx) * (y[i] - my), sxx += (x[i] - mx) * (x[i] - mx);
+  return sxx > 0 ? sxy / sxx : NAN;
+}
+
+// Per particle |F_i - R_i| / |R_i| (particles whose reference force is exactly zero are left out):
+// the median and the largest.
+std::pair<double, double> force_errors(const std::vector<double>& f, const std::vector<double>& ref, int dim) {
+  std::vector<double> rel;
+  rel.reserve(ref.size() / std::size_t(dim));
+  for (std::size_t i = 0; i * std::size_t(dim) < ref.size(); ++i) {
+    double d2 = 0, r2 = 0;
+    for (int a = 0; a < dim; ++a) {
+      const double d = f[i * dim + a] - ref[i * dim + a];
+      d2 += d * d;
+      r2 += ref[i * dim + a] * ref[i * dim + a];
+    }
+    if (r2 > 0) rel.push_back(std::sqrt(d2 / r2));
+  }
+  if (rel.empty()) return {NAN, NAN};
+  return {cli::median(rel), *std::max_element(rel.begin(), rel.end())};
+}
+
+// n doubles in the machine's byte order (little-endian on x86 and ARM), written whole or not at all.
+void save_doubles(const std::string& path, const std::vector<double>& v) {
+  const std::string tmp = path + ".partial";
+  std::FILE* f = std::fopen(tmp.c_str(), "wb");
+  if (!f) throw Error(path + ": cannot write the final configuration");
+  const bool ok = std::fwrite(v.data(), sizeof(double), v.size(), f) == v.size();
+  if (std::fclose(f) != 0 || !ok || std::rename(tmp.c_str(), path.c_str()) != 0) {
+    std::remove(tmp.c_str());
+    throw Error(path + ": cannot write the final configuration (disk full?)");
+  }
+}
+
+struct SizeResult {
+  nlohmann::json row;
+  bool ok = false;
+};
+
+// One size: warm-up, calibration, timed chunks with energy samples, then the reference.
+SizeResult bench_size(const BenchArgs& args, const EngineChoice& engine, int cells, const std::string& label) {
+  SizeResult out;
+  nlohmann::json& row = out.row;
+  Scene scene = default_scene();
+  scene.particles.cells = {cells, cells, cells};
+  scene.force_field.mode = args.mode;
+  const double n_sites = 4.0 * double(cells) * double(cells) * double(cells);
+  row = {{"engine", "cellforce"},
+         {"configuration", label},
+         {"precision", to_string(engine.precision)},
+         {"n", std::size_t(n_sites)},
+         {"fcc_cells", cells},
+         {"cutoff", scene.force_field.cutoff},
+         {"cutoff_mode", to_string(args.mode)},
+         {"skin", engine.reuse.skin}};
+  try {
+    check_particle_count(n_sites, 3, "fcc " + std::to_string(cells) + "^3 unit cells");
+    MdState state;
+    state.config = build_configuration(scene);
+    const std::size_t n = state.config.size();
+    const int dim = 3;
+    const std::vector<double> masses(n, scene.masses[0]);
+    initialize_velocities(state, masses, scene.initial_temperature, scene.seed, true);
+    std::vector<double> final_positions(n * dim), final_forces(n * dim);
+    {
+      Context ctx = make_context(state.config.box, scene.force_field, engine);
+      IntegratorOptions integrator;
+      integrator.kind = Integrator::kVerlet;
+      integrator.dt = scene.integrator.dt;
+      ctx.set_integrator(integrator);
+      const auto t_setup = Clock::now();
+      ctx.set_state(n, state.config.positions.data(), state.velocities.data(), state.config.types.data(),
+                    masses.data());
+      row["backend"] = ctx.backend_name();
+      row["description"] = ctx.description();
+      row["traversal"] = ctx.traversal();
+      row["sort"] = ctx.sort();
+      // Warm-up (allocations, first builds), then a calibration of the rate; both excluded.
+      ctx.step(std::max<int64_t>(args.warmup, 1), true);
+      ctx.thermo();
+      const auto t_cal = Clock::now();
+      const int64_t cal_steps = std::max<int64_t>(args.warmup / 2, 5);
+      ctx.step(cal_steps, true);
+      ctx.thermo();
+      const double cal_rate = double(cal_steps) / std::max(seconds_since(t_cal), 1e-9);
+      row["setup_seconds"] = seconds_since(t_setup);
+      const int samples = std::max(args.samples, 2);
+      int64_t steps = args.steps > 0 ? args.steps : int64_t(std::ceil(args.seconds * cal_rate));
+      steps = std::max<int64_t>(steps, samples);
+      const int64_t chunk = (steps + samples - 1) / samples;
+      steps = chunk * samples;
+
+      ctx.reset_run_statistics();
+      std::vector<double> t, e;
+      Thermo th = ctx.thermo();
+      t.push_back(0.0);
+      e.push_back(th.total / double(n));
+      double loop = 0;
+      for (int s = 0; s < samples; ++s) {
+        const auto t0 = Clock::now();
+        ctx.step(chunk, true);
+        th = ctx.thermo();  // waits for the chunk: its wall time is in the loop's
+        loop += seconds_since(t0);
+        t.push_back(double((s + 1) * chunk) * scene.integrator.dt);
+        e.push_back(th.total / double(n));
+      }
+      const RunStatistics st = ctx.run_statistics();
+      const double per_step = 1e3 / double(steps);
+      row["steps"] = steps;
+      row["warmup_steps"] = std::max<int64_t>(args.warmup, 1) + cal_steps;
+      row["seconds"] = loop;
+      row["steps_per_second"] = double(steps) / loop;
+      row["particle_steps_per_second"] = double(steps) * double(n) / loop;
+      row["ms_per_step"] = 1e3 * loop / double(steps);
+      row["forces_ms_per_step"] = per_step * st.force_seconds;
+      row["integration_ms_per_step"] = per_step * st.integration_seconds;
+      row["stage_ms_per_evaluation"] = {{"cell_ids", 1e3 * st.cell_ids},       {"sort", 1e3 * st.sort},
+                                        {"collision_cells", 1e3 * st.collision_cells},
+                                        {"traversal", 1e3 * st.traversal},   {"accumulate", 1e3 * st.accumulate},
+                                        {"check", 1e3 * st.check},           {"total", 1e3 * st.total},
+                                        {"samples", st.stage_samples}};
+      row["builds"] = st.builds;
+      row["evaluations"] = st.evaluations;
+      row["bytes_per_step_host_device"] = double(st.bytes_to_host + st.bytes_to_device) / double(steps);
+      row["buffer_bytes"] = st.buffer_bytes;
+      row["state_bytes"] = st.state_bytes;
+      row["bytes_per_particle"] = double(st.buffer_bytes + st.state_bytes) / double(n);
+      row["energy_per_particle_start"] = e.front();
+      row["energy_per_particle_end"] = e.back();
+      row["temperature_end"] = th.temperature;
+      row["nve_drift"] = slope(t, e);  // per particle per unit time
+      row["nve_time_span"] = t.back();
+      ctx.get_state(final_positions.data(), nullptr, final_forces.data());
+    }  // the timed context's memory is given back before the reference needs its own
+    if (!args.save_final.empty()) {
+      const std::string prefix = args.save_final + "-" + std::to_string(n);
+      save_doubles(prefix + ".positions.f64", final_positions);
+      save_doubles(prefix + ".forces.f64", final_forces);
+      row["saved"] = prefix;
+    }
+    if (args.reference) {
+      EngineChoice ref_engine = engine;
+      ref_engine.precision = Precision::kDouble;
+      ref_engine.reuse = ReuseOptions{};
+      Context ref = make_context(state.config.box, scene.force_field, ref_engine);
+      std::vector<double> ref_forces(n * dim);
+      Outputs o;
+      o.forces = ref_forces.data();
+      ref.compute(n, final_positions.data(), state.config.types.data(), o);
+      const auto [med, worst] = force_errors(final_forces, ref_forces, dim);
+      row["force_error_median"] = med;
+      row["force_error_max"] = worst;
+      row["force_error_reference"] = ref.backend_name() + " double, same configuration (the run's last)";
+    }
+    out.ok = true;
+  } catch (const std::bad_alloc&) {
+    row["error"] = "out of memory (host) at " + std::to_string(std::size_t(n_sites)) + " particles";
+  } catch (const std::exception& e) {
+    row["error"] = e.what();
+  }
+  return out;
+}
+
+std::string fixed(double v, const char* fmt) {
+  char buf[64];
+  std::snprintf(buf, sizeof buf, fmt, v);
+  return buf;
+}
+
+double number_or_nan(const nlohmann::json& row, const char* key) {
+  return row.contains(key) && row[key].is_number() ? row[key].get<double>() : NAN;
+}
+
+}  // namespace
+
+int run_bench(const BenchArgs& args) {
+  std::vector<int> cells = args.cells;
+  for (const double n : args.sizes) {
+    if (!(n >= 1) || !std::isfinite(n)) throw Error("--sizes: expected particle counts >= 1, got " + fixed(n, "%g"));
+    cells.push_back(fcc_cells_for(n));
+  }
+  if (cells.empty()) cells = {20, 40, 64, 102};  // 32,000, 256,000, 1,048,576 and 4,244,832 particles
+  if (args.samples < 2) throw Error("--samples: at least 2 energy samples, got " + std::to_string(args.samples));
+  if (args.warmup < 1) throw Error("--warmup: at least 1 step, got " + std::to_string(args.warmup));
+  if (!(args.seconds > 0)) throw Error("--seconds: expected a time > 0");
+
+  EngineChoice engine = args.engine;
+  std::string label = args.label;
+  if (args.chapter) {
+    engine.traversal = TraversalForm::kThreadPerCell;
+    engine.sort = SortMethod::kChapter;
+    engine.rule = CellRule::kChapter;
+    engine.reuse = ReuseOptions{};
+    if (label.empty()) label = "chapter";
+  }
+  if (label.empty()) label = "default";
+
+  std::printf("cellforce bench: LAMMPS in.lj (fcc, density 0.8442, rc 2.5 %s, T 1.44, NVE, dt 0.005), %s, "
+              "precision %s%s\n",
+              to_string(args.mode), label.c_str(), to_string(engine.precision),
+              engine.reuse.skin > 0 ? (", skin " + fixed(engine.reuse.skin, "%g")).c_str() : "");
+  std::printf("%12s %14s %10s %12s %10s %9s %9s %9s %9s %9s %8s %11s %11s %s\n", "N", "form", "steps/s",
+              "particle-st/s", "ms/step", "ids", "sort", "cells", "trav", "accum", "B/part", "F err med",
+              "NVE drift", "");
+  nlohmann::json rows = nlohmann::json::array();
+  bool failed = false;
+  for (const int c : cells) {
+    SizeResult r = bench_size(args, engine, c, label);
+    const nlohmann::json& row = r.row;
+    if (!r.ok) {
+      failed = true;
+      std::printf("%12zu  error: %s\n", row["n"].get<std::size_t>(), row["error"].get<std::string>().c_str());
+    } else {
+      const nlohmann::json& st = row["stage_ms_per_evaluation"];
+      std::printf("%12zu %14s %10.1f %12.4g %10.4f %9.4f %9.4f %9.4f %9.4f %9.4f %8.0f %11.3g %11.3g\n",
+                  row["n"].get<std::size_t>(), row["traversal"].get<std::string>().c_str(),
+                  row["steps_per_second"].get<double>(), row["particle_steps_per_second"].get<double>(),
+                  row["ms_per_step"].get<double>(), st["cell_ids"].get<double>(), st["sort"].get<double>(),
+                  st["collision_cells"].get<double>(), st["traversal"].get<double>(), st["accumulate"].get<double>(),
+                  row["bytes_per_particle"].get<double>(), number_or_nan(row, "force_error_median"),
+                  row["nve_drift"].get<double>());
+    }
+    std::fflush(stdout);
+    rows.push_back(row);
+    if (!args.json.empty()) {  // after every size: a later size that crashes the process loses nothing
+      nlohmann::json doc = {{"version", CELLFORCE_VERSION}, {"rows", rows}};
+      write_text_atomically(args.json, {doc.dump(1)}, "the bench JSON");
+    }
+  }
+  std::printf("stage times are per sampled force evaluation (ms, device time with cuda); B/part: device (or host) "
+              "bytes of the engine's buffers and the MD state per particle; F err med: median over particles of "
+              "|F - F_double| / |F_double| at the last step; NVE drift: slope of E_total / N against time\n");
+  return failed ? 1 : 0;
+}
+
+}  // namespace cellforce

@@ -1,0 +1,41 @@
+// `cellforce bench`: the LAMMPS in.lj fluid (fcc at density 0.8442, rc 2.5, T 1.44, NVE, dt 0.005)
+// at the sizes asked for, timed through the public API as a user's code would run it. Per size: a
+// warm-up (excluded), a calibration of the step count, the timed steps in chunks that end with an
+// energy sample (for the NVE drift), then the force error of the final configuration against a
+// double-precision evaluation of it. A table on the screen and, with --json, the rows in the
+// schema of validation/reports/performance.json. A size that cannot run (memory) is a row with an
+// "error" and the next size still runs.
+#pragma once
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "backends/force_engine.h"  // EngineChoice
+#include "core/force_field.h"       // CutoffMode
+
+namespace cellforce {
+
+struct BenchArgs {
+  std::vector<double> sizes;      // particle counts; each runs the nearest fcc lattice (4 c^3)
+  std::vector<int> cells;         // or fcc unit cells per axis
+  EngineChoice engine;            // backend, precision, traversal, sort, cell rule, skin
+  bool chapter = false;           // the chapter's configuration: thread per cell, its radix sort,
+                                  // cells >= 1.5 x 2h, rebuild every step
+  CutoffMode mode = CutoffMode::kTruncate;
+  double seconds = 2.0;           // timed seconds per size (sets the steps after the warm-up)
+  int64_t steps = 0;              // > 0: exactly these timed steps instead
+  int64_t warmup = 50;            // steps before the timing
+  int samples = 10;               // energy samples over the timed steps (>= 2)
+  bool reference = true;          // the force error against double precision
+  std::string json;               // write the rows here
+  std::string save_final;         // non-empty: PREFIX.positions.f64 and PREFIX.forces.f64, the last
+                                  // step's positions and forces (n x 3 little-endian doubles) per
+                                  // size, PREFIX gaining "-<n>"
+  std::string label;              // the rows' "configuration" (default: "default" or "chapter")
+};
+
+// Returns the exit code: 0 when every size ran, 1 when one failed (its row says why).
+int run_bench(const BenchArgs& args);
+
+}  // namespace cellforce
