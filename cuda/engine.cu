@@ -17,6 +17,7 @@
 #include "core/error.h"
 #include "device_buffer.cuh"
 #include "stages.cuh"
+#include "pair_list.cuh"
 #include "traversal.cuh"
 
 namespace cellforce {
@@ -113,6 +114,11 @@ struct GpuEngine::Impl {
   // Bounds of the structure in use, from its build (cuda::PipelineCounts): the cell-ID entries
   // n x 2^d (>= the valid ones) and min(n, grid cells) (>= the collision cells).
   std::size_t entries = 0, max_cells = 0;
+  // Pair lists (ReuseOptions::list): the list of the build numbered list_built_for, when it could
+  // be built (list_usable); builds counts the structures built.
+  cuda::PairList list;
+  std::size_t builds = 0, list_built_for = ~std::size_t(0);
+  bool list_usable = false;
   int multiprocessors = 1;  // of the engine's device, read once
   bool has_types = false;
 
@@ -126,6 +132,7 @@ struct GpuEngine::Impl {
     f(collision.flags), f(collision.run_start), f(collision.cub);
     f(split.keys), f(split.keys_out), f(split.order), f(split.order_out), f(split.cells), f(split.counts);
     f(split.cub);
+    list.for_each_buffer(f);
   }
 
   // Device bytes held by the stage buffers.
@@ -289,6 +296,7 @@ struct GpuEngine::Impl {
     const std::size_t cap = std::max<std::size_t>(entries, 1);
     counts.reserve(1);
     form = resolve_traversal(o.traversal, max_cells, multiprocessors);
+    ++builds;
     keys.reserve(cap);
     object_ids.reserve(cap);
     sorted_keys.reserve(cap);
@@ -323,13 +331,66 @@ struct GpuEngine::Impl {
                                collision, stream);
     if (o.accumulation == Accumulation::kGaussSeidel)
       cuda::split_by_type(g, cells, max_cells, counts.data(), split, stream);
-    if (form == TraversalForm::kWarpPerTile) {  // the tiles of the cells in their final order
+    if (form == TraversalForm::kWarpPerTile || lists(o, sys.box, ff.cutoff)) {  // the cells' tiles, final order
       tile_start.reserve(max_cells + 1);
       cuda::tile_starts(cells.data(), counts.data()->cell_range, max_cells, tile_start.data(), cub, stream);
     }
     record(kCellsFound);
     st.entries = entries;
     st.valid_entries = st.collision_cells = 0;  // on the device until read_counts()
+  }
+
+  // Whether evaluations walk pair lists: asked for, with a skin and Jacobi accumulation, and with
+  // rc + skin within half of every periodic edge (the minimum image then names each pair once).
+  static bool lists(const GpuOptions& o, const Box& box, double cutoff) {
+    if (!o.reuse.list || !(o.reuse.skin > 0) || o.accumulation != Accumulation::kJacobi) return false;
+    for (int a = 0; a < box.dim; ++a)
+      if (box.periodic[a] && 2 * (cutoff + o.reuse.skin) > box.length[a]) return false;
+    return true;
+  }
+
+  // The list path of one evaluation: builds the list after a build of the structure, then
+  // evaluates the listed pairs. Returns false when the list could not be built (the cells then
+  // serve this structure's evaluations).
+  template <class Real, class Accum>
+  bool evaluate_lists(const GpuOptions& o, const Grid& g, const SystemView& sys, const ForceField& ff,
+                      const Request& req) {
+    const std::size_t n = sys.n, dim = std::size_t(g.dim);
+    upload_table<Real>(ff);
+    if (!accumulate_flags) reset_flags();
+    forces.reserve(std::max<std::size_t>(n * dim, 1));
+    if (req.energy) energies.reserve(std::max<std::size_t>(n, 1));
+    cuda::ListArgs<Real, Accum> la;
+    la.grid = g;
+    la.n = n;
+    la.positions = pos;
+    la.types = typ;
+    la.num_types = uint32_t(ff.num_types());
+    la.table = as<LJParams<Real>>(table);
+    la.rc2 = Real(ff.cutoff) * Real(ff.cutoff);
+    la.forces = forces.data();
+    la.energies = req.energy ? energies.data() : nullptr;
+    la.flags = flags.data();
+    if (list_built_for != builds) {  // stages the occupants for the build's walk of the cells
+      const cuda::TraversalArgs<Real, Accum> cell_args = prepare<Real, Accum>(g, sys, ff, ff.mode);
+      list_usable = cuda::build_pair_list<Real, Accum>(cell_args, sorted_keys.data(), entries,
+                                                       ff.cutoff + o.reuse.skin, la, list, stream);
+      list_built_for = builds;
+    }
+    if (!list_usable) return false;
+    cuda::Switches sw;
+    sw.dim = g.dim;
+    sw.multi_type = ff.num_types() > 1;
+    sw.mode = ff.mode;
+    sw.observables = req.energy || req.virial;
+    cuda::list_forces<Real, Accum>(sw, la, list, stream);
+    record(kTraversed);
+    if (sw.observables) {
+      totals.reserve(cuda::kCellSums);
+      cuda::sum_cells<Accum>(as<Accum>(list.block_sums), list.blocks.data(), totals.data(), stream);
+    }
+    record(kAccumulated);
+    return true;
   }
 
   // A reused structure: the stage events recorded back to back (zero stage times).
@@ -374,6 +435,7 @@ struct GpuEngine::Impl {
   template <class Real, class Accum>
   void traverse_and_sum(const GpuOptions& o, const Grid& g, const SystemView& sys,
                         const ForceField& ff, const Request& req) {
+    if (lists(o, sys.box, ff.cutoff) && evaluate_lists<Real, Accum>(o, g, sys, ff, req)) return;
     const bool gs = o.accumulation == Accumulation::kGaussSeidel;
     const bool observables = req.energy || req.virial;
     const std::size_t n = sys.n, dim = std::size_t(g.dim);
@@ -637,6 +699,10 @@ void GpuEngine::check_flags(const Box& box, std::size_t n, const double* positio
 }
 
 const double* GpuEngine::device_forces() const { return impl_->forces.data(); }
+std::size_t GpuEngine::listed_pairs() const {
+  const Impl& s = *impl_;
+  return s.list_usable && s.list_built_for == s.builds ? s.list.pairs : 0;
+}
 const double* GpuEngine::device_totals() const { return impl_->totals.data(); }
 void* GpuEngine::stream() const { return impl_->stream; }
 void GpuEngine::collect_timing() {

@@ -106,6 +106,9 @@ class GpuEngine {
   // call zeroes what it does not compute. The valid entries and collision cells are read from the
   // device after evaluate(), synchronize(), collect_timing() and the pair recorder.
   const PipelineStats& stats() const { return stats_; }
+  // Pair lists (ReuseOptions::list): the entries of the lists built from the structure in use (every
+  // pair within rc + skin, once from each side); 0 when its evaluations traverse the cells.
+  std::size_t listed_pairs() const;
   const GpuOptions& options() const { return options_; }
   // The traversal form in use: options().traversal, or what kAuto chose at the last build (kAuto
   // before the first).

@@ -50,13 +50,15 @@ struct MdFlags {
   unsigned long long diverged;
 };
 
-// v += (h / m) F, per coordinate.
+// v += (h / m) F, per coordinate (rounded product, then sum: the same bits in every kernel that kicks).
+__device__ __forceinline__ double kicked(double v, double hm, double f) { return v + mul_rn(hm, f); }
+
 __global__ void kick_kernel(double* __restrict__ v, const double* __restrict__ f,
                             const double* __restrict__ mass, double h, std::size_t n, int dim) {
   const std::size_t k = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
   if (k >= n * std::size_t(dim)) return;
   const double hm = h / mass[k / std::size_t(dim)];
-  v[k] += hm * f[k];
+  v[k] = kicked(v[k], hm, f[k]);
 }
 
 struct DriftBox {
@@ -75,13 +77,40 @@ __global__ void drift_kernel(double* __restrict__ x, const double* __restrict__ 
   bool bad = false;
   for (int a = 0; a < box.dim; ++a) {
     const std::size_t k = i * box.dim + a;
-    const double dx = h * v[k];
+    const double dx = mul_rn(h, v[k]);
     if (!(fabs(dx) <= box.most[a])) bad = true;  // also catches NaN
     double xa = x[k] + dx;
     if (wrap) {
       if (!isfinite(xa)) bad = true;
       else if (box.periodic[a]) xa = wrap_coordinate(xa, box.length[a]);
     }
+    x[k] = xa;
+  }
+  if (bad) atomicMin(&flags->diverged, static_cast<unsigned long long>(i));
+}
+
+// Velocity Verlet's kicks and drift in one pass: `kicks` half kicks v += (h / m) F (two: the
+// previous step's closing kick and this step's opening one, rounded one after the other exactly as
+// two kick_kernel launches would), then the full drift x += dt v with the check and the wrap of
+// drift_kernel. One read and write of the state per step instead of three.
+__global__ void kick_drift_kernel(double* __restrict__ x, double* __restrict__ v, const double* __restrict__ f,
+                                  const double* __restrict__ mass, double h, int kicks, double dt, DriftBox box,
+                                  std::size_t n, MdFlags* flags) {
+  const std::size_t i = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
+  if (i >= n) return;
+  const double hm = h / mass[i];
+  bool bad = false;
+  for (int a = 0; a < box.dim; ++a) {
+    const std::size_t k = i * box.dim + a;
+    double va = v[k];
+    const double fa = f[k];
+    for (int s = 0; s < kicks; ++s) va = kicked(va, hm, fa);
+    v[k] = va;
+    const double dx = mul_rn(dt, va);
+    if (!(fabs(dx) <= box.most[a])) bad = true;  // also catches NaN
+    double xa = x[k] + dx;
+    if (!isfinite(xa)) bad = true;
+    else if (box.periodic[a]) xa = wrap_coordinate(xa, box.length[a]);
     x[k] = xa;
   }
   if (bad) atomicMin(&flags->diverged, static_cast<unsigned long long>(i));
@@ -422,8 +451,11 @@ class CudaMdEngine final : public MdEngine {
     try {
       for (int64_t k = 0; k < steps; ++k) {
         const bool last = k + 1 == steps;
-        kick(0.5 * dt);
-        if (settings.langevin) {
+        if (!settings.langevin) {
+          // The previous step's closing half kick (deferred) with this step's opening one, and the drift.
+          kick_drift(0.5 * dt, k == 0 ? 1 : 2, dt);
+        } else {
+          kick(0.5 * dt);
           drift(0.5 * dt, 0.5, false);  // two half drifts of at most L / 2: a step of at most L
           const double c1 = std::exp(-settings.friction * dt);
           const double c2 = std::sqrt(1.0 - c1 * c1);
@@ -433,8 +465,6 @@ class CudaMdEngine final : public MdEngine {
             CF_CUDA_CHECK_LAUNCH();
           }
           drift(0.5 * dt, 0.5, true);
-        } else {
-          drift(dt, 1.0, true);
         }
         step_ += 1;
         time_ = double(step_) * dt;  // not summed: the same after a restart
@@ -447,7 +477,7 @@ class CudaMdEngine final : public MdEngine {
         evaluate(observe && last);
         CF_CUDA_CHECK(cudaEventRecord(force_events_[2 * timed + 1], stream_));
         ++timed;
-        kick(0.5 * dt);
+        if (settings.langevin || last) kick(0.5 * dt);  // Verlet: deferred into the next drift
       }
     } catch (const Error& e) {
       check(first, step_);  // throws the divergence or the bad pair when one is flagged
@@ -476,8 +506,15 @@ class CudaMdEngine final : public MdEngine {
     CF_CUDA_CHECK_LAUNCH();
   }
 
-  void drift(double h, double limit, bool wrap) {
+  void kick_drift(double h, int kicks, double dt) {
     if (n_ == 0) return;
+    kick_drift_kernel<<<blocks_for(n_), kBlock, 0, stream_>>>(positions_.data(), velocities_.data(),
+                                                              gpu_.device_forces(), masses_.data(), h, kicks, dt,
+                                                              drift_box(1.0), n_, flags_.data());
+    CF_CUDA_CHECK_LAUNCH();
+  }
+
+  DriftBox drift_box(double limit) const {
     DriftBox b{};
     b.dim = box_.dim;
     for (int a = 0; a < box_.dim; ++a) {
@@ -485,8 +522,13 @@ class CudaMdEngine final : public MdEngine {
       b.periodic[a] = box_.periodic[a];
       b.most[a] = box_.periodic[a] ? limit * box_.length[a] : INFINITY;
     }
-    drift_kernel<<<blocks_for(n_), kBlock, 0, stream_>>>(positions_.data(), velocities_.data(), h, b, wrap, n_,
-                                                         flags_.data());
+    return b;
+  }
+
+  void drift(double h, double limit, bool wrap) {
+    if (n_ == 0) return;
+    drift_kernel<<<blocks_for(n_), kBlock, 0, stream_>>>(positions_.data(), velocities_.data(), h, drift_box(limit),
+                                                         wrap, n_, flags_.data());
     CF_CUDA_CHECK_LAUNCH();
   }
 

@@ -173,6 +173,9 @@ class CELLFORCE_API Context {
   //   neighbor-check  true | false (rebuild when a particle moved more than skin / 2; default true)
   //   neighbor-every  N >= 0 (a structure serves at most N evaluations; 0: no limit)
   //   neighbor-audit  true | false (count pairs a reused structure misses; slow, CPU diagnostics)
+  //   neighbor-list   true | false (CUDA, skin > 0, Jacobi: each build records every particle's
+  //                   partners within rc + skin and the evaluations it serves walk those lists;
+  //                   default false)
   //   accumulation  jacobi | gauss-seidel
   //   cell-rule     tight | chapter
   //   traversal     auto | warp | thread | tile   (CUDA: warp per cell, the chapter's thread per

@@ -242,13 +242,13 @@ void Context::set_option(std::string_view key, std::string_view value) {
     impl_->ff.mode = parse_option(key, value, kCutoffModeNames);
   } else if (key == "skin") {
     set_skin(parse_number(key, value));
-  } else if (key == "neighbor-check" || key == "neighbor-audit") {
+  } else if (key == "neighbor-check" || key == "neighbor-audit" || key == "neighbor-list") {
     bool v = false;
     if (value == "true") v = true;
     else if (value != "false")
       throw Error("option " + std::string(key) + ": " + quote_excerpt(std::string(value)) + " is not true or false");
     ReuseOptions reuse = c.reuse;
-    (key == "neighbor-check" ? reuse.check : reuse.audit) = v;
+    (key == "neighbor-check" ? reuse.check : key == "neighbor-audit" ? reuse.audit : reuse.list) = v;
     validate_reuse(reuse);
     c.reuse = reuse;
     impl_->engine_changed();
@@ -273,7 +273,7 @@ void Context::set_option(std::string_view key, std::string_view value) {
   } else {
     throw Error("unknown option " + quote_excerpt(std::string(key)) +
                 "; options: backend, device, precision, mixing, cutoff-mode, skin, neighbor-check, "
-                "neighbor-every, neighbor-audit, accumulation, cell-rule, traversal, sort");
+                "neighbor-every, neighbor-audit, neighbor-list, accumulation, cell-rule, traversal, sort");
   }
 }
 

@@ -96,7 +96,8 @@ SizeResult bench_size(const BenchArgs& args, const EngineChoice& engine, int cel
          {"fcc_cells", cells},
          {"cutoff", scene.force_field.cutoff},
          {"cutoff_mode", to_string(args.mode)},
-         {"skin", engine.reuse.skin}};
+         {"skin", engine.reuse.skin},
+         {"neighbor_list", engine.reuse.list && engine.reuse.skin > 0}};
   try {
     check_particle_count(n_sites, 3, "fcc " + std::to_string(cells) + "^3 unit cells");
     MdState state;
@@ -239,13 +240,15 @@ int run_bench(const BenchArgs& args) {
   }
   if (label.empty()) label = "default";
 
+  const std::string reuse = engine.reuse.skin > 0 ? ", skin " + fixed(engine.reuse.skin, "%g") +
+                                                      (engine.reuse.list ? " with pair lists" : "")
+                                                : std::string();
   std::printf("cellforce bench: LAMMPS in.lj (fcc, density 0.8442, rc 2.5 %s, T 1.44, NVE, dt 0.005), %s, "
               "precision %s%s\n",
-              to_string(args.mode), label.c_str(), to_string(engine.precision),
-              engine.reuse.skin > 0 ? (", skin " + fixed(engine.reuse.skin, "%g")).c_str() : "");
-  std::printf("%12s %14s %10s %12s %10s %9s %9s %9s %9s %9s %8s %11s %11s %s\n", "N", "form", "steps/s",
-              "particle-st/s", "ms/step", "ids", "sort", "cells", "trav", "accum", "B/part", "F err med",
-              "NVE drift", "");
+              to_string(args.mode), label.c_str(), to_string(engine.precision), reuse.c_str());
+  std::printf("%12s %14s %10s %12s %10s %9s %9s %9s %9s %9s %8s %8s %11s %11s\n", "N", "form", "steps/s",
+              "particle-st/s", "ms/step", "ids", "sort", "cells", "trav", "accum", "st/build", "B/part",
+              "F err med", "NVE drift");
   nlohmann::json rows = nlohmann::json::array();
   bool failed = false;
   for (const int c : cells) {
@@ -256,11 +259,12 @@ int run_bench(const BenchArgs& args) {
       std::printf("%12zu  error: %s\n", row["n"].get<std::size_t>(), row["error"].get<std::string>().c_str());
     } else {
       const nlohmann::json& st = row["stage_ms_per_evaluation"];
-      std::printf("%12zu %14s %10.1f %12.4g %10.4f %9.4f %9.4f %9.4f %9.4f %9.4f %8.0f %11.3g %11.3g\n",
+      std::printf("%12zu %14s %10.1f %12.4g %10.4f %9.4f %9.4f %9.4f %9.4f %9.4f %8.1f %8.0f %11.3g %11.3g\n",
                   row["n"].get<std::size_t>(), row["traversal"].get<std::string>().c_str(),
                   row["steps_per_second"].get<double>(), row["particle_steps_per_second"].get<double>(),
                   row["ms_per_step"].get<double>(), st["cell_ids"].get<double>(), st["sort"].get<double>(),
                   st["collision_cells"].get<double>(), st["traversal"].get<double>(), st["accumulate"].get<double>(),
+                  double(row["steps"].get<int64_t>()) / double(std::max<int64_t>(row["builds"].get<int64_t>(), 1)),
                   row["bytes_per_particle"].get<double>(), number_or_nan(row, "force_error_median"),
                   row["nve_drift"].get<double>());
     }

@@ -20,6 +20,7 @@ Context make_context(const Box& box, const ForceField& ff, const EngineChoice& e
   ctx.set_option("neighbor-check", engine.reuse.check ? "true" : "false");
   ctx.set_option("neighbor-every", std::to_string(engine.reuse.every));
   ctx.set_option("neighbor-audit", engine.reuse.audit ? "true" : "false");
+  ctx.set_option("neighbor-list", engine.reuse.list ? "true" : "false");
   ctx.set_option("accumulation", name_of(engine.accumulation, kAccumulationNames));
   ctx.set_option("cell-rule", name_of(engine.rule, kCellRuleNames));
   ctx.set_option("traversal", name_of(engine.traversal, kTraversalNames));

@@ -283,6 +283,9 @@ int main(int argc, char** argv) {
                         "Build the cell structure for rc + skin and reuse it while no particle moved more than "
                         "skin/2 (default 0: rebuild every step)")
       ->check(CLI::NonNegativeNumber);
+  bench_cmd->add_flag("--neighbor-list", ba.engine.reuse.list,
+                      "With a skin (CUDA, Jacobi): each build records every particle's partners within rc + skin and "
+                      "the steps it serves walk those lists");
   bench_cmd->add_flag("--chapter", ba.chapter,
                       "The chapter's configuration: a thread per cell, its radix sort, cells >= 1.5 x 2h, a "
                       "rebuild every step");

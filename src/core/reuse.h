@@ -33,6 +33,9 @@ struct ReuseOptions {
                         // (1: rebuild on every one; 0: no limit)
   bool audit = false;   // on every reused evaluation, count missed and repeated pairs against a
                         // fresh host search (slow: diagnostics and tests only)
+  bool list = false;    // CUDA, with a skin and Jacobi accumulation: each build records every
+                        // particle's partners within rc + skin (cuda/pair_list.cuh) and the
+                        // evaluations it serves walk those lists instead of the cells' candidates
 };
 
 // Throws cellforce::Error naming the parameter (skin, every) when it is not usable.

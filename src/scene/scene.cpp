@@ -401,8 +401,9 @@ void read_neighbor(const toml::table& root, const std::string& name, Scene& scen
   reuse.check = neighbor.boolean("check", true);
   reuse.every = neighbor.integer("every", 0, 0);
   reuse.audit = neighbor.boolean("audit", false);
+  reuse.list = neighbor.boolean("list", false);
   if (reuse.skin == 0.0)
-    for (const char* key : {"check", "every", "audit"})
+    for (const char* key : {"check", "every", "audit", "list"})
       if (neighbor.node(key)) neighbor.fail(key, "applies only with a skin (skin > 0)");
   if (!reuse.check && reuse.every == 0 && !reuse.audit)
     neighbor.fail("check", "false with every = 0 never rebuilds the cell structure: give every = N (LAMMPS's "

@@ -27,11 +27,13 @@
 // not converging within max_steps stops the run. Without it, a start whose first time step would
 // move a particle by more than 0.1 x the smallest sigma (an overlap) is refused; so is such a
 // restart.
-//   [neighbor]     skin = 0, check = true, every = 0, audit = false
+//   [neighbor]     skin = 0, check = true, every = 0, audit = false, list = false
 // [neighbor] skin > 0 builds the cell structure (stages 1-3) for rc + skin and reuses it while no
 // particle has moved more than skin/2 since the build (check), and at most `every` steps when
 // every > 0; audit = true counts on every reused step the pairs within rc the structure misses or
-// repeats (a diagnostic: slow). Reuse is exact, so it is not part of the fingerprint.
+// repeats (a diagnostic: slow); list = true (CUDA, Jacobi) has each build record every particle's
+// partners within rc + skin, and the steps it serves walk those lists instead of the cells'
+// candidates. Reuse is exact, so it is not part of the fingerprint.
 // Input paths ([particles] path) are relative to the scene file's folder; output paths are
 // relative to the working folder.
 //

@@ -1,0 +1,365 @@
+// Pair lists for a reused structure: the build (ranks, counts, the column-major list) and the force
+// kernel of the evaluations it serves. See pair_list.cuh.
+#include <cub/device/device_reduce.cuh>
+#include <cub/device/device_select.cuh>
+#include <thrust/iterator/counting_iterator.h>
+#include <thrust/iterator/transform_iterator.h>
+
+#include <algorithm>
+
+#include "pair_list.cuh"
+#include "traversal_impl.cuh"  // Traits, dispatch, warp_sum, flag_bad_pair
+
+namespace cellforce::cuda {
+namespace {
+
+constexpr int kBlock = 128;  // threads per block of every list kernel (4 warps)
+
+// A sorted entry that is some particle's H entry (the key's phantom bit clear; invalid keys are
+// all ones).
+struct IsHome {
+  const uint32_t* keys;
+  __device__ bool operator()(uint32_t e) const { return (keys[e] & 1u) == 0u; }
+};
+
+struct Widen {
+  __device__ unsigned long long operator()(uint32_t v) const { return v; }
+};
+
+__global__ void invert_order(const uint32_t* __restrict__ order, std::size_t n, uint32_t* __restrict__ rank) {
+  const std::size_t p = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
+  if (p < n) rank[order[p]] = uint32_t(p);
+}
+
+// The minimum-image separation a - b along axis `a` of the grid (positions already wrapped).
+__device__ __forceinline__ double image(const Grid& g, int a, double d) {
+  return minimum_image(d, g.length[a], g.inv_length[a]);
+}
+
+template <int D>
+__device__ __forceinline__ double distance2(const Grid& g, const RankedParticle& a, const RankedParticle& b,
+                                            double d[3]) {
+  d[0] = image(g, 0, a.x - b.x);
+  d[1] = image(g, 1, a.y - b.y);
+  d[2] = D == 3 ? image(g, 2, a.z - b.z) : 0.0;
+  return d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
+}
+
+template <int D>
+__global__ void gather_ranked(Grid g, const double* __restrict__ positions, const uint32_t* __restrict__ types,
+                              const uint32_t* __restrict__ order, std::size_t n, uint32_t num_types,
+                              RankedParticle* __restrict__ ranked) {
+  const std::size_t p = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
+  if (p >= n) return;
+  const std::size_t i = order[p];
+  double x[3] = {0, 0, 0};
+  for (int a = 0; a < D; ++a) {
+    const double v = positions[i * D + a];
+    x[a] = g.inv_length[a] != 0.0 ? wrap_coordinate(v, g.length[a]) : v;
+  }
+  const uint32_t t = types ? types[i] : 0u;
+  ranked[p] = RankedParticle{x[0], x[1], x[2], t < num_types ? t : 0u, 0u};
+}
+
+// One warp per row tile of a collision cell (the tile form's work units and candidate rule): lane
+// l holds row occupant a, and every lane walks the same columns. Count: the partners of each row
+// within the list cutoff, into slot_counts[rank * 2^d + cell type]. Fill: the same walk writes
+// them, after the partners the row's particle found in cells of lower type. The test reads the
+// staged coordinates (relative to the cell centre, in the pair precision): below the cutoff by more
+// than their rounding (1e-5 relative in r^2) a pair is in, above it by as much it is out, and
+// between, the double positions decide, so that the list is exactly the pairs closer than the
+// cutoff in double.
+template <class T, bool Fill, class Real, class Accum>
+__global__ void __launch_bounds__(kBlock)
+    list_rows(const TraversalArgs<Real, Accum> args, const RankedParticle* __restrict__ ranked,
+              const uint32_t* __restrict__ rank, Real in2, Real out2, double cutoff2,
+              uint32_t* __restrict__ slot_counts, uint32_t* __restrict__ neighbors) {
+  constexpr int D = T::kDim;
+  constexpr uint32_t kSlots = 1u << D;
+  __shared__ StagedEntry<Real> column_occ[kBlock / 32][32];
+  __shared__ uint32_t column_rank[kBlock / 32][32];
+  const int warp = int(threadIdx.x / 32), lane = int(threadIdx.x % 32);
+  StagedEntry<Real>* column = column_occ[warp];
+  uint32_t* column_ranks = column_rank[warp];
+  const uint32_t first_cell = args.cell_range[0], end_cell = args.cell_range[1];
+  const uint32_t w = args.tile_start[first_cell] + blockIdx.x * (kBlock / 32) + uint32_t(warp);
+  if (w >= args.tile_start[end_cell]) return;  // the whole warp
+  uint32_t lo = first_cell, hi = end_cell;
+  while (hi - lo > 1) {
+    const uint32_t mid = lo + (hi - lo) / 2;
+    if (args.tile_start[mid] <= w) lo = mid;
+    else hi = mid;
+  }
+  const CollisionCell cell = args.cells[lo];
+  const uint32_t row = (w - args.tile_start[lo]) * 32u;
+  const unsigned type = cell_type_of_id(args.grid, cell.cell);
+  const StagedEntry<Real>* occ = args.staged + cell.start;
+  const uint32_t* ids = args.sorted_ids + cell.start;
+  const uint32_t h = cell.h, m = cell.h + cell.p;
+  const uint32_t a = row + uint32_t(lane);
+  const bool row_ok = a < m, a_home = a < h;
+  const StagedEntry<Real> A = row_ok ? occ[a] : StagedEntry<Real>{};
+  const uint32_t pa = row_ok ? rank[ids[a]] : 0u;
+  uint32_t written = 0;
+  if constexpr (Fill) {
+    if (row_ok)
+      for (unsigned t = 0; t < type; ++t) written += slot_counts[std::size_t(pa) * kSlots + t];
+  }
+  const std::size_t n = args.n;
+  uint32_t count = 0;
+  const uint32_t ncols = row >= h ? h : m;  // a tile of P rows pairs with H columns only
+  for (uint32_t col = 0; col < ncols; col += 32u) {
+    const uint32_t own = col + uint32_t(lane);
+    if (own < ncols) {
+      column[lane] = occ[own];
+      column_ranks[lane] = rank[ids[own]];
+    }
+    __syncwarp();
+    const uint32_t cnt = ncols - col < 32u ? ncols - col : 32u;
+    for (uint32_t k = 0; k < cnt; ++k) {
+      const uint32_t b = col + k;
+      const bool b_home = b < h;
+      const StagedEntry<Real> B = column[k];
+      const bool test = row_ok && b != a &&
+                        (a_home ? (b_home || !skip_pair(type, detail::control_of(A.meta), detail::control_of(B.meta)))
+                                : (b_home && !skip_pair(type, detail::control_of(A.meta), detail::control_of(B.meta))));
+      if (!test) continue;
+      Real d[3];
+      const Real r2 = detail::separation<T>(A, B, args.length, args.inv_length, d);
+      if (!(r2 < out2)) continue;
+      if (!(r2 < in2)) {  // within the staged coordinates' rounding of the cutoff: decide in double
+        double dd[3];
+        if (!(distance2<D>(args.grid, ranked[pa], ranked[column_ranks[k]], dd) < cutoff2)) continue;
+      }
+      if constexpr (Fill) neighbors[std::size_t(written + count) * n + pa] = column_ranks[k];
+      ++count;
+    }
+    __syncwarp();
+  }
+  if constexpr (!Fill) {
+    if (row_ok) slot_counts[std::size_t(pa) * kSlots + type] = count;
+  }
+}
+
+template <int D>
+__global__ void sum_slot_counts(const uint32_t* __restrict__ slot_counts, std::size_t n,
+                                uint32_t* __restrict__ length) {
+  const std::size_t p = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
+  if (p >= n) return;
+  uint32_t s = 0;
+  for (int t = 0; t < (1 << D); ++t) s += slot_counts[p * (1u << D) + t];
+  length[p] = s;
+}
+
+// S threads per rank (S = 1, 2, 4 or 8, adjacent lanes of one warp): thread j of a particle takes
+// list entries j, j + S, ..., and the S partial sums are added by a butterfly over the S lanes, so
+// that the whole force on the particle is summed in an order fixed by its list. Small systems take
+// S > 1 to fill the GPU.
+template <class T, int S, class Real, class Accum>
+__global__ void __launch_bounds__(kBlock)
+    list_force_kernel(const ListArgs<Real, Accum> args, const uint32_t* __restrict__ order,
+                      const RankedParticle* __restrict__ ranked, const uint32_t* __restrict__ length,
+                      const uint32_t* __restrict__ neighbors, Accum* __restrict__ block_sums) {
+  constexpr int D = T::kDim;
+  const std::size_t n = args.n;
+  const std::size_t t = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
+  const std::size_t p = t / S;
+  const uint32_t part = uint32_t(t % S);
+  CellTotals<Accum, true, true> totals;
+  Accum f[D] = {};
+  Accum ea = 0;
+  if (p < n) {
+    const RankedParticle P = ranked[p];
+    const uint32_t len = length[p];
+    const LJParams<Real> single = args.table[0];
+    for (uint32_t k = part; k < len; k += S) {
+      const uint32_t q = neighbors[std::size_t(k) * n + p];
+      const RankedParticle Q = ranked[q];
+      double dd[3];
+      distance2<D>(args.grid, P, Q, dd);
+      Real d[3] = {Real(dd[0]), Real(dd[1]), Real(dd[2])};
+      Real r2 = d[0] * d[0] + d[1] * d[1];
+      if constexpr (D == 3) r2 += d[2] * d[2];
+      LJParams<Real> prm;
+      if constexpr (T::kMultiType) prm = args.table[P.type * args.num_types + Q.type];
+      else prm = single;
+      Real fr, e = 0;
+      if (!lj_pair<T::kMode, T::kObservables>(r2, args.rc2, prm, fr, e)) continue;
+      if (!isfinite(fr)) detail::flag_bad_pair(args.flags, order[p], order[q]);
+      for (int c = 0; c < D; ++c) f[c] += Accum(mul_rn(fr, d[c]));  // no FMA, as the traversals
+      if constexpr (T::kObservables) {
+        const Real half_e = Real(0.5) * e;
+        ea += Accum(half_e);
+        totals.template add<D>(half_e, Real(0.5) * fr, d);
+      }
+    }
+  }
+  // The S parts of a particle (a whole warp takes the shuffles: p < n or not).
+  for (int offset = S / 2; offset > 0; offset >>= 1) {
+    for (int c = 0; c < D; ++c) f[c] += __shfl_xor_sync(0xffffffffu, f[c], offset);
+    if constexpr (T::kObservables) ea += __shfl_xor_sync(0xffffffffu, ea, offset);
+  }
+  if (p < n && part == 0) {
+    const std::size_t i = order[p];
+    for (int c = 0; c < D; ++c) args.forces[i * D + c] = double(f[c]);
+    if (args.energies) args.energies[i] = double(ea);
+  }
+  if constexpr (T::kObservables) {
+    // The block's sums: each warp's butterfly, then the warps in order (a fixed tree).
+    __shared__ Accum partial[kBlock / 32][kCellSums];
+    totals.finish();
+    const int warp = int(threadIdx.x / 32), lane = int(threadIdx.x % 32);
+    for (int k = 0; k < kCellSums; ++k) {
+      const Accum v = detail::warp_sum(totals.v[k]);
+      if (lane == 0) partial[warp][k] = v;
+    }
+    __syncthreads();
+    if (threadIdx.x < unsigned(kCellSums)) {
+      Accum v = partial[0][threadIdx.x];
+      for (int w = 1; w < kBlock / 32; ++w) v += partial[w][threadIdx.x];
+      block_sums[std::size_t(blockIdx.x) * kCellSums + threadIdx.x] = v;
+    }
+  }
+}
+
+unsigned blocks_for(std::size_t count) { return unsigned((count + kBlock - 1) / kBlock); }
+
+template <class F>
+void with_dim(int dim, F&& f) {
+  if (dim == 2) f(std::integral_constant<int, 2>{});
+  else f(std::integral_constant<int, 3>{});
+}
+
+template <class Real, class Accum>
+void gather(const ListArgs<Real, Accum>& args, PairList& list, cudaStream_t stream) {
+  list.ranked.reserve(std::max<std::size_t>(args.n, 1));
+  if (args.n == 0) return;
+  with_dim(args.grid.dim, [&](auto d) {
+    gather_ranked<decltype(d)::value><<<blocks_for(args.n), kBlock, 0, stream>>>(
+        args.grid, args.positions, args.types, list.order.data(), args.n, args.num_types, list.ranked.data());
+  });
+  CF_CUDA_CHECK_LAUNCH();
+}
+
+}  // namespace
+
+template <class Real, class Accum>
+bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* sorted_keys,
+                     std::size_t entries, double list_cutoff, const ListArgs<Real, Accum>& args, PairList& list,
+                     cudaStream_t stream) {
+  const std::size_t n = args.n;
+  const int dim = args.grid.dim;
+  const std::size_t slots = std::size_t(1) << dim;
+  list.order.reserve(std::max<std::size_t>(n, 1));
+  list.rank.reserve(std::max<std::size_t>(n, 1));
+  list.slot_counts.reserve(std::max<std::size_t>(n * slots, 1));
+  list.length.reserve(std::max<std::size_t>(n, 1));
+  list.sizes.reserve(2);
+  list.selected.reserve(1);
+  list.width = list.pairs = 0;
+  if (n == 0) return true;
+
+  // Ranks: the particles of the H entries in sorted order (each particle has exactly one).
+  const auto home = thrust::make_transform_iterator(thrust::counting_iterator<uint32_t>(0), IsHome{sorted_keys});
+  std::size_t bytes = 0;
+  CF_CUDA_CHECK(cub::DeviceSelect::Flagged(nullptr, bytes, cells.sorted_ids, home, list.order.data(),
+                                           list.selected.data(), int(entries), stream));
+  list.scratch.reserve(std::max<std::size_t>(bytes, 1));
+  CF_CUDA_CHECK(cub::DeviceSelect::Flagged(list.scratch.data(), bytes, cells.sorted_ids, home, list.order.data(),
+                                           list.selected.data(), int(entries), stream));
+  invert_order<<<blocks_for(n), kBlock, 0, stream>>>(list.order.data(), n, list.rank.data());
+  CF_CUDA_CHECK_LAUNCH();
+  gather(args, list, stream);
+
+  // Count, size, fill.
+  CF_CUDA_CHECK(cudaMemsetAsync(list.slot_counts.data(), 0, n * slots * sizeof(uint32_t), stream));
+  const double cutoff2 = list_cutoff * list_cutoff;
+  const Real in2 = Real(cutoff2 * (1 - 1e-5)), out2 = Real(cutoff2 * (1 + 1e-5));
+  const unsigned row_blocks = unsigned((cells.max_tiles + kBlock / 32 - 1) / (kBlock / 32));
+  // The rows' walk, counting or filling, in the geometry's instantiation (2D/3D, wrap in a cell).
+  auto walk_rows = [&](auto fill_constant) {
+    constexpr bool kFill = decltype(fill_constant)::value;
+    Switches sw;
+    sw.dim = dim;
+    sw.wrap = cells.grid.any_wrap_inside_cell();
+    detail::dispatch(sw, [&](auto traits) {
+      using T = decltype(traits);
+      if constexpr (!T::kMultiType && T::kMode == CutoffMode::kTruncate && !T::kObservables)
+        list_rows<T, kFill><<<row_blocks, kBlock, 0, stream>>>(cells, list.ranked.data(), list.rank.data(), in2,
+                                                               out2, cutoff2, list.slot_counts.data(),
+                                                               kFill ? list.neighbors.data() : nullptr);
+    });
+    CF_CUDA_CHECK_LAUNCH();
+  };
+  if (row_blocks) walk_rows(std::false_type{});
+  with_dim(dim, [&](auto d) {
+    sum_slot_counts<decltype(d)::value><<<blocks_for(n), kBlock, 0, stream>>>(list.slot_counts.data(), n,
+                                                                            list.length.data());
+    CF_CUDA_CHECK_LAUNCH();
+  });
+  const auto wide = thrust::make_transform_iterator(list.length.data(), Widen{});
+  std::size_t max_bytes = 0, sum_bytes = 0;
+  CF_CUDA_CHECK(cub::DeviceReduce::Max(nullptr, max_bytes, wide, list.sizes.data(), int(n), stream));
+  CF_CUDA_CHECK(cub::DeviceReduce::Sum(nullptr, sum_bytes, wide, list.sizes.data() + 1, int(n), stream));
+  list.scratch.reserve(std::max<std::size_t>({max_bytes, sum_bytes, 1}));
+  CF_CUDA_CHECK(cub::DeviceReduce::Max(list.scratch.data(), max_bytes, wide, list.sizes.data(), int(n), stream));
+  CF_CUDA_CHECK(cub::DeviceReduce::Sum(list.scratch.data(), sum_bytes, wide, list.sizes.data() + 1, int(n), stream));
+  // Threads per particle: enough threads to fill the device (2,048 per multiprocessor), at most 8.
+  const std::size_t wanted = std::size_t(std::max(cells.multiprocessors, 1)) * 2048;
+  list.threads_per_particle = 1;
+  while (list.threads_per_particle < 8 && n * std::size_t(list.threads_per_particle) < wanted)
+    list.threads_per_particle *= 2;
+  // The force kernel's block count, for sum_cells (a pageable source is staged before the call returns).
+  const uint32_t blocks = blocks_for(n * std::size_t(list.threads_per_particle));
+  list.blocks.reserve(1);
+  CF_CUDA_CHECK(cudaMemcpyAsync(list.blocks.data(), &blocks, sizeof(blocks), cudaMemcpyHostToDevice, stream));
+  unsigned long long sizes[2] = {0, 0};
+  CF_CUDA_CHECK(cudaMemcpyAsync(sizes, list.sizes.data(), sizeof(sizes), cudaMemcpyDeviceToHost, stream));
+  CF_CUDA_CHECK(cudaStreamSynchronize(stream));
+  const std::size_t width = std::size_t(sizes[0]), pairs = std::size_t(sizes[1]);
+  if (width * n > 2 * pairs + 64 * n) return false;  // a few crowded particles: the cells are cheaper
+  list.neighbors.reserve(std::max<std::size_t>(width * n, 1));
+  if (row_blocks && width) walk_rows(std::true_type{});
+  list.width = width;
+  list.pairs = pairs;
+  return true;
+}
+
+template <class Real, class Accum>
+void list_forces(const Switches& sw, const ListArgs<Real, Accum>& args, PairList& list, cudaStream_t stream) {
+  if (args.n == 0) return;
+  gather(args, list, stream);
+  const unsigned blocks = blocks_for(args.n * std::size_t(list.threads_per_particle));
+  list.block_sums.reserve(std::size_t(blocks) * kCellSums * sizeof(Accum));
+  Switches s = sw;
+  s.wrap = false;  // positions are absolute: the minimum image is on every periodic axis
+  detail::dispatch(s, [&](auto traits) {
+    using T = decltype(traits);
+    if constexpr (!T::kWrap) {
+      auto go = [&](auto split) {
+        list_force_kernel<T, decltype(split)::value, Real, Accum><<<blocks, kBlock, 0, stream>>>(
+            args, list.order.data(), list.ranked.data(), list.length.data(), list.neighbors.data(),
+            reinterpret_cast<Accum*>(list.block_sums.data()));
+      };
+      switch (list.threads_per_particle) {
+        case 1: go(std::integral_constant<int, 1>{}); break;
+        case 2: go(std::integral_constant<int, 2>{}); break;
+        case 4: go(std::integral_constant<int, 4>{}); break;
+        default: go(std::integral_constant<int, 8>{}); break;
+      }
+    }
+  });
+  CF_CUDA_CHECK_LAUNCH();
+}
+
+#define CF_PAIR_LIST(Real, Accum)                                                                              \
+  template bool build_pair_list<Real, Accum>(const TraversalArgs<Real, Accum>&, const uint32_t*,                 \
+                                             std::size_t, double, const ListArgs<Real, Accum>&, PairList&,       \
+                                             cudaStream_t);                                                      \
+  template void list_forces<Real, Accum>(const Switches&, const ListArgs<Real, Accum>&, PairList&, cudaStream_t);
+CF_PAIR_LIST(float, float)
+CF_PAIR_LIST(float, double)
+CF_PAIR_LIST(double, double)
+#undef CF_PAIR_LIST
+
+}  // namespace cellforce::cuda

@@ -1,0 +1,229 @@
+// Pair lists (ReuseOptions::list, cuda/pair_list.cuh): a build records every particle's partners
+// within rc + skin; the evaluations the structure serves walk those lists. Checked against the
+// double-precision brute force at positions moved after the build, against the brute force's
+// own pair count, through an MD run, for bitwise repeatability, and for the error that names a
+// coincident pair. Skips with a message where no CUDA device exists; compiled only with CUDA.
+#ifdef CELLFORCE_HAVE_CUDA
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <string>
+#include <tuple>
+
+#include "core/error.h"
+#include "engine.h"  // cuda/engine.h
+#include "md/md.h"
+#include "oracle.h"
+#include "reference/brute_force.h"
+#include "scenes.h"
+
+namespace cftest {
+namespace {
+
+using cellforce::Configuration;
+using cellforce::ForceResult;
+using cellforce::GpuEngine;
+using cellforce::GpuOptions;
+using cellforce::Precision;
+using cellforce::Request;
+
+#define CF_SKIP_WITHOUT_DEVICE()                       \
+  do {                                                 \
+    const std::string why_ = GpuEngine::unavailable(); \
+    if (!why_.empty()) GTEST_SKIP() << why_;           \
+  } while (0)
+
+constexpr double kSkin = 0.3;
+
+GpuOptions list_options(Precision p, double skin = kSkin, bool list = true) {
+  GpuOptions o;
+  o.precision = p;
+  o.reuse.skin = skin;
+  o.reuse.list = list;
+  return o;
+}
+
+// Whether the scene's periodic edges leave room for lists (rc + skin <= L / 2); else the engine
+// traverses the cells.
+bool lists_fit(const Scene& s, double skin) {
+  for (int a = 0; a < s.config.box.dim; ++a)
+    if (s.config.box.periodic[a] && 2 * (s.ff.cutoff + skin) > s.config.box.length[a]) return false;
+  return true;
+}
+
+// Pairs closer than r by minimum image, counted by the test itself (all pairs, double).
+std::size_t pairs_within(const Configuration& c, double r) {
+  std::size_t count = 0;
+  for (std::size_t i = 0; i < c.size(); ++i)
+    for (std::size_t j = i + 1; j < c.size(); ++j)
+      if (distance2(c, i, j) < r * r) ++count;
+  return count;
+}
+
+using ListParam = std::tuple<Precision, std::string>;
+
+class PairList : public ::testing::TestWithParam<ListParam> {
+ protected:
+  void SetUp() override { CF_SKIP_WITHOUT_DEVICE(); }
+};
+
+// The build evaluation and one at positions moved by up to 0.1499 < skin / 2 (no rebuild: the
+// list serves it). Double: per particle |dF_i| <= 1e-12 max(|F_i|, F_rms), energies, total and
+// virial to 1e-12. Single and mixed: r_ij is formed in double and rounded once to float, so the
+// median per-particle relative error stays below the cells' 1e-6 bound; total energy and virial
+// to 1e-5.
+TEST_P(PairList, ReusedEvaluationMatchesTheBruteForce) {
+  const auto& [precision, name] = GetParam();
+  const Scene s = make_scene(name);
+  GpuEngine e(list_options(precision));
+  const Request all{true, true};
+  const Configuration m = moved(s.config, 0.1499, 11);
+  for (const Configuration* c : {&s.config, &m}) {
+    ForceResult got, ref;
+    e.evaluate(c->view(), s.ff, all, got);
+    cellforce::brute_force(c->view(), s.ff, all, ref);
+    const char* which = c == &s.config ? "build" : "reused";
+    if (c == &m) {
+      EXPECT_FALSE(e.stats().rebuilt) << "the moves stay under skin / 2: the structure must serve";
+    }
+    if (lists_fit(s, kSkin)) {
+      EXPECT_GT(e.listed_pairs(), 0u) << which << ": the cells served, not the list";
+    }
+    if (precision == Precision::kDouble) {
+      EXPECT_TRUE(forces_match(ref, got, 1e-12)) << which;
+      EXPECT_TRUE(energies_match(ref, got, 1e-12)) << which;
+      EXPECT_TRUE(total_energy_matches(ref, got, 1e-12)) << which;
+      EXPECT_TRUE(virial_matches(ref, got, 1e-12)) << which;
+    } else {
+      EXPECT_LT(median_relative_force_error(ref, got), 1e-6) << which;
+      EXPECT_TRUE(total_energy_matches(ref, got, 1e-5)) << which;
+      EXPECT_TRUE(virial_matches(ref, got, 1e-5)) << which;
+    }
+  }
+}
+
+std::string list_param_name(const ::testing::TestParamInfo<ListParam>& p) {
+  return std::string(cellforce::to_string(std::get<0>(p.param))) + "_" + std::get<1>(p.param);
+}
+
+std::vector<std::string> list_scene_names() {
+  std::vector<std::string> names = all_modes_scene_names();
+  for (const char* extra : {"random3d_open_far", "random3d_periodic_far_image", "clustered3d_corner",
+                            "clustered3d_across_boundary", "lattice_fcc_jitter", "uneven3d"})
+    names.push_back(extra);
+  return names;
+}
+
+INSTANTIATE_TEST_SUITE_P(Scenes, PairList,
+                         ::testing::Combine(::testing::Values(Precision::kDouble, Precision::kMixed,
+                                                              Precision::kSingle),
+                                            ::testing::ValuesIn(list_scene_names())),
+                         list_param_name);
+
+// The list holds every pair within rc + skin exactly once from each side: its entries are twice
+// the pairs the test counts by brute force (random positions: no pair sits at rc + skin to the
+// last bit).
+TEST(PairListBuild, EntriesAreTwiceThePairsWithinTheListCutoff) {
+  CF_SKIP_WITHOUT_DEVICE();
+  for (const char* name : {"random3d_periodic", "random2d_periodic", "random3d_open", "slab3d", "multitype3d_lb",
+                           "clustered3d_corner", "uneven3d"}) {
+    const Scene s = make_scene(name);
+    if (!lists_fit(s, kSkin)) continue;
+    GpuEngine e(list_options(Precision::kDouble));
+    ForceResult r;
+    e.evaluate(s.config.view(), s.ff, Request{false, false}, r);
+    EXPECT_EQ(e.listed_pairs(), 2 * pairs_within(s.config, s.ff.cutoff + kSkin)) << name;
+  }
+}
+
+// MD with lists: the trajectory of a build on every step to round-off (as ReuseMd), far fewer
+// builds.
+TEST(PairListMd, TrajectoryMatchesBuildingEveryStep) {
+  CF_SKIP_WITHOUT_DEVICE();
+  auto run = [](double skin, std::size_t* builds) {
+    GpuEngine e(list_options(Precision::kDouble, skin));
+    cellforce::MdState s;
+    s.config = cellforce::make_lattice(cellforce::Lattice::kFcc, 5, 0.8442);
+    const std::vector<double> masses(s.config.size(), 1.0);
+    cellforce::ForceField ff = lj_field(2.5);
+    ff.mode = cellforce::CutoffMode::kForceShift;
+    cellforce::initialize_velocities(s, masses, 1.44, 5);
+    ForceResult result;
+    std::size_t listed = 0;
+    auto compute = [&](cellforce::MdState& st) {
+      e.evaluate(st.config.view(), ff, Request{false, false}, result);
+      st.forces = result.forces;
+      listed = std::max(listed, e.listed_pairs());
+    };
+    compute(s);
+    cellforce::IntegratorSettings settings;
+    settings.dt = 0.005;
+    for (int k = 0; k < 200; ++k) cellforce::advance(s, masses, settings, compute);
+    *builds = e.stats().builds;
+    if (skin > 0) {
+      EXPECT_GT(listed, 0u) << "the lists never served";
+    }
+    return s;
+  };
+  std::size_t fresh_builds = 0, list_builds = 0;
+  const cellforce::MdState fresh = run(0.0, &fresh_builds);
+  const cellforce::MdState listed = run(kSkin, &list_builds);
+  EXPECT_EQ(fresh_builds, 201u);
+  EXPECT_LT(list_builds, 40u) << "a skin of 0.3 at T = 1.44 should serve ~10+ steps";
+  EXPECT_GT(list_builds, 1u) << "the run never rebuilt: the check was not exercised";
+  double worst = 0;
+  for (std::size_t k = 0; k < fresh.config.positions.size(); ++k) {
+    const double l = fresh.config.box.length[k % 3];
+    worst = std::max(worst, std::fabs(cellforce::minimum_image(fresh.config.positions[k] - listed.config.positions[k],
+                                                               l, 1.0 / l)));
+  }
+  EXPECT_LT(worst, 1e-8);
+}
+
+// Two engines, the same calls: bitwise the same results, at the build and on the reused step.
+TEST(PairListRepeat, TwoEnginesAreBitwiseEqual) {
+  CF_SKIP_WITHOUT_DEVICE();
+  const Scene s = make_scene("multitype3d_lb");
+  const Configuration m = moved(s.config, 0.1, 3);
+  for (Precision p : {Precision::kSingle, Precision::kMixed, Precision::kDouble}) {
+    GpuEngine a(list_options(p)), b(list_options(p));
+    for (const Configuration* c : {&s.config, &m}) {
+      ForceResult ra, rb;
+      a.evaluate(c->view(), s.ff, Request{true, true}, ra);
+      b.evaluate(c->view(), s.ff, Request{true, true}, rb);
+      EXPECT_TRUE(bitwise_equal(ra, rb)) << cellforce::to_string(p);
+    }
+  }
+}
+
+// A pair that becomes coincident on a reused step is named (both particles), as the cells name it.
+TEST(PairListErrors, CoincidentPairOnAReusedStepIsNamed) {
+  CF_SKIP_WITHOUT_DEVICE();
+  Scene s = make_scene("random3d_periodic");
+  const std::size_t i = 3, j = 7;
+  // j 0.25 from i along x: built with that, then moved onto i (0.25 < skin / 2 = 0.3).
+  for (int a = 0; a < 3; ++a) s.config.positions[j * 3 + a] = s.config.positions[i * 3 + a];
+  s.config.positions[j * 3] += 0.25;
+  GpuEngine e(list_options(Precision::kMixed, 0.6));
+  ForceResult r;
+  try {
+    e.evaluate(s.config.view(), s.ff, Request{true, true}, r);
+  } catch (const cellforce::Error&) {
+    // 0.25 sigma may already overflow float: then the build names the pair, which is fine too.
+  }
+  Configuration m = s.config;
+  m.positions[j * 3] -= 0.25;
+  try {
+    e.evaluate(m.view(), s.ff, Request{true, true}, r);
+    FAIL() << "a coincident pair gave no error";
+  } catch (const cellforce::Error& err) {
+    const std::string text = err.what();
+    EXPECT_TRUE(contains_number(text, i) && contains_number(text, j)) << text;
+  }
+}
+
+}  // namespace
+}  // namespace cftest
+
+#endif  // CELLFORCE_HAVE_CUDA
