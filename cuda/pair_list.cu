@@ -76,10 +76,16 @@ __global__ void __launch_bounds__(kBlock)
               uint32_t* __restrict__ slot_counts, uint32_t* __restrict__ neighbors) {
   constexpr int D = T::kDim;
   constexpr uint32_t kSlots = 1u << D;
-  __shared__ StagedEntry<Real> column_occ[kBlock / 32][32];
+  // A column occupant: its staged coordinates (the hi parts: their rounding is within the margin
+  // between in2 and out2) and control bits, and its rank.
+  struct Column {
+    Real x, y, z;
+    uint32_t control;
+  };
+  __shared__ Column columns[kBlock / 32][32];
   __shared__ uint32_t column_rank[kBlock / 32][32];
   const int warp = int(threadIdx.x / 32), lane = int(threadIdx.x % 32);
-  StagedEntry<Real>* column = column_occ[warp];
+  Column* column = columns[warp];
   uint32_t* column_ranks = column_rank[warp];
   const uint32_t first_cell = args.cell_range[0], end_cell = args.cell_range[1];
   const uint32_t w = args.tile_start[first_cell] + blockIdx.x * (kBlock / 32) + uint32_t(warp);
@@ -99,6 +105,7 @@ __global__ void __launch_bounds__(kBlock)
   const uint32_t a = row + uint32_t(lane);
   const bool row_ok = a < m, a_home = a < h;
   const StagedEntry<Real> A = row_ok ? occ[a] : StagedEntry<Real>{};
+  const Control ca = detail::control_of(A.meta);
   const uint32_t pa = row_ok ? rank[ids[a]] : 0u;
   uint32_t written = 0;
   if constexpr (Fill) {
@@ -107,26 +114,33 @@ __global__ void __launch_bounds__(kBlock)
   }
   const std::size_t n = args.n;
   uint32_t count = 0;
-  const uint32_t ncols = row >= h ? h : m;  // a tile of P rows pairs with H columns only
+  // A tile of P rows pairs with H columns only; rows beyond the cell (row_ok false) test nothing.
+  const uint32_t ncols = row >= h ? h : m;
+  const uint32_t row_cols = row_ok ? (a_home ? m : h) : 0u;
   for (uint32_t col = 0; col < ncols; col += 32u) {
     const uint32_t own = col + uint32_t(lane);
     if (own < ncols) {
-      column[lane] = occ[own];
+      const StagedEntry<Real> B = occ[own];
+      column[lane] = Column{B.x, B.y, B.z, B.meta};
       column_ranks[lane] = rank[ids[own]];
     }
     __syncwarp();
-    const uint32_t cnt = ncols - col < 32u ? ncols - col : 32u;
+    const uint32_t cnt = min(ncols - col, 32u);
     for (uint32_t k = 0; k < cnt; ++k) {
-      const uint32_t b = col + k;
-      const bool b_home = b < h;
-      const StagedEntry<Real> B = column[k];
-      const bool test = row_ok && b != a &&
-                        (a_home ? (b_home || !skip_pair(type, detail::control_of(A.meta), detail::control_of(B.meta)))
-                                : (b_home && !skip_pair(type, detail::control_of(A.meta), detail::control_of(B.meta))));
-      if (!test) continue;
-      Real d[3];
-      const Real r2 = detail::separation<T>(A, B, args.length, args.inv_length, d);
+      // The distance first (most candidates fail it), the candidate rule only for the few within.
+      const Column B = column[k];
+      Real d0 = A.x - B.x, d1 = A.y - B.y, d2 = D == 3 ? A.z - B.z : Real(0);
+      if constexpr (T::kWrap) {
+        d0 = minimum_image(d0, args.length[0], args.inv_length[0]);
+        d1 = minimum_image(d1, args.length[1], args.inv_length[1]);
+        if constexpr (D == 3) d2 = minimum_image(d2, args.length[2], args.inv_length[2]);
+      }
+      const Real r2 = d0 * d0 + d1 * d1 + d2 * d2;
       if (!(r2 < out2)) continue;
+      const uint32_t b = col + k;
+      if (b >= row_cols || b == a) continue;
+      // H x H; H x P (either way round) unless the control-bit rule gives it to another cell.
+      if (!(a_home && b < h) && skip_pair(type, ca, detail::control_of(B.control))) continue;
       if (!(r2 < in2)) {  // within the staged coordinates' rounding of the cutoff: decide in double
         double dd[3];
         if (!(distance2<D>(args.grid, ranked[pa], ranked[column_ranks[k]], dd) < cutoff2)) continue;
