@@ -89,30 +89,29 @@ __global__ void drift_kernel(double* __restrict__ x, const double* __restrict__ 
   if (bad) atomicMin(&flags->diverged, static_cast<unsigned long long>(i));
 }
 
-// Velocity Verlet's kicks and drift in one pass: `kicks` half kicks v += (h / m) F (two: the
-// previous step's closing kick and this step's opening one, rounded one after the other exactly as
-// two kick_kernel launches would), then the full drift x += dt v with the check and the wrap of
-// drift_kernel. One read and write of the state per step instead of three.
+// Velocity Verlet's kicks and drift in one pass, a thread per coordinate (coalesced): `kicks`
+// half kicks v += (h / m) F (two: the previous step's closing kick and this step's opening one,
+// rounded one after the other exactly as two kick_kernel launches would), then the full drift
+// x += dt v with the check and the wrap of drift_kernel. One read and write of the state per step
+// instead of three.
 __global__ void kick_drift_kernel(double* __restrict__ x, double* __restrict__ v, const double* __restrict__ f,
                                   const double* __restrict__ mass, double h, int kicks, double dt, DriftBox box,
                                   std::size_t n, MdFlags* flags) {
-  const std::size_t i = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
-  if (i >= n) return;
+  const std::size_t k = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
+  if (k >= n * std::size_t(box.dim)) return;
+  const std::size_t i = k / std::size_t(box.dim);
+  const int a = int(k - i * std::size_t(box.dim));
   const double hm = h / mass[i];
-  bool bad = false;
-  for (int a = 0; a < box.dim; ++a) {
-    const std::size_t k = i * box.dim + a;
-    double va = v[k];
-    const double fa = f[k];
-    for (int s = 0; s < kicks; ++s) va = kicked(va, hm, fa);
-    v[k] = va;
-    const double dx = mul_rn(dt, va);
-    if (!(fabs(dx) <= box.most[a])) bad = true;  // also catches NaN
-    double xa = x[k] + dx;
-    if (!isfinite(xa)) bad = true;
-    else if (box.periodic[a]) xa = wrap_coordinate(xa, box.length[a]);
-    x[k] = xa;
-  }
+  double va = v[k];
+  const double fa = f[k];
+  for (int s = 0; s < kicks; ++s) va = kicked(va, hm, fa);
+  v[k] = va;
+  const double dx = mul_rn(dt, va);
+  bool bad = !(fabs(dx) <= box.most[a]);  // also catches NaN
+  double xa = x[k] + dx;
+  if (!isfinite(xa)) bad = true;
+  else if (box.periodic[a]) xa = wrap_coordinate(xa, box.length[a]);
+  x[k] = xa;
   if (bad) atomicMin(&flags->diverged, static_cast<unsigned long long>(i));
 }
 
@@ -508,7 +507,7 @@ class CudaMdEngine final : public MdEngine {
 
   void kick_drift(double h, int kicks, double dt) {
     if (n_ == 0) return;
-    kick_drift_kernel<<<blocks_for(n_), kBlock, 0, stream_>>>(positions_.data(), velocities_.data(),
+    kick_drift_kernel<<<blocks_for(n_ * box_.dim), kBlock, 0, stream_>>>(positions_.data(), velocities_.data(),
                                                               gpu_.device_forces(), masses_.data(), h, kicks, dt,
                                                               drift_box(1.0), n_, flags_.data());
     CF_CUDA_CHECK_LAUNCH();

@@ -76,15 +76,22 @@ def write_atomically(path: Path, text: str) -> None:
     os.replace(partial, path)
 
 
-def run_bench(binary: str, n: int, precision: str, seconds: float, out: Path, chapter: bool) -> dict:
+# cellforce's configurations: "list" (a skin and pair lists, the fastest), "default" (the cells
+# traversed on every step, no skin: what a scene gets without [neighbor]) and the chapter's own.
+def configuration_args(configuration: str, skin: float) -> list[str]:
+    return {"list": ["--skin", f"{skin:g}", "--neighbor-list", "--label", "list"], "default": [],
+            "chapter": ["--chapter"]}[configuration]
+
+
+def run_bench(binary: str, n: int, precision: str, seconds: float, out: Path, configuration: str,
+              skin: float, save: bool) -> dict:
     """One `cellforce bench` call for one size; its JSON row, or a row with an "error" when it gave none."""
-    name = f"cf-{n}-chapter-{precision}" if chapter else f"cf-{n}-{precision}"
-    json_path = out / f"{name}.json"
+    json_path = out / f"cf-{n}-{configuration}-{precision}.json"
     json_path.unlink(missing_ok=True)
     command = [str(Path(binary).resolve()), "bench", "--sizes", str(n), "--precision", precision, "--backend",
-               "cuda", "--seconds", f"{seconds:g}", "--json", str(json_path)]
-    # The chapter's run saves nothing: its files would replace the default run's (same PREFIX-<n>).
-    command += ["--chapter"] if chapter else ["--save-final", str(out / f"final-{precision}")]
+               "cuda", "--seconds", f"{seconds:g}", "--json", str(json_path)] + configuration_args(configuration, skin)
+    if save:  # the last configuration, for OpenMM's force error on it
+        command += ["--save-final", str(out / f"final-{precision}")]
     p = subprocess.run(command, capture_output=True, text=True)
     with open(out / "bench.log", "a") as log:
         log.write(f"$ {shlex.join(command)}\n{p.stdout}")
@@ -96,7 +103,7 @@ def run_bench(binary: str, n: int, precision: str, seconds: float, out: Path, ch
         row = rows[0]
     except Exception:  # noqa: BLE001 - a crash before the JSON: a row of its own
         cells = fcc_cells_for(n)
-        row = {"engine": "cellforce", "configuration": "chapter" if chapter else "default", "precision": precision,
+        row = {"engine": "cellforce", "configuration": configuration, "precision": precision,
                "n": 4 * cells ** 3, "fcc_cells": cells,
                "error": f"bench exited {p.returncode} without a row: {(p.stderr or p.stdout).strip()[-1000:]}"}
     if p.returncode != 0 and "error" not in row:
@@ -205,8 +212,8 @@ def measure(args: argparse.Namespace) -> int:
     for n in args.sizes:
         run_openmm = not args.skip_openmm and (args.openmm_max is None or n <= args.openmm_max)
         for precision in args.precisions:
-            print(f"[{n:,} {precision}] cellforce bench", flush=True)
-            cf = run_bench(args.cellforce, n, precision, args.seconds, out, chapter=False)
+            print(f"[{n:,} {precision}] cellforce bench, pair lists", flush=True)
+            cf = run_bench(args.cellforce, n, precision, args.seconds, out, "list", args.skin, save=True)
             rows.append(cf)
             failed |= "error" in cf
             print(f"  cellforce: {summary(cf)}", flush=True)
@@ -221,9 +228,16 @@ def measure(args: argparse.Namespace) -> int:
                 print(f"  OpenMM CUDA: {summary(omm)}", flush=True)
             delete_saved(cf)
             save()
+        if n <= args.cells_max:
+            print(f"[{n:,} mixed] cellforce bench, the cells on every step", flush=True)
+            cells = run_bench(args.cellforce, n, "mixed", args.seconds, out, "default", args.skin, save=False)
+            rows.append(cells)
+            failed |= "error" in cells
+            print(f"  cells: {summary(cells)}", flush=True)
+            save()
         if n <= args.chapter_max:
             print(f"[{n:,} mixed] cellforce bench --chapter", flush=True)
-            ch = run_bench(args.cellforce, n, "mixed", args.seconds, out, chapter=True)
+            ch = run_bench(args.cellforce, n, "mixed", args.seconds, out, "chapter", args.skin, save=False)
             rows.append(ch)
             failed |= "error" in ch
             print(f"  chapter: {summary(ch)}", flush=True)
@@ -296,7 +310,7 @@ def precision_table(rows: list[dict], precision: str) -> list[str]:
              "| NVE drift |",
              "|---|---|---|---|---|---|---|---|---|---|"]
     cross = []
-    for cf in cellforce_rows(rows, "default", precision):
+    for cf in cellforce_rows(rows, "list", precision):
         n = cf["n"]
         omm = find(rows, "openmm-cuda", precision, n)
         omm_rate = "-" if omm is None else error_cell(omm) if "error" in omm else fmt(number(omm, "steps_per_second"))
@@ -319,27 +333,30 @@ def precision_table(rows: list[dict], precision: str) -> list[str]:
     return lines
 
 
-def chapter_table(rows: list[dict]) -> list[str]:
-    chapter = cellforce_rows(rows, "chapter", "mixed")
+def chapter_table(rows: list[dict], configuration: str = "chapter") -> list[str]:
+    chapter = cellforce_rows(rows, configuration, "mixed")
     if not chapter:
         return []
-    lines = ["### The chapter's configuration (mixed precision)", "",
-             "A thread per collision cell, the chapter's radix sort, cells >= 1.5 x 2h, a rebuild every step.", "",
-             "| N | chapter steps/s | default steps/s | default / chapter | chapter particle-steps/s | "
+    title = {"chapter": "### The chapter's configuration (mixed precision)\n\nA thread per collision cell, the "
+                        "chapter's radix sort, cells >= 1.5 x 2h, a rebuild every step.",
+             "default": "### The cells traversed on every step (mixed precision)\n\nNo skin: stages 1-3 and the "
+                        "traversal (its form chosen by auto) on every step, what a scene without [neighbor] runs."}
+    lines = [title[configuration], "",
+             f"| N | {configuration} steps/s | pair lists steps/s | lists / {configuration} | particle-steps/s | "
              "ns per particle-step | traversal form | sort | bytes/particle | force error median | NVE drift |",
              "|---|---|---|---|---|---|---|---|---|---|---|"]
     for ch in chapter:
         n = ch["n"]
-        default = find(rows, "cellforce", "mixed", n, "default")
-        default_rate = "-" if default is None else error_cell(default) if "error" in default else \
-            fmt(number(default, "steps_per_second"))
+        lists = find(rows, "cellforce", "mixed", n, "list")
+        lists_rate = "-" if lists is None else error_cell(lists) if "error" in lists else \
+            fmt(number(lists, "steps_per_second"))
         if "error" in ch:
-            lines.append(f"| {n:,} | {error_cell(ch)} | {default_rate} | - | - | - | - | - | - | - | - |")
+            lines.append(f"| {n:,} | {error_cell(ch)} | {lists_rate} | - | - | - | - | - | - | - | - |")
             continue
-        ok_default = default if default and "error" not in default else None
+        ok_lists = lists if lists and "error" not in lists else None
         lines.append(
-            f"| {n:,} | {fmt(number(ch, 'steps_per_second'))} | {default_rate} | "
-            f"{fmt(ratio(ok_default, ch), '{:.2f}')} | {fmt(number(ch, 'particle_steps_per_second'), '{:.3e}')} | "
+            f"| {n:,} | {fmt(number(ch, 'steps_per_second'))} | {lists_rate} | "
+            f"{fmt(ratio(ok_lists, ch), '{:.2f}')} | {fmt(number(ch, 'particle_steps_per_second'), '{:.3e}')} | "
             f"{fmt(ns_per_particle_step(ch), '{:.3g}')} | {ch.get('traversal', '-')} | {ch.get('sort', '-')} | "
             f"{fmt(number(ch, 'bytes_per_particle'))} | {fmt(number(ch, 'force_error_median'), '{:.2e}')} | "
             f"{fmt(number(ch, 'nve_drift'), '{:.2e}')} |")
@@ -348,7 +365,7 @@ def chapter_table(rows: list[dict]) -> list[str]:
 
 def targets(rows: list[dict]) -> list[str]:
     """The issue's targets, from the default mixed rows."""
-    mixed = [r for r in cellforce_rows(rows, "default", "mixed") if "error" not in r]
+    mixed = [r for r in cellforce_rows(rows, "list", "mixed") if "error" not in r]
     parts = []
     for cf in mixed:
         n = cf["n"]
@@ -360,7 +377,7 @@ def targets(rows: list[dict]) -> list[str]:
         else:
             parts.append(f"{n:,}: {r:.2f}x of OpenMM (target {goal:g}x) {'met' if r >= goal else 'missed'}")
     lines = ["Targets (mixed): " + ("; ".join(parts) if parts else "no mixed rows") + "."]
-    million = find(rows, "cellforce", "mixed", 1048576, "default")
+    million = find(rows, "cellforce", "mixed", 1048576, "list")
     if million is None or "error" in million:
         lines.append("1,048,576 particles at >= 2,000 steps/s: not measured.")
     else:
@@ -390,18 +407,23 @@ def tables(doc: dict) -> str:
              "double evaluation; OpenMM mixed: OpenMM CUDA double). NVE drift: slope of E_total / N against time.",
              ""]
     precisions = sorted({r.get("precision") for r in rows if r.get("engine") == "cellforce"
-                         and r.get("configuration") == "default"}, key=lambda p: (p != "mixed", str(p)))
+                         and r.get("configuration") == "list"}, key=lambda p: (p != "mixed", str(p)))
+    skins = sorted({r.get("skin") for r in rows if r.get("configuration") == "list" and r.get("skin") is not None})
+    lines += [f"cellforce with pair lists (skin {', '.join(f'{x:g}' for x in skins)}, rebuilt when a particle "
+              "has moved more than skin / 2), against OpenMM CUDA in the same precision:", ""]
     for precision in precisions:
         lines += precision_table(rows, precision) + [""]
-    chapter = chapter_table(rows)
-    if chapter:
-        lines += chapter + [""]
+    for configuration in ("default", "chapter"):
+        table = chapter_table(rows, configuration)
+        if table:
+            lines += table + [""]
     lines += targets(rows)
     return "\n".join(lines) + "\n"
 
 
-SERIES = [("cellforce", "default", "mixed", "cellforce mixed", "C0", "o", "-"),
-          ("cellforce", "default", "single", "cellforce single", "C0", "s", "--"),
+SERIES = [("cellforce", "list", "mixed", "cellforce mixed, pair lists", "C0", "o", "-"),
+          ("cellforce", "list", "single", "cellforce single, pair lists", "C0", "s", "--"),
+          ("cellforce", "default", "mixed", "cellforce mixed, cells every step", "C4", "v", "-"),
           ("cellforce", "chapter", "mixed", "cellforce, chapter's configuration, mixed", "C2", "^", "-"),
           ("openmm-cuda", None, "mixed", "OpenMM CUDA mixed", "C1", "o", "-"),
           ("openmm-cuda", None, "single", "OpenMM CUDA single", "C1", "s", "--")]
@@ -454,6 +476,9 @@ def main() -> int:
                    help="particle counts (each runs the nearest fcc lattice, 4 c^3)")
     m.add_argument("--precisions", nargs="+", default=["mixed", "single"])
     m.add_argument("--seconds", type=float, default=2.0, help="timed seconds per run (sets the steps)")
+    m.add_argument("--skin", type=float, default=0.6, help="the pair-list configuration's skin")
+    m.add_argument("--cells-max", type=int, default=4194304,
+                   help="largest N that runs the cells-every-step configuration (mixed)")
     m.add_argument("--chapter-max", type=int, default=1048576,
                    help="largest N that also runs the chapter's configuration (mixed)")
     m.add_argument("--openmm-max", type=int, default=None, help="largest N that runs OpenMM (default: all)")
