@@ -12,7 +12,8 @@ measure, per size N and precision P:
 - mixed only: the forces of cellforce's last configuration (mixed run) from OpenMM CUDA mixed and
   double; OpenMM mixed's median relative force error against OpenMM double, and cellforce's own
   mixed forces against the same OpenMM double forces (a cross-check of the bench's error).
-performance.json (rewritten whole after every size) and performance-table.md go to --out.
+performance.json (rewritten whole after every size), performance-table.md and bench.log go to --out
+(and nothing else: the device tool returns a limited number of files).
 Exits 1 when a run failed (its row says why).
 
 report: the Markdown tables (per precision; the chapter's configuration), the targets, and a plot
@@ -33,6 +34,7 @@ import os
 import shlex
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -83,15 +85,16 @@ def configuration_args(configuration: str, skin: float) -> list[str]:
             "chapter": ["--chapter"]}[configuration]
 
 
-def run_bench(binary: str, n: int, precision: str, seconds: float, out: Path, configuration: str,
+def run_bench(binary: str, n: int, precision: str, seconds: float, out: Path, work: Path, configuration: str,
               skin: float, save: bool) -> dict:
-    """One `cellforce bench` call for one size; its JSON row, or a row with an "error" when it gave none."""
-    json_path = out / f"cf-{n}-{configuration}-{precision}.json"
+    """One `cellforce bench` call for one size; its JSON row, or a row with an "error" when it gave none.
+    Its JSON and saved configuration go to `work` (a scratch folder: --out keeps three files only)."""
+    json_path = work / f"cf-{n}-{configuration}-{precision}.json"
     json_path.unlink(missing_ok=True)
     command = [str(Path(binary).resolve()), "bench", "--sizes", str(n), "--precision", precision, "--backend",
                "cuda", "--seconds", f"{seconds:g}", "--json", str(json_path)] + configuration_args(configuration, skin)
     if save:  # the last configuration, for OpenMM's force error on it
-        command += ["--save-final", str(out / f"final-{precision}")]
+        command += ["--save-final", str(work / f"final-{precision}")]
     p = subprocess.run(command, capture_output=True, text=True)
     with open(out / "bench.log", "a") as log:
         log.write(f"$ {shlex.join(command)}\n{p.stdout}")
@@ -198,6 +201,11 @@ def force_errors(cf_row: dict, omm_mixed: dict) -> None:
 
 
 def measure(args: argparse.Namespace) -> int:
+    with tempfile.TemporaryDirectory() as work:
+        return measure_in(args, Path(work))
+
+
+def measure_in(args: argparse.Namespace, work: Path) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     doc = {"device": device_name(), "date": datetime.date.today().isoformat(), "commit": args.commit or "unknown",
@@ -213,7 +221,7 @@ def measure(args: argparse.Namespace) -> int:
         run_openmm = not args.skip_openmm and (args.openmm_max is None or n <= args.openmm_max)
         for precision in args.precisions:
             print(f"[{n:,} {precision}] cellforce bench, pair lists", flush=True)
-            cf = run_bench(args.cellforce, n, precision, args.seconds, out, "list", args.skin, save=True)
+            cf = run_bench(args.cellforce, n, precision, args.seconds, out, work, "list", args.skin, save=True)
             rows.append(cf)
             failed |= "error" in cf
             print(f"  cellforce: {summary(cf)}", flush=True)
@@ -230,14 +238,14 @@ def measure(args: argparse.Namespace) -> int:
             save()
         if n <= args.cells_max:
             print(f"[{n:,} mixed] cellforce bench, the cells on every step", flush=True)
-            cells = run_bench(args.cellforce, n, "mixed", args.seconds, out, "default", args.skin, save=False)
+            cells = run_bench(args.cellforce, n, "mixed", args.seconds, out, work, "default", args.skin, save=False)
             rows.append(cells)
             failed |= "error" in cells
             print(f"  cells: {summary(cells)}", flush=True)
             save()
         if n <= args.chapter_max:
             print(f"[{n:,} mixed] cellforce bench --chapter", flush=True)
-            ch = run_bench(args.cellforce, n, "mixed", args.seconds, out, "chapter", args.skin, save=False)
+            ch = run_bench(args.cellforce, n, "mixed", args.seconds, out, work, "chapter", args.skin, save=False)
             rows.append(ch)
             failed |= "error" in ch
             print(f"  chapter: {summary(ch)}", flush=True)
