@@ -314,7 +314,7 @@ def ratio(a: dict | None, b: dict | None) -> float:
 def precision_table(rows: list[dict], precision: str) -> list[str]:
     lines = [f"### {precision} precision", "",
              "| N | cellforce steps/s | OpenMM CUDA steps/s | cellforce / OpenMM | cellforce particle-steps/s | "
-             "ns per particle-step | traversal form | bytes/particle | force error median (cellforce, OpenMM mixed) "
+             "ns per particle-step | forces from | bytes/particle | force error median (cellforce, OpenMM mixed) "
              "| NVE drift |",
              "|---|---|---|---|---|---|---|---|---|---|"]
     cross = []
@@ -330,7 +330,8 @@ def precision_table(rows: list[dict], precision: str) -> list[str]:
             f"| {n:,} | {fmt(number(cf, 'steps_per_second'))} | {omm_rate} | "
             f"{fmt(ratio(cf, omm if omm and 'error' not in omm else None), '{:.2f}')} | "
             f"{fmt(number(cf, 'particle_steps_per_second'), '{:.3e}')} | {fmt(ns_per_particle_step(cf), '{:.3g}')} | "
-            f"{cf.get('traversal', '-')} | {fmt(number(cf, 'bytes_per_particle'))} | "
+            f"{'pair lists' if cf.get('neighbor_list') else cf.get('traversal', '-')} | "
+            f"{fmt(number(cf, 'bytes_per_particle'))} | "
             f"{fmt(number(cf, 'force_error_median'), '{:.2e}')}, {omm_err} | "
             f"{fmt(number(cf, 'nve_drift'), '{:.2e}')} |")
         if cf.get("openmm_double_force_error_median") is not None:
