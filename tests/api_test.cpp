@@ -119,6 +119,9 @@ TEST(EngineOptions, AutoTraversalRule) {
   ctx.set_option("traversal", "auto");
   ctx.set_option("traversal", "tile");
   EXPECT_THROW(ctx.set_option("traversal", "block"), cf::Error);
+  ctx.set_option("neighbor-list", "true");
+  ctx.set_option("neighbor-list", "false");
+  EXPECT_THROW(ctx.set_option("neighbor-list", "yes"), cf::Error);
 }
 
 TEST(Api, ComputeMatchesTheBruteForceOnEveryBackendAndPrecision) {

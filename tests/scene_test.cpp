@@ -179,8 +179,11 @@ TEST(Scene, MalformedScenesNameFileLineAndKey) {
 TEST(Scene, NeighborSection) {
   const Scene plain = parse_scene(kMinimal, "plain.toml");
   EXPECT_EQ(plain.backend.reuse.skin, 0.0);
-  const Scene s = parse_scene(std::string(kMinimal) + "[neighbor]\nskin = 0.3\ncheck = false\nevery = 10\naudit = true\n",
+  EXPECT_FALSE(plain.backend.reuse.list);
+  const Scene s = parse_scene(std::string(kMinimal) +
+                                  "[neighbor]\nskin = 0.3\ncheck = false\nevery = 10\naudit = true\nlist = true\n",
                               "n.toml");
+  EXPECT_TRUE(s.backend.reuse.list);
   EXPECT_EQ(s.backend.reuse.skin, 0.3);
   EXPECT_FALSE(s.backend.reuse.check);
   EXPECT_EQ(s.backend.reuse.every, 10);
@@ -192,6 +195,8 @@ TEST(Scene, NeighborSection) {
   EXPECT_THAT(error_of(base + "skin = 0.3\nevery = -1\n"), HasSubstr("every"));
   EXPECT_THAT(error_of(base + "skin = 0.3\ncheck = \"yes\"\n"), HasSubstr("check"));
   EXPECT_THAT(error_of(base + "every = 5\n"), HasSubstr("applies only with a skin"));
+  EXPECT_THAT(error_of(base + "list = true\n"), HasSubstr("applies only with a skin"));
+  EXPECT_THAT(error_of(base + "skin = 0.3\nlist = 1\n"), HasSubstr("list"));
   EXPECT_THAT(error_of(base + "skin = 0.3\ncheck = false\n"), HasSubstr("never rebuilds"));
   EXPECT_THAT(error_of(base + "skin = 0.3\nsize = 2\n"), HasSubstr("size"));
 }
