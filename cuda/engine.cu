@@ -349,12 +349,10 @@ struct GpuEngine::Impl {
     return true;
   }
 
-  // The list path of one evaluation: builds the list after a build of the structure, then
-  // evaluates the listed pairs. Returns false when the list could not be built (the cells then
-  // serve this structure's evaluations).
+  // What the list kernels read: the positions of this evaluation, the physics, the outputs.
   template <class Real, class Accum>
-  bool evaluate_lists(const GpuOptions& o, const Grid& g, const SystemView& sys, const ForceField& ff,
-                      const Request& req) {
+  cuda::ListArgs<Real, Accum> list_args(const Grid& g, const SystemView& sys, const ForceField& ff,
+                                        const Request& req) {
     const std::size_t n = sys.n, dim = std::size_t(g.dim);
     upload_table<Real>(ff);
     if (!accumulate_flags) reset_flags();
@@ -371,13 +369,29 @@ struct GpuEngine::Impl {
     la.forces = forces.data();
     la.energies = req.energy ? energies.data() : nullptr;
     la.flags = flags.data();
-    if (list_built_for != builds) {  // stages the occupants for the build's walk of the cells
-      const cuda::TraversalArgs<Real, Accum> cell_args = prepare<Real, Accum>(g, sys, ff, ff.mode);
-      list_usable = cuda::build_pair_list<Real, Accum>(cell_args, sorted_keys.data(), entries,
-                                                       ff.cutoff + o.reuse.skin, la, list, stream);
-      list_built_for = builds;
-    }
+    return la;
+  }
+
+  // The list of the structure just built, from the positions it was built from (the ones the
+  // displacement check measures against): part of every build, whoever asked for it (an
+  // evaluation, the pair recorder, a restored structure).
+  template <class Real, class Accum>
+  void build_list(const GpuOptions& o, const Grid& g, const SystemView& sys, const ForceField& ff) {
+    const cuda::ListArgs<Real, Accum> la = list_args<Real, Accum>(g, sys, ff, Request{false, false});
+    const cuda::TraversalArgs<Real, Accum> cell_args = prepare<Real, Accum>(g, sys, ff, ff.mode);  // stages
+    list_usable = cuda::build_pair_list<Real, Accum>(cell_args, sorted_keys.data(), entries,
+                                                     ff.cutoff + o.reuse.skin, la, list, stream);
+    list_built_for = builds;
+  }
+
+  // The list path of one evaluation: the listed pairs at this evaluation's positions. Returns false
+  // when the structure has no list (it could not be built: the cells then serve it).
+  template <class Real, class Accum>
+  bool evaluate_lists(const GpuOptions& o, const Grid& g, const SystemView& sys, const ForceField& ff,
+                      const Request& req) {
+    if (list_built_for != builds) build_list<Real, Accum>(o, g, sys, ff);  // (every build makes one)
     if (!list_usable) return false;
+    const cuda::ListArgs<Real, Accum> la = list_args<Real, Accum>(g, sys, ff, req);
     cuda::Switches sw;
     sw.dim = g.dim;
     sw.multi_type = ff.num_types() > 1;
@@ -795,7 +809,16 @@ void GpuEngine::plan_corners(const Box& box, std::size_t n, const double* positi
 // Stages 1-3 on the uploaded positions, the policy invalid until they complete.
 void GpuEngine::build(const SystemView& system, const ForceField& ff) {
   reuse_.invalidate();
-  impl_->build(options_, stats_, system, ff);
+  Impl& s = *impl_;
+  s.build(options_, stats_, system, ff);
+  if (Impl::lists(options_, system.box, ff.cutoff)) {
+    const Grid& g = stats_.grid;
+    switch (options_.precision) {
+      case Precision::kSingle: s.build_list<float, float>(options_, g, system, ff); break;
+      case Precision::kMixed: s.build_list<float, double>(options_, g, system, ff); break;
+      case Precision::kDouble: s.build_list<double, double>(options_, g, system, ff); break;
+    }
+  }
   reuse_.built(system, ff.cutoff);
 }
 

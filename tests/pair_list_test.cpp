@@ -197,6 +197,28 @@ TEST(PairListRepeat, TwoEnginesAreBitwiseEqual) {
   }
 }
 
+// A restored structure (a bitwise restart: rebuilt from the positions it was built from) lists the
+// pairs of those positions, not of the positions it is next evaluated at: the same results, bit for
+// bit, as the engine that built it, on every evaluation it serves.
+TEST(PairListRestore, RestoredStructureServesAsTheOriginal) {
+  CF_SKIP_WITHOUT_DEVICE();
+  const Scene s = make_scene("random3d_periodic");
+  const Configuration x1 = moved(s.config, 0.07, 21), x2 = moved(s.config, 0.14, 22);
+  for (Precision p : {Precision::kMixed, Precision::kDouble}) {
+    GpuEngine original(list_options(p)), restored(list_options(p));
+    ForceResult a, b;
+    original.evaluate(s.config.view(), s.ff, Request{true, true}, a);
+    restored.restore_reuse(s.config.view(), s.ff, 1);
+    for (const Configuration* c : {&x1, &x2}) {
+      original.evaluate(c->view(), s.ff, Request{true, true}, a);
+      restored.evaluate(c->view(), s.ff, Request{true, true}, b);
+      EXPECT_FALSE(restored.stats().rebuilt);
+      EXPECT_GT(restored.listed_pairs(), 0u);
+      EXPECT_TRUE(bitwise_equal(a, b)) << cellforce::to_string(p);
+    }
+  }
+}
+
 // A pair that becomes coincident on a reused step is named (both particles), as the cells name it.
 TEST(PairListErrors, CoincidentPairOnAReusedStepIsNamed) {
   CF_SKIP_WITHOUT_DEVICE();
