@@ -389,8 +389,9 @@ struct GpuEngine::Impl {
   template <class Real, class Accum>
   bool evaluate_lists(const GpuOptions& o, const Grid& g, const SystemView& sys, const ForceField& ff,
                       const Request& req) {
-    if (list_built_for != builds) build_list<Real, Accum>(o, g, sys, ff);  // (every build makes one)
-    if (!list_usable) return false;
+    if (list_built_for != builds)  // every build makes its list (GpuEngine::build): a bug otherwise
+      throw Error("internal error: the pair list does not belong to the structure in use");
+    if (!list_usable || sys.n == 0) return false;  // the cells serve it (and an empty system)
     const cuda::ListArgs<Real, Accum> la = list_args<Real, Accum>(g, sys, ff, req);
     cuda::Switches sw;
     sw.dim = g.dim;

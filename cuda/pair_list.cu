@@ -76,12 +76,9 @@ __global__ void __launch_bounds__(kBlock)
               uint32_t* __restrict__ slot_counts, uint32_t* __restrict__ neighbors) {
   constexpr int D = T::kDim;
   constexpr uint32_t kSlots = 1u << D;
-  // A column occupant: its staged coordinates (the hi parts: their rounding is within the margin
-  // between in2 and out2) and control bits, and its rank.
-  struct Column {
-    Real x, y, z;
-    uint32_t control;
-  };
+  // A column occupant as staged (with the lo parts of compensated coordinates: r_ij then keeps the
+  // digits check_staging guarantees, well within the margin between in2 and out2), and its rank.
+  using Column = StagedEntry<Real>;
   __shared__ Column columns[kBlock / 32][32];
   __shared__ uint32_t column_rank[kBlock / 32][32];
   const int warp = int(threadIdx.x / 32), lane = int(threadIdx.x % 32);
@@ -120,8 +117,7 @@ __global__ void __launch_bounds__(kBlock)
   for (uint32_t col = 0; col < ncols; col += 32u) {
     const uint32_t own = col + uint32_t(lane);
     if (own < ncols) {
-      const StagedEntry<Real> B = occ[own];
-      column[lane] = Column{B.x, B.y, B.z, B.meta};
+      column[lane] = occ[own];
       column_ranks[lane] = rank[ids[own]];
     }
     __syncwarp();
@@ -129,18 +125,13 @@ __global__ void __launch_bounds__(kBlock)
     for (uint32_t k = 0; k < cnt; ++k) {
       // The distance first (most candidates fail it), the candidate rule only for the few within.
       const Column B = column[k];
-      Real d0 = A.x - B.x, d1 = A.y - B.y, d2 = D == 3 ? A.z - B.z : Real(0);
-      if constexpr (T::kWrap) {
-        d0 = minimum_image(d0, args.length[0], args.inv_length[0]);
-        d1 = minimum_image(d1, args.length[1], args.inv_length[1]);
-        if constexpr (D == 3) d2 = minimum_image(d2, args.length[2], args.inv_length[2]);
-      }
-      const Real r2 = d0 * d0 + d1 * d1 + d2 * d2;
+      Real d[3];
+      const Real r2 = detail::separation<T>(A, B, args.length, args.inv_length, d);
       if (!(r2 < out2)) continue;
       const uint32_t b = col + k;
       if (b >= row_cols || b == a) continue;
       // H x H; H x P (either way round) unless the control-bit rule gives it to another cell.
-      if (!(a_home && b < h) && skip_pair(type, ca, detail::control_of(B.control))) continue;
+      if (!(a_home && b < h) && skip_pair(type, ca, detail::control_of(B.meta))) continue;
       if (!(r2 < in2)) {  // within the staged coordinates' rounding of the cutoff: decide in double
         double dd[3];
         if (!(distance2<D>(args.grid, ranked[pa], ranked[column_ranks[k]], dd) < cutoff2)) continue;
@@ -331,7 +322,11 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
   CF_CUDA_CHECK(cudaMemcpyAsync(sizes, list.sizes.data(), sizeof(sizes), cudaMemcpyDeviceToHost, stream));
   CF_CUDA_CHECK(cudaStreamSynchronize(stream));
   const std::size_t width = std::size_t(sizes[0]), pairs = std::size_t(sizes[1]);
-  if (width * n > 2 * pairs + 64 * n) return false;  // a few crowded particles: the cells are cheaper
+  // A few crowded particles (the cells are cheaper), or a list that would take more than half of the
+  // device's free memory (a dense cluster: n^2 partners): the cells serve this structure.
+  std::size_t free_bytes = 0, total_bytes = 0;
+  CF_CUDA_CHECK(cudaMemGetInfo(&free_bytes, &total_bytes));
+  if (width * n > 2 * pairs + 64 * n || width * n * sizeof(uint32_t) > free_bytes / 2) return false;
   list.neighbors.reserve(std::max<std::size_t>(width * n, 1));
   if (row_blocks && width) walk_rows(std::true_type{});
   list.width = width;

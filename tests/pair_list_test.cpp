@@ -219,6 +219,26 @@ TEST(PairListRestore, RestoredStructureServesAsTheOriginal) {
   }
 }
 
+// An empty system after a listed one: energy and virial zero, nothing stale.
+TEST(PairListEmpty, EmptySystemAfterAListedOneIsZero) {
+  CF_SKIP_WITHOUT_DEVICE();
+  const Scene s = make_scene("random3d_periodic");
+  Configuration empty = s.config;
+  empty.positions.clear();
+  empty.types.clear();
+  GpuEngine e(list_options(Precision::kMixed));
+  ForceResult r;
+  e.evaluate(s.config.view(), s.ff, Request{true, true}, r);
+  ASSERT_NE(r.energy, 0.0);
+  for (const Configuration* c : {&empty, &empty}) {
+    e.evaluate(c->view(), s.ff, Request{true, true}, r);
+    EXPECT_EQ(r.energy, 0.0);
+    EXPECT_TRUE(r.forces.empty());
+    for (int a = 0; a < 3; ++a)
+      for (int b = 0; b < 3; ++b) EXPECT_EQ(r.virial[a][b], 0.0);
+  }
+}
+
 // A pair that becomes coincident on a reused step is named (both particles), as the cells name it.
 TEST(PairListErrors, CoincidentPairOnAReusedStepIsNamed) {
   CF_SKIP_WITHOUT_DEVICE();
