@@ -387,8 +387,7 @@ struct GpuEngine::Impl {
   // The list path of one evaluation: the listed pairs at this evaluation's positions. Returns false
   // when the structure has no list (it could not be built: the cells then serve it).
   template <class Real, class Accum>
-  bool evaluate_lists(const GpuOptions& o, const Grid& g, const SystemView& sys, const ForceField& ff,
-                      const Request& req) {
+  bool evaluate_lists(const Grid& g, const SystemView& sys, const ForceField& ff, const Request& req) {
     if (list_built_for != builds)  // every build makes its list (GpuEngine::build): a bug otherwise
       throw Error("internal error: the pair list does not belong to the structure in use");
     if (!list_usable || sys.n == 0) return false;  // the cells serve it (and an empty system)
@@ -450,7 +449,7 @@ struct GpuEngine::Impl {
   template <class Real, class Accum>
   void traverse_and_sum(const GpuOptions& o, const Grid& g, const SystemView& sys,
                         const ForceField& ff, const Request& req) {
-    if (lists(o, sys.box, ff.cutoff) && evaluate_lists<Real, Accum>(o, g, sys, ff, req)) return;
+    if (lists(o, sys.box, ff.cutoff) && evaluate_lists<Real, Accum>(g, sys, ff, req)) return;
     const bool gs = o.accumulation == Accumulation::kGaussSeidel;
     const bool observables = req.energy || req.virial;
     const std::size_t n = sys.n, dim = std::size_t(g.dim);

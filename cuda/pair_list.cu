@@ -87,14 +87,8 @@ __global__ void __launch_bounds__(kBlock)
   const uint32_t first_cell = args.cell_range[0], end_cell = args.cell_range[1];
   const uint32_t w = args.tile_start[first_cell] + blockIdx.x * (kBlock / 32) + uint32_t(warp);
   if (w >= args.tile_start[end_cell]) return;  // the whole warp
-  uint32_t lo = first_cell, hi = end_cell;
-  while (hi - lo > 1) {
-    const uint32_t mid = lo + (hi - lo) / 2;
-    if (args.tile_start[mid] <= w) lo = mid;
-    else hi = mid;
-  }
-  const CollisionCell cell = args.cells[lo];
-  const uint32_t row = (w - args.tile_start[lo]) * 32u;
+  uint32_t row = 0;
+  const CollisionCell cell = args.cells[detail::tile_cell(args, w, row)];
   const unsigned type = cell_type_of_id(args.grid, cell.cell);
   const StagedEntry<Real>* occ = args.staged + cell.start;
   const uint32_t* ids = args.sorted_ids + cell.start;

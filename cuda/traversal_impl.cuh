@@ -290,6 +290,22 @@ __global__ void __launch_bounds__(kWarpsPerBlock * 32)
   }
 }
 
+// The collision cell holding row tile w of the launch's cells and the tile's first row: the last c
+// in [cell_range[0], cell_range[1]) with tile_start[c] <= w (every collision cell has at least one
+// tile, so tile_start increases strictly over the cells). Shared by the tile form and the pair
+// lists' build (pair_list.cu).
+template <class Real, class Accum>
+__device__ __forceinline__ uint32_t tile_cell(const TraversalArgs<Real, Accum>& args, uint32_t w, uint32_t& row) {
+  uint32_t lo = args.cell_range[0], hi = args.cell_range[1];
+  while (hi - lo > 1) {
+    const uint32_t mid = lo + (hi - lo) / 2;
+    if (args.tile_start[mid] <= w) lo = mid;
+    else hi = mid;
+  }
+  row = (w - args.tile_start[lo]) * 32u;
+  return lo;
+}
+
 // ---- block per row tile ------------------------------------------------------------------------
 // A collision cell's occupants (H first, then P) in rows of 32; each row tile of each cell is one
 // block's work, so a cell of m occupants keeps ceil(m / 32) blocks busy. The block computes the
@@ -321,16 +337,8 @@ __global__ void __launch_bounds__(kWarpsPerBlock * 32)
   const uint32_t first_cell = args.cell_range[0], end_cell = args.cell_range[1];
   const uint32_t w = args.tile_start[first_cell] + blockIdx.x;
   if (w >= args.tile_start[end_cell]) return;  // the whole block: the tile index is block-uniform
-  // The cell holding tile w: the last c in [first_cell, end_cell) with tile_start[c] <= w (every
-  // collision cell has at least one tile, so tile_start increases strictly over the cells).
-  uint32_t lo = first_cell, hi = end_cell;
-  while (hi - lo > 1) {
-    const uint32_t mid = lo + (hi - lo) / 2;
-    if (args.tile_start[mid] <= w) lo = mid;
-    else hi = mid;
-  }
-  const CollisionCell cell = args.cells[lo];
-  const uint32_t row = (w - args.tile_start[lo]) * 32u;
+  uint32_t row = 0;
+  const CollisionCell cell = args.cells[tile_cell(args, w, row)];
   const unsigned type = cell_type_of_id(args.grid, cell.cell);
   const LJParams<Real> single = args.table[0];
   const StagedEntry<Real>* occ = args.staged + cell.start;

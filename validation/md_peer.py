@@ -44,13 +44,11 @@ def fcc_positions(cells: int):
     return positions, a * cells
 
 
-def openmm_steps_per_second(cells: int, precision: str, steps: int, warmup: int) -> dict:
-    import numpy as np
+def lj_system(n: int, edge: float):
+    """The in.lj fluid as an OpenMM System: n particles of mass 1 in a cubic periodic box, NonbondedForce
+    CutoffPeriodic at CUTOFF, sigma = epsilon = 1, no charge, no dispersion correction, no switching."""
     import openmm
-    from openmm import unit
 
-    positions, edge = fcc_positions(cells)
-    n = len(positions)
     system = openmm.System()
     system.setDefaultPeriodicBoxVectors(openmm.Vec3(edge, 0, 0), openmm.Vec3(0, edge, 0), openmm.Vec3(0, 0, edge))
     force = openmm.NonbondedForce()
@@ -62,6 +60,17 @@ def openmm_steps_per_second(cells: int, precision: str, steps: int, warmup: int)
         system.addParticle(1.0)
         force.addParticle(0.0, 1.0, 1.0)
     system.addForce(force)
+    return system
+
+
+def openmm_steps_per_second(cells: int, precision: str, steps: int, warmup: int) -> dict:
+    import numpy as np
+    import openmm
+    from openmm import unit
+
+    positions, edge = fcc_positions(cells)
+    n = len(positions)
+    system = lj_system(n, edge)
     integrator = openmm.VerletIntegrator(DT)
     platform = openmm.Platform.getPlatformByName("CUDA")
     context = openmm.Context(system, integrator, platform, {"Precision": precision})

@@ -38,7 +38,7 @@ import tempfile
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from md_peer import CUTOFF, DT, fcc_positions, openmm_steps_per_second  # noqa: E402
+from md_peer import DT, fcc_positions, lj_system, openmm_steps_per_second  # noqa: E402
 
 OPENMM_RATE = 3.0e8  # rough OpenMM CUDA particle-steps/s: sets its steps for ~--seconds (md_peer.py's rule)
 WARMUP = 50
@@ -137,17 +137,7 @@ def openmm_forces(positions, edge: float, precisions: list[str]) -> dict:
     import openmm
     from openmm import unit
 
-    system = openmm.System()
-    system.setDefaultPeriodicBoxVectors(openmm.Vec3(edge, 0, 0), openmm.Vec3(0, edge, 0), openmm.Vec3(0, 0, edge))
-    force = openmm.NonbondedForce()
-    force.setNonbondedMethod(openmm.NonbondedForce.CutoffPeriodic)
-    force.setCutoffDistance(CUTOFF)
-    force.setUseDispersionCorrection(False)
-    force.setUseSwitchingFunction(False)
-    for _ in range(len(positions)):
-        system.addParticle(1.0)
-        force.addParticle(0.0, 1.0, 1.0)
-    system.addForce(force)
+    system = lj_system(len(positions), edge)
     forces = {}
     for precision in precisions:
         context = openmm.Context(system, openmm.VerletIntegrator(DT), openmm.Platform.getPlatformByName("CUDA"),
