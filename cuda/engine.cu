@@ -407,6 +407,19 @@ struct GpuEngine::Impl {
     return true;
   }
 
+  // One evaluation behind the step gate: the list's forces, queued with no host read (the caller
+  // made sure the structure has its list: GpuEngine::gate_steps).
+  template <class Real, class Accum>
+  void evaluate_gated(const Grid& g, const SystemView& sys, const ForceField& ff, const cuda::GateView& gate) {
+    const cuda::ListArgs<Real, Accum> la = list_args<Real, Accum>(g, sys, ff, Request{false, false});
+    cuda::Switches sw;
+    sw.dim = g.dim;
+    sw.multi_type = ff.num_types() > 1;
+    sw.mode = ff.mode;
+    sw.observables = false;
+    cuda::list_forces<Real, Accum>(sw, la, list, stream, gate);
+  }
+
   // A reused structure: the stage events recorded back to back (zero stage times).
   void skip_build() {
     record(kCellIds);
@@ -710,6 +723,50 @@ void GpuEngine::check_flags(const Box& box, std::size_t n, const double* positio
   download(host, positions, n * std::size_t(box.dim), s.stream);
   CF_CUDA_CHECK(cudaStreamSynchronize(s.stream));
   s.throw_flags(flags, SystemView{box, n, host.data(), nullptr}, ff);
+}
+
+int64_t GpuEngine::gate_steps(const Box& box, std::size_t n, const ForceField& ff) const {
+  const Impl& s = *impl_;
+  const ReuseOptions& r = options_.reuse;
+  if (n == 0 || !r.check || r.audit || !Impl::lists(options_, box, ff.cutoff)) return 0;
+  if (!s.list_usable || s.list_built_for != s.builds || !s.accumulate_flags) return 0;
+  if (reuse_.must_rebuild(SystemView{box, n, nullptr, nullptr}, ff.cutoff)) return 0;
+  return reuse_.remaining();
+}
+
+unsigned long long GpuEngine::gate_limit() const {
+  const double half = 0.5 * options_.reuse.skin;  // ReusePolicy::too_far's threshold, bit for bit
+  const double limit = half * half;
+  unsigned long long bits = 0;
+  std::memcpy(&bits, &limit, sizeof bits);
+  return bits;
+}
+
+const double* GpuEngine::device_build_positions() const { return impl_->build_positions.data(); }
+
+void GpuEngine::evaluate_gated(const Box& box, std::size_t n, const double* positions, const uint32_t* types,
+                               const ForceField& ff, const cuda::GateView& gate) {
+  const DeviceScope scope(options_.device);
+  Impl& s = *impl_;
+  const SystemView system{box, n, nullptr, nullptr};
+  s.pos = positions;  // borrowed, as upload_system() does (without its timing events)
+  s.typ = types;
+  s.has_types = types != nullptr;
+  const Grid& g = stats_.grid;
+  switch (options_.precision) {
+    case Precision::kSingle: s.evaluate_gated<float, float>(g, system, ff, gate); break;
+    case Precision::kMixed: s.evaluate_gated<float, double>(g, system, ff, gate); break;
+    case Precision::kDouble: s.evaluate_gated<double, double>(g, system, ff, gate); break;
+  }
+}
+
+void GpuEngine::settle_gate(int64_t served, double served_d2) {
+  if (served <= 0) return;
+  reuse_.reused(served);
+  stats_.rebuilt = false;
+  stats_.max_displacement = std::sqrt(served_d2);
+  stats_.missed_pairs = stats_.repeated_pairs = 0;
+  stats_.builds = reuse_.builds();
 }
 
 const double* GpuEngine::device_forces() const { return impl_->forces.data(); }

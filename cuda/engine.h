@@ -16,6 +16,7 @@
 #include "core/grid.h"
 #include "core/reuse.h"
 #include "core/system.h"
+#include "step_gate.h"
 
 namespace cellforce {
 
@@ -54,7 +55,8 @@ class GpuEngine {
   // out of range, a pair whose force is not finite) is raised by synchronize(). The host waits
   // only with an open axis (the particles' bounds, 2 x dim numbers, plan the grid when the
   // structure is built), with a skin and the displacement check (the largest displacement, 8
-  // bytes) and with the reuse audit. Results are bitwise those of evaluate() on the same input.
+  // bytes), with pair lists when the structure is built (the longest list and the pair count, 16
+  // bytes: they size the list) and with the reuse audit. Results are bitwise those of evaluate() on the same input.
   // Throws cellforce::Error for bad pointers or physics, before anything is queued.
   void evaluate_device(const DeviceSystemView& system, const ForceField& ff, const DeviceOutputs& out,
                        void* stream);
@@ -68,8 +70,9 @@ class GpuEngine {
   // positions (n x dim, wrapped on periodic axes) and types (n, or null) are the caller's device
   // arrays, validated by the caller before its run. The work is queued on the engine's stream()
   // and the host does not wait, except with an open axis when the structure is built (the
-  // particles' bounds, 2 x dim numbers) and with a skin and the displacement check (the largest
-  // displacement). Forces stay on the
+  // particles' bounds, 2 x dim numbers), with a skin and the displacement check (the largest
+  // displacement; evaluate_gated() has none) and with pair lists when the structure is built (the
+  // list's size). Forces stay on the
   // device (device_forces(), n x dim); with `request`, so do the energy and virial totals
   // (device_totals(): energy, then w_xx, w_yy, w_zz, w_xy, w_xz, w_yz). The kernels' flags are
   // not read: they accumulate until check_flags() (or synchronize()). Stage times are not read either
@@ -80,6 +83,23 @@ class GpuEngine {
   // cellforce::Error naming both particles of a pair whose force was not finite (the positions
   // come to the host only then, for the message).
   void check_flags(const Box& box, std::size_t n, const double* positions, const ForceField& ff);
+  // The step gate (step_gate.h), for a resident Verlet run: how many of the next evaluations may be
+  // queued behind the gate (0: none may). Positive only while the structure in use has its pair
+  // list, the displacement check is on, the audit is off and nothing but the displacement could ask
+  // for a rebuild before then (same box, count and cutoff; `every` bounds the count).
+  int64_t gate_steps(const Box& box, std::size_t n, const ForceField& ff) const;
+  // What the run's kick-drift kernels need: the bits of (skin / 2)^2 and the positions the
+  // structure in use was built from (n x dim, device).
+  unsigned long long gate_limit() const;
+  const double* device_build_positions() const;
+  // One gated evaluation (forces only, from the pair list), queued; the host does not wait and
+  // nothing is counted until settle_gate().
+  void evaluate_gated(const Box& box, std::size_t n, const double* positions, const uint32_t* types,
+                      const ForceField& ff, const cuda::GateView& gate);
+  // After the host read the gate: `served` gated evaluations ran (the structure served them, the
+  // largest squared displacement among them `served_d2`). stats() then reads as after a reused
+  // evaluation.
+  void settle_gate(int64_t served, double served_d2);
   const double* device_forces() const;
   const double* device_totals() const;
   void* stream() const;   // the engine's cudaStream_t

@@ -3,7 +3,8 @@
 // as kernels on the force engine's stream, with the forces from its resident evaluations. The
 // host queues a call's steps without waiting (the search keeps its counts on the device), except
 // with an open axis (the particles' bounds, on steps that build the structure) and with a skin
-// (the largest displacement); the flags (a drift that diverged, a force that is not finite) are
+// (the largest displacement: per step, or, with pair lists and Verlet, per chunk of steps queued
+// behind the step gate, step_gate.h); the flags (a drift that diverged, a force that is not finite) are
 // read once per advance() call. Nothing of the particles crosses PCIe except in set_state,
 // get_state and the error path; observables() reads 8 numbers.
 //
@@ -22,6 +23,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstring>
 
 #include "backends/md_engine.h"
 #include "check.cuh"
@@ -33,6 +35,7 @@
 #include "device_buffer.cuh"
 #include "force_engine.h"  // cuda/force_engine.h
 #include "md/fire_step.h"
+#include "step_gate.cuh"
 #include "traversal.cuh"   // kCellSums
 
 namespace cellforce {
@@ -65,6 +68,7 @@ struct DriftBox {
   int dim;
   double length[kMaxDim];
   double most[kMaxDim];  // largest displacement allowed per axis (infinite on open axes)
+  double inv_length[kMaxDim];  // 1 / length on periodic axes, 0 on open ones (minimum image)
   bool periodic[kMaxDim];
 };
 
@@ -89,16 +93,15 @@ __global__ void drift_kernel(double* __restrict__ x, const double* __restrict__ 
   if (bad) atomicMin(&flags->diverged, static_cast<unsigned long long>(i));
 }
 
-// Velocity Verlet's kicks and drift in one pass, a thread per coordinate (coalesced): `kicks`
-// half kicks v += (h / m) F (two: the previous step's closing kick and this step's opening one,
-// rounded one after the other exactly as two kick_kernel launches would), then the full drift
-// x += dt v with the check and the wrap of drift_kernel. One read and write of the state per step
-// instead of three.
-__global__ void kick_drift_kernel(double* __restrict__ x, double* __restrict__ v, const double* __restrict__ f,
-                                  const double* __restrict__ mass, double h, int kicks, double dt, DriftBox box,
-                                  std::size_t n, MdFlags* flags) {
-  const std::size_t k = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
-  if (k >= n * std::size_t(box.dim)) return;
+// One coordinate k of velocity Verlet's kicks and drift: `kicks` half kicks v += (h / m) F (two:
+// the previous step's closing kick and this step's opening one, rounded one after the other
+// exactly as two kick_kernel launches would), then the full drift x += dt v with the check and the
+// wrap of drift_kernel. Returns the new coordinate.
+__device__ __forceinline__ double kick_drift_coordinate(double* __restrict__ x, double* __restrict__ v,
+                                                        const double* __restrict__ f,
+                                                        const double* __restrict__ mass, double h, int kicks,
+                                                        double dt, const DriftBox& box, std::size_t k,
+                                                        MdFlags* flags) {
   const std::size_t i = k / std::size_t(box.dim);
   const int a = int(k - i * std::size_t(box.dim));
   const double hm = h / mass[i];
@@ -113,6 +116,74 @@ __global__ void kick_drift_kernel(double* __restrict__ x, double* __restrict__ v
   else if (box.periodic[a]) xa = wrap_coordinate(xa, box.length[a]);
   x[k] = xa;
   if (bad) atomicMin(&flags->diverged, static_cast<unsigned long long>(i));
+  return xa;
+}
+
+// The kicks and the drift in one pass, a thread per coordinate (coalesced): one read and write of
+// the state per step instead of three.
+__global__ void kick_drift_kernel(double* __restrict__ x, double* __restrict__ v, const double* __restrict__ f,
+                                  const double* __restrict__ mass, double h, int kicks, double dt, DriftBox box,
+                                  std::size_t n, MdFlags* flags) {
+  const std::size_t k = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
+  if (k >= n * std::size_t(box.dim)) return;
+  kick_drift_coordinate(x, v, f, mass, h, kicks, dt, box, k, flags);
+}
+
+constexpr int kGateParticles = 128;  // particles per block of the gated kick-drift (dim threads each)
+
+// The kick-drift of a step behind the step gate (step_gate.h). First the gate: shut at an earlier
+// step, or the previous step's displacement past the limit (its evaluation did not run: the gate
+// closes there), and the kernel returns with the state as it was. Otherwise the kick-drift, then
+// each particle's squared displacement from `built` (the build's positions), summed over axes as
+// cuda/reuse.cu sums it (rounded squares, in axis order: the same bits as the host's check), and
+// the block's largest raised into the gate's slot for this step.
+__global__ void __launch_bounds__(kGateParticles * 3)
+    gated_kick_drift_kernel(double* __restrict__ x, double* __restrict__ v, const double* __restrict__ f,
+                            const double* __restrict__ mass, double h, int kicks, double dt, DriftBox box,
+                            std::size_t n, MdFlags* flags, const double* __restrict__ built, cuda::GateView gate) {
+  // The gate, read by one thread per block (see gate_shut) and shared.
+  volatile cuda::StepGate* g = gate.gate;
+  __shared__ int shut;
+  if (threadIdx.x == 0) {
+    shut = g->closed != cuda::kGateOpen;
+    if (!shut && g->d2[(gate.step + 2) % 3] > gate.limit) {  // step - 1 ran past skin / 2
+      shut = 1;
+      if (blockIdx.x == 0) g->closed = gate.step - 1;
+    }
+    if (!shut && blockIdx.x == 0) g->d2[(gate.step + 1) % 3] = 0;  // the next step's slot
+  }
+  __syncthreads();
+  if (shut) return;
+  __shared__ double square[kGateParticles * kMaxDim];
+  __shared__ double warp_worst[kGateParticles / 32];
+  const std::size_t k = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
+  double sq = 0;
+  if (k < n * std::size_t(box.dim)) {
+    const double xa = kick_drift_coordinate(x, v, f, mass, h, kicks, dt, box, k, flags);
+    const int a = int(k % std::size_t(box.dim));
+    const double d = separation(xa, built[k], box.length[a], box.inv_length[a]);
+    sq = mul_rn(d, d);
+  }
+  square[threadIdx.x] = sq;
+  __syncthreads();
+  if (threadIdx.x < kGateParticles) {
+    double worst = 0;
+    const std::size_t i = std::size_t(blockIdx.x) * kGateParticles + threadIdx.x;
+    if (i < n) {
+      double d2 = 0;
+      for (int a = 0; a < box.dim; ++a) d2 += square[threadIdx.x * box.dim + a];
+      worst = isnan(d2) ? INFINITY : d2;  // a diverged particle closes the gate
+    }
+    for (int offset = 16; offset > 0; offset >>= 1) worst = fmax(worst, __shfl_xor_sync(0xffffffffu, worst, offset));
+    if (threadIdx.x % 32 == 0) warp_worst[threadIdx.x / 32] = worst;
+  }
+  __syncthreads();
+  if (threadIdx.x == 0) {
+    double worst = warp_worst[0];
+    for (int w = 1; w < kGateParticles / 32; ++w) worst = fmax(worst, warp_worst[w]);
+    const auto bits = static_cast<unsigned long long>(__double_as_longlong(worst));
+    if (bits > g->d2[gate.step % 3]) atomicMax(&gate.gate->d2[gate.step % 3], bits);  // few blocks raise it
+  }
 }
 
 // BAOAB's O step: v = c1 v + c2 sqrt(kT / m) xi, xi from counter_normal keyed by the step and the
@@ -346,7 +417,8 @@ class CudaMdEngine final : public MdEngine {
   int64_t step() const override { return step_; }
   std::size_t state_bytes() const override {
     return positions_.bytes() + velocities_.bytes() + masses_.bytes() + types_.bytes() + flags_.bytes() +
-           scratch_result_.bytes() + fire_scalars_.bytes() + fire_start_.bytes() + reduce_scratch_.bytes();
+           scratch_result_.bytes() + fire_scalars_.bytes() + fire_start_.bytes() + reduce_scratch_.bytes() +
+           gate_.bytes();
   }
 
   Observables observables() override {
@@ -430,6 +502,7 @@ class CudaMdEngine final : public MdEngine {
 
  private:
   static constexpr int64_t kRun = 256;
+  static constexpr int64_t kMaxGated = 64;  // steps queued behind the gate between two reads of it
 
   void release() {
     for (cudaEvent_t e : force_events_) cudaEventDestroy(e);
@@ -441,6 +514,8 @@ class CudaMdEngine final : public MdEngine {
 
   // `steps` steps queued back to back, then the flags read (one synchronisation). An error thrown
   // while queueing (an evaluation of positions that diverged) gives way to the flags' diagnosis.
+  // Verlet steps before the last go behind the step gate in chunks wherever the force engine can
+  // serve them from its pair list (run_gated): one host wait per chunk instead of one per step.
   void run(int64_t steps, const IntegratorSettings& settings, bool observe) {
     const int dim = box_.dim;
     const double dt = settings.dt;
@@ -448,8 +523,15 @@ class CudaMdEngine final : public MdEngine {
     CF_CUDA_CHECK(cudaEventRecord(chunk_start_, stream_));
     std::size_t timed = 0;
     try {
-      for (int64_t k = 0; k < steps; ++k) {
+      for (int64_t k = 0; k < steps;) {
         const bool last = k + 1 == steps;
+        if (!settings.langevin && !last) {
+          const int64_t chunk = gate_chunk(steps - 1 - k);
+          if (chunk > 0) {
+            k += run_gated(chunk, k == 0 ? 1 : 2, dt, timed);
+            continue;
+          }
+        }
         if (!settings.langevin) {
           // The previous step's closing half kick (deferred) with this step's opening one, and the drift.
           kick_drift(0.5 * dt, k == 0 ? 1 : 2, dt);
@@ -467,16 +549,9 @@ class CudaMdEngine final : public MdEngine {
         }
         step_ += 1;
         time_ = double(step_) * dt;  // not summed: the same after a restart
-        while (force_events_.size() < 2 * (timed + 1)) {
-          cudaEvent_t ev;
-          CF_CUDA_CHECK(cudaEventCreate(&ev));
-          force_events_.push_back(ev);
-        }
-        CF_CUDA_CHECK(cudaEventRecord(force_events_[2 * timed], stream_));
-        evaluate(observe && last);
-        CF_CUDA_CHECK(cudaEventRecord(force_events_[2 * timed + 1], stream_));
-        ++timed;
+        timed_evaluation(timed, [&] { evaluate(observe && last); });
         if (settings.langevin || last) kick(0.5 * dt);  // Verlet: deferred into the next drift
+        ++k;
       }
     } catch (const Error& e) {
       check(first, step_);  // throws the divergence or the bad pair when one is flagged
@@ -496,6 +571,81 @@ class CudaMdEngine final : public MdEngine {
     counters_.steps += steps;
     counters_.force_seconds += 1e-3 * forces_ms;
     counters_.integration_seconds += 1e-3 * (double(ms) - forces_ms);
+  }
+
+  // Runs `queue` between the timing events of evaluation number `timed` (then counted).
+  template <class Queue>
+  void timed_evaluation(std::size_t& timed, Queue&& queue) {
+    while (force_events_.size() < 2 * (timed + 1)) {
+      cudaEvent_t ev;
+      CF_CUDA_CHECK(cudaEventCreate(&ev));
+      force_events_.push_back(ev);
+    }
+    CF_CUDA_CHECK(cudaEventRecord(force_events_[2 * timed], stream_));
+    queue();
+    CF_CUDA_CHECK(cudaEventRecord(force_events_[2 * timed + 1], stream_));
+    ++timed;
+  }
+
+  // How many of the next `most` steps to queue behind the gate: 0 when the force engine cannot
+  // serve them from its list, else enough to reach the next rebuild if it comes as far after this
+  // build as the last one did (interval_), so that few queued steps find the gate shut.
+  int64_t gate_chunk(int64_t most) const {
+    const int64_t allowed = std::min(most, gpu_.gate_steps(box_, n_, ff_));
+    if (allowed <= 0) return 0;
+    const int64_t expected = std::clamp<int64_t>(interval_ + 2 - since_build_, 4, kMaxGated);
+    return std::min(allowed, expected);
+  }
+
+  // `count` Verlet steps behind the step gate (step_gate.h), then one read of the gate. Steps the
+  // structure served are done; at the step where the gate closed (its drift done, its evaluation
+  // not run), the ordinary evaluation rebuilds and that step is done too. Returns the steps done.
+  int64_t run_gated(int64_t count, int first_kicks, double dt, std::size_t& timed) {
+    gate_.reserve(1);
+    CF_CUDA_CHECK(cudaMemsetAsync(gate_.data(), 0, sizeof(cuda::StepGate), stream_));
+    CF_CUDA_CHECK(cudaMemsetAsync(&gate_.data()->closed, 0xff, sizeof(unsigned long long), stream_));
+    const uint64_t first = uint64_t(step_) + 1;
+    cuda::GateView view{gate_.data(), first, gpu_.gate_limit()};
+    const double* built = gpu_.device_build_positions();
+    const DriftBox box = drift_box(1.0);
+    const unsigned blocks = unsigned((n_ + kGateParticles - 1) / kGateParticles);
+    const unsigned threads = unsigned(kGateParticles * box_.dim);
+    const uint32_t* types = ff_.num_types() > 1 ? types_.data() : nullptr;
+    for (int64_t j = 0; j < count; ++j) {
+      view.step = first + uint64_t(j);
+      gated_kick_drift_kernel<<<blocks, threads, 0, stream_>>>(positions_.data(), velocities_.data(),
+                                                              gpu_.device_forces(), masses_.data(), 0.5 * dt,
+                                                              j == 0 ? first_kicks : 2, dt, box, n_,
+                                                              flags_.data(), built, view);
+      CF_CUDA_CHECK_LAUNCH();
+      std::size_t slot = timed + std::size_t(j);  // events only: counted below for the steps served
+      timed_evaluation(slot, [&] { gpu_.evaluate_gated(box_, n_, positions_.data(), types, ff_, view); });
+    }
+    cuda::StepGate g{};
+    CF_CUDA_CHECK(cudaMemcpyAsync(&g, gate_.data(), sizeof g, cudaMemcpyDeviceToHost, stream_));
+    CF_CUDA_CHECK(cudaStreamSynchronize(stream_));
+    counters_.bytes_to_host += sizeof g;
+    const uint64_t last = first + uint64_t(count) - 1;
+    uint64_t closed = g.closed;
+    if (closed == cuda::kGateOpen && g.d2[last % 3] > view.limit) closed = last;  // no later drift closed it
+    const int64_t served = closed == cuda::kGateOpen ? count : int64_t(closed - first);
+    double served_d2 = 0;
+    std::memcpy(&served_d2, &g.served, sizeof served_d2);
+    gpu_.settle_gate(served, served_d2);
+    if (served > 0) {
+      counters_.evaluations += served;
+      add_reuse(counters_, gpu_.stats());
+    }
+    since_build_ += served;
+    counters_.gated_steps += served;
+    timed += std::size_t(served);
+    step_ += served;
+    time_ = double(step_) * dt;
+    if (served == count) return count;
+    step_ += 1;  // the closed step: drifted, to be evaluated
+    time_ = double(step_) * dt;
+    timed_evaluation(timed, [&] { evaluate(false); });
+    return served + 1;
   }
 
   void kick(double h) {
@@ -520,6 +670,7 @@ class CudaMdEngine final : public MdEngine {
       b.length[a] = box_.length[a];
       b.periodic[a] = box_.periodic[a];
       b.most[a] = box_.periodic[a] ? limit * box_.length[a] : INFINITY;
+      b.inv_length[a] = box_.periodic[a] ? 1.0 / box_.length[a] : 0.0;  // as cuda/reuse.cu
     }
     return b;
   }
@@ -537,6 +688,12 @@ class CudaMdEngine final : public MdEngine {
     observed_ = observe;
     ++counters_.evaluations;
     add_reuse(counters_, gpu_.stats());
+    if (gpu_.stats().rebuilt) {
+      if (since_build_ > 0) interval_ = since_build_ + 1;
+      since_build_ = 0;
+    } else {
+      ++since_build_;
+    }
   }
 
   // FIRE on the state (minimize() restores the start when this throws): md/minimize.h's run_fire,
@@ -683,6 +840,9 @@ class CudaMdEngine final : public MdEngine {
   DeviceBuffer<double> fire_start_;  // positions, then velocities, before minimize()
   DeviceBuffer<std::byte> reduce_scratch_;
   bool observed_ = false;
+  DeviceBuffer<cuda::StepGate> gate_;
+  int64_t interval_ = 16;    // steps between the last two builds (a guess before there were two)
+  int64_t since_build_ = 0;  // evaluations served since the last build
   MdCounters counters_;
   std::vector<cudaEvent_t> force_events_;
   cudaEvent_t chunk_start_ = nullptr, chunk_end_ = nullptr;

@@ -8,6 +8,7 @@
 #include <algorithm>
 
 #include "pair_list.cuh"
+#include "step_gate.cuh"
 #include "traversal_impl.cuh"  // Traits, dispatch, warp_sum, flag_bad_pair
 
 namespace cellforce::cuda {
@@ -48,8 +49,10 @@ __device__ __forceinline__ double distance2(const Grid& g, const RankedParticle&
 template <int D>
 __global__ void gather_ranked(Grid g, const double* __restrict__ positions, const uint32_t* __restrict__ types,
                               const uint32_t* __restrict__ order, std::size_t n, uint32_t num_types,
-                              RankedParticle* __restrict__ ranked) {
+                              RankedParticle* __restrict__ ranked, GateView gate) {
+  if (gate_shut(gate)) return;
   const std::size_t p = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
+  if (gate.gate && p == 0) atomicMax(&gate.gate->served, gate.gate->d2[gate.step % 3]);
   if (p >= n) return;
   const std::size_t i = order[p];
   double x[3] = {0, 0, 0};
@@ -158,7 +161,8 @@ template <class T, int S, class Real, class Accum>
 __global__ void __launch_bounds__(kBlock)
     list_force_kernel(const ListArgs<Real, Accum> args, const uint32_t* __restrict__ order,
                       const RankedParticle* __restrict__ ranked, const uint32_t* __restrict__ length,
-                      const uint32_t* __restrict__ neighbors, Accum* __restrict__ block_sums) {
+                      const uint32_t* __restrict__ neighbors, Accum* __restrict__ block_sums, GateView gate) {
+  if (gate_shut(gate)) return;  // the whole block: before any shuffle or barrier
   constexpr int D = T::kDim;
   const std::size_t n = args.n;
   const std::size_t t = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
@@ -230,12 +234,12 @@ void with_dim(int dim, F&& f) {
 }
 
 template <class Real, class Accum>
-void gather(const ListArgs<Real, Accum>& args, PairList& list, cudaStream_t stream) {
+void gather(const ListArgs<Real, Accum>& args, PairList& list, cudaStream_t stream, const GateView& gate = {}) {
   list.ranked.reserve(std::max<std::size_t>(args.n, 1));
   if (args.n == 0) return;
   with_dim(args.grid.dim, [&](auto d) {
     gather_ranked<decltype(d)::value><<<blocks_for(args.n), kBlock, 0, stream>>>(
-        args.grid, args.positions, args.types, list.order.data(), args.n, args.num_types, list.ranked.data());
+        args.grid, args.positions, args.types, list.order.data(), args.n, args.num_types, list.ranked.data(), gate);
   });
   CF_CUDA_CHECK_LAUNCH();
 }
@@ -329,9 +333,10 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
 }
 
 template <class Real, class Accum>
-void list_forces(const Switches& sw, const ListArgs<Real, Accum>& args, PairList& list, cudaStream_t stream) {
+void list_forces(const Switches& sw, const ListArgs<Real, Accum>& args, PairList& list, cudaStream_t stream,
+                 const GateView& gate) {
   if (args.n == 0) return;
-  gather(args, list, stream);
+  gather(args, list, stream, gate);
   const unsigned blocks = blocks_for(args.n * std::size_t(list.threads_per_particle));
   list.block_sums.reserve(std::size_t(blocks) * kCellSums * sizeof(Accum));
   Switches s = sw;
@@ -342,7 +347,7 @@ void list_forces(const Switches& sw, const ListArgs<Real, Accum>& args, PairList
       auto go = [&](auto split) {
         list_force_kernel<T, decltype(split)::value, Real, Accum><<<blocks, kBlock, 0, stream>>>(
             args, list.order.data(), list.ranked.data(), list.length.data(), list.neighbors.data(),
-            reinterpret_cast<Accum*>(list.block_sums.data()));
+            reinterpret_cast<Accum*>(list.block_sums.data()), gate);
       };
       switch (list.threads_per_particle) {
         case 1: go(std::integral_constant<int, 1>{}); break;
@@ -359,7 +364,8 @@ void list_forces(const Switches& sw, const ListArgs<Real, Accum>& args, PairList
   template bool build_pair_list<Real, Accum>(const TraversalArgs<Real, Accum>&, const uint32_t*,                 \
                                              std::size_t, double, const ListArgs<Real, Accum>&, PairList&,       \
                                              cudaStream_t);                                                      \
-  template void list_forces<Real, Accum>(const Switches&, const ListArgs<Real, Accum>&, PairList&, cudaStream_t);
+  template void list_forces<Real, Accum>(const Switches&, const ListArgs<Real, Accum>&, PairList&, cudaStream_t, \
+                                         const GateView&);
 CF_PAIR_LIST(float, float)
 CF_PAIR_LIST(float, double)
 CF_PAIR_LIST(double, double)

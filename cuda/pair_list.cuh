@@ -25,6 +25,7 @@
 #include <cstddef>
 #include <cstdint>
 
+#include "step_gate.h"
 #include "traversal.cuh"
 
 namespace cellforce::cuda {
@@ -83,8 +84,10 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
 
 // Gathers the positions into rank order and evaluates every listed pair with r < rc: forces (and
 // energies) to the user-order outputs, energy and virial per block into list.block_sums, whose
-// count list.blocks holds (for sum_cells).
+// count list.blocks holds (for sum_cells). With a gate (step_gate.h) both kernels return at once
+// when it is shut for gate.step.
 template <class Real, class Accum>
-void list_forces(const Switches& sw, const ListArgs<Real, Accum>& args, PairList& list, cudaStream_t stream);
+void list_forces(const Switches& sw, const ListArgs<Real, Accum>& args, PairList& list, cudaStream_t stream,
+                 const GateView& gate = {});
 
 }  // namespace cellforce::cuda

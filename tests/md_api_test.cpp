@@ -39,6 +39,7 @@ struct RunSetup {
   cf::IntegratorOptions integrator;
   int cells = 5;  // fcc cells per axis at density 0.8442: 4 cells^3 particles
   uint64_t seed = 12345;
+  std::vector<std::pair<std::string, std::string>> options;  // set_option(key, value), in order
 };
 
 std::string unavailable(cf::Backend backend) {
@@ -65,6 +66,7 @@ cf::Context liquid(const RunSetup& s, std::size_t* n_out = nullptr) {
   ctx.set_backend(s.backend);
   ctx.set_precision(s.precision);
   ctx.set_integrator(s.integrator);
+  for (const auto& [key, value] : s.options) ctx.set_option(key, value);
   ctx.set_state(n, state.config.positions.data(), state.velocities.data(), nullptr, masses.data());
   if (n_out) *n_out = n;
   return ctx;
@@ -222,6 +224,53 @@ TEST_P(MdApi, OpenBoxFollowsTheCpuRun) {
     for (std::size_t k = 0; k + 1 < got.size(); ++k) worst = std::max(worst, std::abs(got[k] - ref[k]));
     EXPECT_LT(worst, 1e-9);
     EXPECT_NEAR(got.back(), ref.back(), 1e-10 * std::abs(ref.back()));
+  }
+}
+
+// The step gate (cuda/step_gate.h): with pair lists a step() call queues its Verlet steps in chunks
+// and the device decides the rebuilds. One call of 300 steps against 300 calls of one step (the
+// last step of a call is never gated, so those decide every rebuild on the host): the same builds
+// and, bit for bit, the same positions, velocities and forces; and the gate served most steps.
+// Also with neighbor-every, which bounds each chunk, and in double precision.
+TEST_P(MdApi, GatedStepsEqualStepByStep) {
+  if (GetParam() == cf::Backend::kCpu) GTEST_SKIP() << "the step gate is the CUDA engine's";
+  struct Case {
+    cf::Precision precision;
+    const char* every;
+  };
+  for (const Case c : {Case{cf::Precision::kMixed, "0"}, Case{cf::Precision::kMixed, "7"},
+                       Case{cf::Precision::kDouble, "0"}}) {
+    SCOPED_TRACE(std::string(cf::to_string(c.precision)) + ", neighbor-every " + c.every);
+    auto run = [&](bool one_call, cf::RunStatistics* st) {
+      RunSetup s;
+      s.backend = GetParam();
+      s.precision = c.precision;
+      s.cells = 8;  // 2,048 particles, edge 13.4 > 2 (rc + skin)
+      s.options = {{"skin", "0.3"}, {"neighbor-list", "true"}, {"neighbor-every", c.every}};
+      std::size_t n = 0;
+      cf::Context ctx = liquid(s, &n);
+      ctx.reset_run_statistics();
+      if (one_call) {
+        ctx.step(300, false);
+      } else {
+        for (int k = 0; k < 300; ++k) ctx.step(1, false);
+      }
+      *st = ctx.run_statistics();
+      std::vector<double> x(3 * n), v(3 * n), f(3 * n);
+      ctx.get_state(x.data(), v.data(), f.data());
+      x.insert(x.end(), v.begin(), v.end());
+      x.insert(x.end(), f.begin(), f.end());
+      return x;
+    };
+    cf::RunStatistics gated, stepwise;
+    const std::vector<double> a = run(true, &gated), b = run(false, &stepwise);
+    EXPECT_TRUE(a == b) << "the gated run differs from the step-by-step run";
+    EXPECT_EQ(gated.builds, stepwise.builds);
+    EXPECT_GE(gated.builds, 5) << "too few rebuilds to exercise the gate's closing";
+    EXPECT_EQ(stepwise.gated_steps, 0);
+    EXPECT_GT(gated.gated_steps, 200) << "the gate served few steps";
+    EXPECT_LE(gated.gated_steps, 299);
+    EXPECT_EQ(gated.largest_served_displacement, stepwise.largest_served_displacement);
   }
 }
 

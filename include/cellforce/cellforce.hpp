@@ -117,6 +117,9 @@ struct RunStatistics {
   // structure served.
   int64_t builds = 0;
   double largest_served_displacement = 0;
+  // CUDA with neighbor-list: the steps run behind the step gate (queued in chunks, the rebuild
+  // decided on the device: no host wait per step for the displacement check).
+  int64_t gated_steps = 0;
   // Memory held now (device memory with cuda, host memory on the CPU): the force engine's stage
   // buffers (as of the last sampled evaluation) and the MD state (positions, velocities, masses,
   // types and the integrator's and minimiser's working arrays).
@@ -200,8 +203,9 @@ class CELLFORCE_API Context {
   // synchronize() (or the next compute() or count_pairs(), which synchronise first), and the
   // outputs of the calls since the last synchronize() are then not to be used. The host waits
   // here only with an open axis (2 x dim numbers, the particles' bounds, when the neighbour
-  // structure is built), with a skin and the displacement check (8 bytes per call), and with the
-  // neighbour audit. Results are bitwise those of compute() on the same input and backend.
+  // structure is built), with a skin and the displacement check (8 bytes per call), with
+  // neighbor-list when the structure is built (the longest list and the pair count, 16 bytes, size
+  // the list), and with the neighbour audit. Results are bitwise those of compute() on the same input and backend.
   void compute_device(std::size_t n, const double* positions, const uint32_t* types, const Outputs& out,
                       void* stream = nullptr);
   // Waits for the compute_device calls queued so far and throws cellforce::Error for the first
@@ -223,7 +227,9 @@ class CELLFORCE_API Context {
   void set_state(std::size_t n, const double* positions, const double* velocities, const uint32_t* types,
                  const double* masses, int64_t step = 0);
   // Advances `count` steps. With the cuda backend the host queues them and waits only for the
-  // counts that size the neighbour search's buffers; the device's flags are read once at the end,
+  // counts that size the neighbour search's buffers and for the skin's displacement check: once
+  // per step, or, with neighbor-list and Verlet, once per chunk of steps (the step gate decides the
+  // rebuilds on the device, on the same steps); the device's flags are read once at the end,
   // and a diverged integration or a force that is not finite throws naming the particle and the
   // steps of this call. `observe`: the last step also computes energy and virial (for thermo()).
   void step(int64_t count, bool observe = true);

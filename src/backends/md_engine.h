@@ -41,6 +41,7 @@ struct MdCounters {
   // displacement a reused structure served, and the audit's counts (CPU only).
   int64_t builds = 0;
   double served = 0;
+  int64_t gated_steps = 0;  // CUDA: steps the structure served behind the step gate (cuda/step_gate.h)
   std::size_t missed_pairs = 0, repeated_pairs = 0;
 };
 

@@ -13,6 +13,7 @@
 // staged as another image after a long move: missed) or finds more than once (repeated).
 #pragma once
 
+#include <algorithm>
 #include <cmath>
 #include <cstddef>
 #include <cstdint>
@@ -74,10 +75,16 @@ class ReusePolicy {
     const double half = 0.5 * options_.skin;
     return options_.check && max_displacement2 > half * half;
   }
+  // Evaluations the structure in use may still serve before `every` asks for a rebuild (INT64_MAX
+  // without a limit; 0 when none is valid).
+  int64_t remaining() const {
+    if (!valid_) return 0;
+    return options_.every > 0 ? std::max<int64_t>(options_.every - served_, 0) : INT64_MAX;
+  }
   // Whether the displacement needs computing at all (for the check or for the statistics).
   bool measures_displacement() const { return enabled() && (options_.check || options_.audit); }
   void built(const SystemView& system, double cutoff);
-  void reused() { ++served_; }
+  void reused(int64_t evaluations = 1) { served_ += evaluations; }
   // The structure no longer matches the last build (a fresh search overwrote it).
   void invalidate() { valid_ = false; }
   std::size_t builds() const { return builds_; }
