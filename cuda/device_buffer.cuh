@@ -58,6 +58,15 @@ class DeviceBuffer {
     }
     capacity_ = n;
   }
+  // Frees the memory (in stream order when bound: work queued earlier still reads it), so that a
+  // buffer dead between two uses does not add to the peak.
+  void release() {
+    T* old = std::exchange(ptr_, nullptr);
+    capacity_ = 0;
+    if (!old) return;
+    if (bound_) CF_CUDA_CHECK(cudaFreeAsync(old, stream_));
+    else CF_CUDA_CHECK(cudaFree(old));
+  }
   T* data() const { return ptr_; }
   std::size_t capacity() const { return capacity_; }
   std::size_t bytes() const { return capacity_ * sizeof(T); }

@@ -119,6 +119,10 @@ struct GpuEngine::Impl {
   cuda::PairList list;
   std::size_t builds = 0, list_built_for = ~std::size_t(0);
   bool list_usable = false;
+  // Lean memory (pair lists on a system whose buffers would not fit beside each other): the build
+  // frees what is dead before the list is taken (the last list, the unsorted keys and IDs, the sort's
+  // scratch) and stages occupants as it loads them; the same list, bit for bit.
+  bool lean = false;
   int multiprocessors = 1;  // of the engine's device, read once
   bool has_types = false;
 
@@ -297,6 +301,19 @@ struct GpuEngine::Impl {
     counts.reserve(1);
     form = resolve_traversal(o.traversal, max_cells, multiprocessors);
     ++builds;
+    lean = false;
+    if (lists(o, sys.box, ff.cutoff)) {
+      // Lean when the fast layout's buffers (about 1,300 bytes per particle with a 0.6 skin: a
+      // staged array, the sort's arrays and the list side by side) would not fit in 90% of the
+      // device: a rule of the system and the device, and the results do not depend on it.
+      std::size_t free_bytes = 0, total_bytes = 0;
+      CF_CUDA_CHECK(cudaMemGetInfo(&free_bytes, &total_bytes));
+      lean = o.lean_lists ? *o.lean_lists : double(n) * 1300.0 > 0.9 * double(total_bytes);
+      if (lean) {
+        list.neighbors.release();  // the new build makes a new list: the old one is dead
+        staged.release();
+      }
+    }
     keys.reserve(cap);
     object_ids.reserve(cap);
     sorted_keys.reserve(cap);
@@ -327,6 +344,11 @@ struct GpuEngine::Impl {
         break;
     }
     record(kSorted);
+    if (lean && o.sort == SortMethod::kCub) {  // dead until the next build (the chapter's sort may reuse them)
+      keys.release();
+      object_ids.release();
+      cub.release();
+    }
     cuda::find_collision_cells(sorted_keys.data(), entries, run_bound, max_cells, counts.data(), cells,
                                collision, stream);
     if (o.accumulation == Accumulation::kGaussSeidel)
@@ -378,9 +400,13 @@ struct GpuEngine::Impl {
   template <class Real, class Accum>
   void build_list(const GpuOptions& o, const Grid& g, const SystemView& sys, const ForceField& ff) {
     const cuda::ListArgs<Real, Accum> la = list_args<Real, Accum>(g, sys, ff, Request{false, false});
-    const cuda::TraversalArgs<Real, Accum> cell_args = prepare<Real, Accum>(g, sys, ff, ff.mode);  // stages
-    list_usable = cuda::build_pair_list<Real, Accum>(cell_args, sorted_keys.data(), entries,
+    // Lean: the cells without staging (the build stages each occupant as it loads it: n x 2^d x 32
+    // bytes less); otherwise staged once, which the build's two passes read faster.
+    const cuda::TraversalArgs<Real, Accum> cell_args =
+        lean ? traversal_args<Real, Accum>(g, sys, ff, ff.mode) : prepare<Real, Accum>(g, sys, ff, ff.mode);
+    list_usable = cuda::build_pair_list<Real, Accum>(cell_args, sorted_keys.data(), control.data(), entries,
                                                      ff.cutoff + o.reuse.skin, la, list, stream);
+    if (lean) collision.flags.release();
     list_built_for = builds;
   }
 
@@ -436,6 +462,15 @@ struct GpuEngine::Impl {
     cuda::stage_occupants<Real>(g, sorted_keys.data(), sorted_ids.data(), entries, &counts.data()->valid, pos,
                                 typ, uint32_t(ff.num_types()), control.data(), as<cuda::StagedEntry<Real>>(staged),
                                 stream);
+    cuda::TraversalArgs<Real, Accum> args = traversal_args<Real, Accum>(g, sys, ff, mode);
+    args.staged = as<cuda::StagedEntry<Real>>(staged);
+    return args;
+  }
+
+  // The same arguments without staging (args.staged null).
+  template <class Real, class Accum>
+  cuda::TraversalArgs<Real, Accum> traversal_args(const Grid& g, const SystemView& sys, const ForceField& ff,
+                                                  CutoffMode mode) {
     ForceField f = ff;
     f.mode = mode;
     upload_table<Real>(f);
@@ -446,7 +481,6 @@ struct GpuEngine::Impl {
     args.max_cells = uint32_t(max_cells);
     args.tile_start = tile_start.data();
     args.max_tiles = uint32_t(cuda::max_tiles(entries, max_cells));
-    args.staged = as<cuda::StagedEntry<Real>>(staged);
     args.sorted_ids = sorted_ids.data();
     args.n = sys.n;
     args.multiprocessors = multiprocessors;

@@ -28,6 +28,7 @@ struct GpuOptions {
   GridOptions grid;
   ReuseOptions reuse;  // skin > 0: stages 1-3 reused while no particle moved more than skin / 2
   std::optional<Grid> grid_override;  // tests only: this grid, unchecked
+  std::optional<bool> lean_lists;     // tests only: force the pair lists' lean memory mode on or off
   int device = 0;                     // CUDA device ordinal
 };
 
@@ -85,8 +86,9 @@ class GpuEngine {
   void check_flags(const Box& box, std::size_t n, const double* positions, const ForceField& ff);
   // The step gate (step_gate.h), for a resident Verlet run: how many of the next evaluations may be
   // queued behind the gate (0: none may). Positive only while the structure in use has its pair
-  // list, the displacement check is on, the audit is off and nothing but the displacement could ask
-  // for a rebuild before then (same box, count and cutoff; `every` bounds the count).
+  // list, the displacement check is on, the audit is off, flags accumulate (resident evaluations)
+  // and nothing but the displacement could ask for a rebuild before then (same box, count and
+  // cutoff; `every` bounds the count).
   int64_t gate_steps(const Box& box, std::size_t n, const ForceField& ff) const;
   // What the run's kick-drift kernels need: the bits of (skin / 2)^2 and the positions the
   // structure in use was built from (n x dim, device).

@@ -601,6 +601,7 @@ class CudaMdEngine final : public MdEngine {
   // structure served are done; at the step where the gate closed (its drift done, its evaluation
   // not run), the ordinary evaluation rebuilds and that step is done too. Returns the steps done.
   int64_t run_gated(int64_t count, int first_kicks, double dt, std::size_t& timed) {
+    observed_ = false;  // the state moves on: thermo() must evaluate again unless a later step observes
     gate_.reserve(1);
     CF_CUDA_CHECK(cudaMemsetAsync(gate_.data(), 0, sizeof(cuda::StepGate), stream_));
     CF_CUDA_CHECK(cudaMemsetAsync(&gate_.data()->closed, 0xff, sizeof(unsigned long long), stream_));
@@ -623,8 +624,7 @@ class CudaMdEngine final : public MdEngine {
     }
     cuda::StepGate g{};
     CF_CUDA_CHECK(cudaMemcpyAsync(&g, gate_.data(), sizeof g, cudaMemcpyDeviceToHost, stream_));
-    CF_CUDA_CHECK(cudaStreamSynchronize(stream_));
-    counters_.bytes_to_host += sizeof g;
+    CF_CUDA_CHECK(cudaStreamSynchronize(stream_));  // control data, like the displacement: not counted
     const uint64_t last = first + uint64_t(count) - 1;
     uint64_t closed = g.closed;
     if (closed == cuda::kGateOpen && g.d2[last % 3] > view.limit) closed = last;  // no later drift closed it

@@ -1,6 +1,7 @@
 // Pair lists for a reused structure: the build (ranks, counts, the column-major list) and the force
 // kernel of the evaluations it serves. See pair_list.cuh.
 #include <cub/device/device_reduce.cuh>
+#include <cub/device/device_scan.cuh>
 #include <cub/device/device_select.cuh>
 #include <thrust/iterator/counting_iterator.h>
 #include <thrust/iterator/transform_iterator.h>
@@ -27,6 +28,20 @@ struct Widen {
   __device__ unsigned long long operator()(uint32_t v) const { return v; }
 };
 
+// The rows of rank group g (kGroup consecutive ranks): its longest list; 0 past the last group, so
+// that an exclusive scan over groups + 1 ends with the total.
+struct GroupWidth {
+  const uint32_t* length;
+  std::size_t n, groups;
+  __device__ unsigned long long operator()(std::size_t g) const {
+    if (g >= groups) return 0;
+    uint32_t w = 0;
+    const std::size_t end = min(n, (g + 1) * kGroup);
+    for (std::size_t p = g * kGroup; p < end; ++p) w = max(w, length[p]);
+    return w;
+  }
+};
+
 __global__ void invert_order(const uint32_t* __restrict__ order, std::size_t n, uint32_t* __restrict__ rank) {
   const std::size_t p = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
   if (p < n) rank[order[p]] = uint32_t(p);
@@ -44,6 +59,13 @@ __device__ __forceinline__ double distance2(const Grid& g, const RankedParticle&
   d[1] = image(g, 1, a.y - b.y);
   d[2] = D == 3 ? image(g, 2, a.z - b.z) : 0.0;
   return d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
+}
+
+// Where entry k of rank p's list is: its group's rows start at group_rows[p / kGroup], row k holds
+// entry k of the group's kGroup ranks side by side (consecutive ranks read consecutive words).
+__device__ __forceinline__ std::size_t list_slot(const unsigned long long* __restrict__ group_rows, std::size_t p,
+                                                 uint32_t k) {
+  return std::size_t(group_rows[p / kGroup] + k) * kGroup + p % kGroup;
 }
 
 template <int D>
@@ -65,7 +87,9 @@ __global__ void gather_ranked(Grid g, const double* __restrict__ positions, cons
 }
 
 // One warp per row tile of a collision cell (the tile form's work units and candidate rule): lane
-// l holds row occupant a, and every lane walks the same columns. Count: the partners of each row
+// l holds row occupant a, and every lane walks the same columns. The occupants come from the staged
+// array, or, without one (lean memory), are staged as they are loaded (detail::stage_entry, the
+// values stage_kernel would write). Count: the partners of each row
 // within the list cutoff, into slot_counts[rank * 2^d + cell type]. Fill: the same walk writes
 // them, after the partners the row's particle found in cells of lower type. The test reads the
 // staged coordinates (relative to the cell centre, in the pair precision): below the cutoff by more
@@ -74,9 +98,10 @@ __global__ void gather_ranked(Grid g, const double* __restrict__ positions, cons
 // cutoff in double.
 template <class T, bool Fill, class Real, class Accum>
 __global__ void __launch_bounds__(kBlock)
-    list_rows(const TraversalArgs<Real, Accum> args, const RankedParticle* __restrict__ ranked,
-              const uint32_t* __restrict__ rank, Real in2, Real out2, double cutoff2,
-              uint32_t* __restrict__ slot_counts, uint32_t* __restrict__ neighbors) {
+    list_rows(const TraversalArgs<Real, Accum> args, const ListStaging staging,
+              const RankedParticle* __restrict__ ranked, const uint32_t* __restrict__ rank, Real in2, Real out2,
+              double cutoff2, uint32_t* __restrict__ slot_counts,
+              const unsigned long long* __restrict__ group_rows, uint32_t* __restrict__ neighbors) {
   constexpr int D = T::kDim;
   constexpr uint32_t kSlots = 1u << D;
   // A column occupant as staged (with the lo parts of compensated coordinates: r_ij then keeps the
@@ -93,12 +118,18 @@ __global__ void __launch_bounds__(kBlock)
   uint32_t row = 0;
   const CollisionCell cell = args.cells[detail::tile_cell(args, w, row)];
   const unsigned type = cell_type_of_id(args.grid, cell.cell);
-  const StagedEntry<Real>* occ = args.staged + cell.start;
+  const uint32_t* keys = staging.sorted_keys + cell.start;
   const uint32_t* ids = args.sorted_ids + cell.start;
+  const StagedEntry<Real>* occ = args.staged ? args.staged + cell.start : nullptr;
+  auto stage = [&](uint32_t e) {  // staged already, or staged here (the same values)
+    return occ ? occ[e]
+               : detail::stage_entry<Real>(args.grid, keys[e], ids[e], staging.positions, staging.types,
+                                           staging.num_types, staging.control);
+  };
   const uint32_t h = cell.h, m = cell.h + cell.p;
   const uint32_t a = row + uint32_t(lane);
   const bool row_ok = a < m, a_home = a < h;
-  const StagedEntry<Real> A = row_ok ? occ[a] : StagedEntry<Real>{};
+  const StagedEntry<Real> A = row_ok ? stage(a) : StagedEntry<Real>{};
   const Control ca = detail::control_of(A.meta);
   const uint32_t pa = row_ok ? rank[ids[a]] : 0u;
   uint32_t written = 0;
@@ -114,7 +145,7 @@ __global__ void __launch_bounds__(kBlock)
   for (uint32_t col = 0; col < ncols; col += 32u) {
     const uint32_t own = col + uint32_t(lane);
     if (own < ncols) {
-      column[lane] = occ[own];
+      column[lane] = stage(own);
       column_ranks[lane] = rank[ids[own]];
     }
     __syncwarp();
@@ -133,7 +164,7 @@ __global__ void __launch_bounds__(kBlock)
         double dd[3];
         if (!(distance2<D>(args.grid, ranked[pa], ranked[column_ranks[k]], dd) < cutoff2)) continue;
       }
-      if constexpr (Fill) neighbors[std::size_t(written + count) * n + pa] = column_ranks[k];
+      if constexpr (Fill) neighbors[list_slot(group_rows, pa, written + count)] = column_ranks[k];
       ++count;
     }
     __syncwarp();
@@ -161,7 +192,8 @@ template <class T, int S, class Real, class Accum>
 __global__ void __launch_bounds__(kBlock)
     list_force_kernel(const ListArgs<Real, Accum> args, const uint32_t* __restrict__ order,
                       const RankedParticle* __restrict__ ranked, const uint32_t* __restrict__ length,
-                      const uint32_t* __restrict__ neighbors, Accum* __restrict__ block_sums, GateView gate) {
+                      const unsigned long long* __restrict__ group_rows, const uint32_t* __restrict__ neighbors,
+                      Accum* __restrict__ block_sums, GateView gate) {
   if (gate_shut(gate)) return;  // the whole block: before any shuffle or barrier
   constexpr int D = T::kDim;
   const std::size_t n = args.n;
@@ -176,7 +208,7 @@ __global__ void __launch_bounds__(kBlock)
     const uint32_t len = length[p];
     const LJParams<Real> single = args.table[0];
     for (uint32_t k = part; k < len; k += S) {
-      const uint32_t q = neighbors[std::size_t(k) * n + p];
+      const uint32_t q = neighbors[list_slot(group_rows, p, k)];
       const RankedParticle Q = ranked[q];
       double dd[3];
       distance2<D>(args.grid, P, Q, dd);
@@ -247,7 +279,7 @@ void gather(const ListArgs<Real, Accum>& args, PairList& list, cudaStream_t stre
 }  // namespace
 
 template <class Real, class Accum>
-bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* sorted_keys,
+bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* sorted_keys, const Control* control,
                      std::size_t entries, double list_cutoff, const ListArgs<Real, Accum>& args, PairList& list,
                      cudaStream_t stream) {
   const std::size_t n = args.n;
@@ -279,6 +311,7 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
   const double cutoff2 = list_cutoff * list_cutoff;
   const Real in2 = Real(cutoff2 * (1 - 1e-5)), out2 = Real(cutoff2 * (1 + 1e-5));
   const unsigned row_blocks = unsigned((cells.max_tiles + kBlock / 32 - 1) / (kBlock / 32));
+  const ListStaging staging{sorted_keys, args.positions, args.types, args.num_types, control};
   // The rows' walk, counting or filling, in the geometry's instantiation (2D/3D, wrap in a cell).
   auto walk_rows = [&](auto fill_constant) {
     constexpr bool kFill = decltype(fill_constant)::value;
@@ -288,8 +321,9 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
     detail::dispatch(sw, [&](auto traits) {
       using T = decltype(traits);
       if constexpr (!T::kMultiType && T::kMode == CutoffMode::kTruncate && !T::kObservables)
-        list_rows<T, kFill><<<row_blocks, kBlock, 0, stream>>>(cells, list.ranked.data(), list.rank.data(), in2,
+        list_rows<T, kFill><<<row_blocks, kBlock, 0, stream>>>(cells, staging, list.ranked.data(), list.rank.data(), in2,
                                                                out2, cutoff2, list.slot_counts.data(),
+                                                               list.group_rows.data(),
                                                                kFill ? list.neighbors.data() : nullptr);
     });
     CF_CUDA_CHECK_LAUNCH();
@@ -316,19 +350,48 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
   const uint32_t blocks = blocks_for(n * std::size_t(list.threads_per_particle));
   list.blocks.reserve(1);
   CF_CUDA_CHECK(cudaMemcpyAsync(list.blocks.data(), &blocks, sizeof(blocks), cudaMemcpyHostToDevice, stream));
-  unsigned long long sizes[2] = {0, 0};
-  CF_CUDA_CHECK(cudaMemcpyAsync(sizes, list.sizes.data(), sizeof(sizes), cudaMemcpyDeviceToHost, stream));
+  // Each group of kGroup ranks is as wide as its longest list: the groups' first rows.
+  const std::size_t groups = (n + kGroup - 1) / kGroup;
+  list.group_rows.reserve(groups + 1);
+  const auto widths = thrust::make_transform_iterator(thrust::counting_iterator<std::size_t>(0),
+                                                      GroupWidth{list.length.data(), n, groups});
+  std::size_t scan_bytes = 0;
+  CF_CUDA_CHECK(cub::DeviceScan::ExclusiveSum(nullptr, scan_bytes, widths, list.group_rows.data(), int(groups + 1),
+                                              stream));
+  list.scratch.reserve(std::max<std::size_t>(scan_bytes, 1));
+  CF_CUDA_CHECK(cub::DeviceScan::ExclusiveSum(list.scratch.data(), scan_bytes, widths, list.group_rows.data(),
+                                              int(groups + 1), stream));
+  unsigned long long sizes[3] = {0, 0, 0};
+  CF_CUDA_CHECK(cudaMemcpyAsync(sizes, list.sizes.data(), 2 * sizeof(sizes[0]), cudaMemcpyDeviceToHost, stream));
+  CF_CUDA_CHECK(cudaMemcpyAsync(sizes + 2, list.group_rows.data() + groups, sizeof(sizes[0]),
+                                cudaMemcpyDeviceToHost, stream));
   CF_CUDA_CHECK(cudaStreamSynchronize(stream));
   const std::size_t width = std::size_t(sizes[0]), pairs = std::size_t(sizes[1]);
-  // A few crowded particles (the cells are cheaper), or a list that would take more than half of the
-  // device's free memory (a dense cluster: n^2 partners): the cells serve this structure.
+  const std::size_t entries_total = std::size_t(sizes[2]) * kGroup;  // the list's entries, padding included
+  // A few crowded particles (the cells are cheaper), or a list that would not fit in the device's
+  // free memory with 1/16 of it (at least 512 MiB) to spare (a dense cluster: n^2 partners): the
+  // cells serve this structure. The list in use counts as free: it is replaced.
   std::size_t free_bytes = 0, total_bytes = 0;
   CF_CUDA_CHECK(cudaMemGetInfo(&free_bytes, &total_bytes));
-  if (width * n > 2 * pairs + 64 * n || width * n * sizeof(uint32_t) > free_bytes / 2) return false;
-  list.neighbors.reserve(std::max<std::size_t>(width * n, 1));
+  free_bytes += list.neighbors.bytes();
+  const std::size_t spare = std::max<std::size_t>(free_bytes / 16, std::size_t(512) << 20);
+  if (entries_total > 2 * pairs + 64 * n || entries_total * sizeof(uint32_t) + spare > free_bytes) return false;
+  if (entries_total > list.neighbors.capacity()) {
+    // The largest buffer: the old one is freed and the pool trimmed before the new one is taken (in
+    // stream order alone the pool could hold both), with 1/16 to spare for the next builds.
+    list.neighbors.release();
+    CF_CUDA_CHECK(cudaStreamSynchronize(stream));
+    int device = 0;
+    cudaMemPool_t pool = nullptr;
+    CF_CUDA_CHECK(cudaGetDevice(&device));
+    CF_CUDA_CHECK(cudaDeviceGetDefaultMemPool(&pool, device));
+    CF_CUDA_CHECK(cudaMemPoolTrimTo(pool, 0));
+    list.neighbors.reserve(cells.staged ? entries_total + entries_total / 16 : entries_total);  // lean: exact
+  }
   if (row_blocks && width) walk_rows(std::true_type{});
   list.width = width;
   list.pairs = pairs;
+  list.slots = entries_total;
   return true;
 }
 
@@ -346,7 +409,8 @@ void list_forces(const Switches& sw, const ListArgs<Real, Accum>& args, PairList
     if constexpr (!T::kWrap) {
       auto go = [&](auto split) {
         list_force_kernel<T, decltype(split)::value, Real, Accum><<<blocks, kBlock, 0, stream>>>(
-            args, list.order.data(), list.ranked.data(), list.length.data(), list.neighbors.data(),
+            args, list.order.data(), list.ranked.data(), list.length.data(), list.group_rows.data(),
+            list.neighbors.data(),
             reinterpret_cast<Accum*>(list.block_sums.data()), gate);
       };
       switch (list.threads_per_particle) {
@@ -361,7 +425,7 @@ void list_forces(const Switches& sw, const ListArgs<Real, Accum>& args, PairList
 }
 
 #define CF_PAIR_LIST(Real, Accum)                                                                              \
-  template bool build_pair_list<Real, Accum>(const TraversalArgs<Real, Accum>&, const uint32_t*,                 \
+  template bool build_pair_list<Real, Accum>(const TraversalArgs<Real, Accum>&, const uint32_t*, const Control*, \
                                              std::size_t, double, const ListArgs<Real, Accum>&, PairList&,       \
                                              cudaStream_t);                                                      \
   template void list_forces<Real, Accum>(const Switches&, const ListArgs<Real, Accum>&, PairList&, cudaStream_t, \

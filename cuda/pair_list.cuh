@@ -10,8 +10,9 @@
 // so that ranks run cell by cell and a particle's partners have nearby ranks. The list of rank p
 // is the concatenation, in cell-type order, of the partners found from its row in its cell of
 // each type (the Jacobi slots' structure: one writer per particle and type, condition 1), each in
-// the cell's occupant order; stored column-major, neighbors[k * n + p], so that a warp's threads
-// read consecutive words. Every pair is in both partners' lists: each thread sums the whole force
+// the cell's occupant order. Stored by groups of kGroup consecutive ranks, each as wide as its
+// longest list (not the longest of all: ~20% less memory in a liquid), column-major within the
+// group, so that a warp's threads read consecutive words. Every pair is in both partners' lists: each thread sums the whole force
 // on its own particle, in its list's fixed order, with no atomics (bitwise reproducible).
 //
 // Exactness: the build keeps exactly the pairs with r < rc + skin in double (positions by minimum
@@ -37,24 +38,31 @@ struct alignas(32) RankedParticle {
   uint32_t unused;
 };
 
+constexpr std::size_t kGroup = 32;  // ranks that share a width in the list's layout
+
 struct PairList {
   DeviceBuffer<uint32_t> order;        // n: the particle of rank p
   DeviceBuffer<uint32_t> rank;         // n: the rank of particle i
   DeviceBuffer<uint32_t> slot_counts;  // n x 2^d: partners of rank p found in its cell of type t
   DeviceBuffer<uint32_t> length;       // n: partners of rank p
-  DeviceBuffer<uint32_t> neighbors;    // width x n: neighbors[k * n + p], the rank of p's k-th partner
+  DeviceBuffer<unsigned long long> group_rows;  // groups + 1: the first row of each group of kGroup
+                                               // ranks (an exclusive sum of the groups' longest lists)
+  DeviceBuffer<uint32_t> neighbors;    // slots: the rank of p's k-th partner at
+                                       // (group_rows[p / kGroup] + k) * kGroup + p % kGroup
   DeviceBuffer<RankedParticle> ranked; // n: gathered at every evaluation
   DeviceBuffer<unsigned long long> sizes;  // 2: the longest list and the sum of the lengths
   DeviceBuffer<uint32_t> selected;     // 1: CUB's count of H entries (n)
   DeviceBuffer<uint32_t> blocks;       // 1: the force kernel's blocks (their sums' count)
   DeviceBuffer<std::byte> block_sums;  // kCellSums per block of the force kernel
   DeviceBuffer<std::byte> scratch;     // CUB
-  std::size_t width = 0, pairs = 0;    // of the last build (pairs: the sum of the lengths)
+  std::size_t width = 0, pairs = 0;    // of the last build (width: the longest list; pairs: the sum
+  std::size_t slots = 0;               // of the lengths; slots: the entries the layout holds)
   int threads_per_particle = 1;        // the force kernel's: 1, 2, 4 or 8 (from n and the device)
 
   template <class F>
   void for_each_buffer(F&& f) {
-    f(order), f(rank), f(slot_counts), f(length), f(neighbors), f(ranked), f(sizes), f(selected), f(blocks);
+    f(order), f(rank), f(slot_counts), f(length), f(group_rows), f(neighbors), f(ranked), f(sizes), f(selected);
+    f(blocks);
     f(block_sums), f(scratch);
   }
 };
@@ -74,12 +82,25 @@ struct ListArgs {
   DeviceFlags* flags = nullptr;
 };
 
+// What the build stages its occupants from (as stage_kernel would: no staged array is needed).
+struct ListStaging {
+  const uint32_t* sorted_keys = nullptr;  // the sorted cell-ID array (cell << 1 | phantom)
+  const double* positions = nullptr;      // n x dim, user order
+  const uint32_t* types = nullptr;        // n or null
+  uint32_t num_types = 1;
+  const Control* control = nullptr;       // n: stage 1's control bits
+};
+
 // Builds the list from the structure just built (cells: its cells, tile starts, sorted IDs and
-// occupants staged at the positions of `list_args`) for partners closer than list_cutoff. Synchronises the stream once, to read the longest list and size the array.
-// Returns false, leaving no list, when the column-major array would hold more than twice the
+// staged occupants, or none: then they are staged as the build loads them;
+// sorted_keys and control: stage 1-2's; the positions of `list_args`) for partners closer than
+// list_cutoff. Synchronises the stream once, to read the list's size (twice when the array grows:
+// the old one is freed first).
+// Returns false, leaving no list, when the grouped array would hold more than twice the
 // pairs plus 64 per particle (a few very crowded particles): the caller then traverses the cells.
 template <class Real, class Accum>
-bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* sorted_keys, std::size_t entries, double list_cutoff,
+bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* sorted_keys, const Control* control,
+                     std::size_t entries, double list_cutoff,
                      const ListArgs<Real, Accum>& list_args, PairList& list, cudaStream_t stream);
 
 // Gathers the positions into rank order and evaluates every listed pair with r < rc: forces (and

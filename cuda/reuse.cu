@@ -1,5 +1,6 @@
 // Reuse of the neighbour structure (src/core/reuse.h) on the device: the largest displacement
-// since the build, by a CUB max-reduction over particles, read back once per evaluation.
+// since the build, by a CUB max-reduction over particles, read back once per evaluation (the step
+// gate's kick-drift measures the same number on gated steps: step_gate.h).
 #include <cub/device/device_reduce.cuh>
 #include <thrust/iterator/counting_iterator.h>
 #include <thrust/iterator/transform_iterator.h>

@@ -5,7 +5,7 @@
 // Each gated step's kick-drift kernel measures the largest squared displacement since the build
 // (the arithmetic of the engines' own check, so the same number) into the gate. The step's list
 // kernels run only while it is within (skin / 2)^2; the next kick-drift finds a step past it and
-// closes the gate at that step, and from then on every queued kernel of the run returns at once:
+// closes the gate at that step, and from then on every queued kernel of the chunk returns at once:
 // positions, velocities and forces stay as they were after the closed step's drift. The host reads
 // the gate once per chunk of steps and resumes at the closed step with an ordinary evaluation,
 // which rebuilds. Plain C++: engine.h includes it.
@@ -21,7 +21,8 @@ struct StepGate {
   // Per step mod 3: the bits of the largest squared displacement since the build (a double >= 0,
   // +inf for one that is not finite: the bits order as the values do). Zeroed before a chunk.
   unsigned long long d2[3];
-  // The first step whose evaluation the structure could not serve, kGateOpen while there is none.
+  // The first step whose evaluation the structure could not serve, as the next step's kick-drift
+  // finds it; kGateOpen while there is none (the host checks the chunk's last step itself).
   unsigned long long closed;
   // The bits of the largest squared displacement that a gated evaluation served.
   unsigned long long served;

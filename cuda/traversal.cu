@@ -25,25 +25,7 @@ __global__ void stage_kernel(const Grid grid, const uint32_t* __restrict__ sorte
                              const Control* __restrict__ control, StagedEntry<Real>* __restrict__ staged) {
   const std::size_t e = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
   if (e >= entries || e >= *valid) return;
-  const uint32_t i = sorted_ids[e];
-  int k[kMaxDim];
-  cell_coords(grid, sorted_keys[e] >> 1, k);
-  StagedCoordinate<Real> r[kMaxDim] = {};
-  for (int a = 0; a < grid.dim; ++a)
-    r[a] = StagedCoordinate<Real>::from(relative_coordinate(
-        grid, a, positions[std::size_t(i) * grid.dim + a], cell_center(grid, a, k[a])));
-  StagedEntry<Real> s{};
-  s.x = r[0].hi;
-  s.y = r[1].hi;
-  s.z = r[2].hi;
-  if constexpr (StagedCoordinate<Real>::kCompensated) {
-    s.lx = r[0].lo;
-    s.ly = r[1].lo;
-    s.lz = r[2].lo;
-  }
-  const uint32_t type = types ? types[i] : 0u;
-  s.meta = uint32_t(control[i]) | (type < num_types ? type : 0u) << 16;
-  staged[e] = s;
+  staged[e] = detail::stage_entry<Real>(grid, sorted_keys[e], sorted_ids[e], positions, types, num_types, control);
 }
 
 __global__ void check_input_kernel(const double* __restrict__ positions, const uint32_t* __restrict__ types,

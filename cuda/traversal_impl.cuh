@@ -41,6 +41,35 @@ constexpr int kWarpsPerBlock = 4;              // warp per cell: most cells (war
 constexpr uint32_t kControlMask = 0xffffu;
 
 __device__ __forceinline__ Control control_of(uint32_t meta) { return Control(meta & kControlMask); }
+
+// Sorted entry e as staged: particle i's position relative to the centre of the entry's cell,
+// formed in double (the shared core's relative_coordinate(), as the CPU stages it) and rounded to
+// the pair precision, with its control bits and type. The one definition behind stage_kernel and
+// the pair-list build (which stages its columns as it loads them, with no staged array).
+template <class Real>
+__device__ __forceinline__ StagedEntry<Real> stage_entry(const Grid& grid, uint32_t key, uint32_t i,
+                                                         const double* __restrict__ positions,
+                                                         const uint32_t* __restrict__ types, uint32_t num_types,
+                                                         const Control* __restrict__ control) {
+  int k[kMaxDim];
+  cell_coords(grid, key >> 1, k);
+  StagedCoordinate<Real> r[kMaxDim] = {};
+  for (int a = 0; a < grid.dim; ++a)
+    r[a] = StagedCoordinate<Real>::from(relative_coordinate(
+        grid, a, positions[std::size_t(i) * grid.dim + a], cell_center(grid, a, k[a])));
+  StagedEntry<Real> s{};
+  s.x = r[0].hi;
+  s.y = r[1].hi;
+  s.z = r[2].hi;
+  if constexpr (StagedCoordinate<Real>::kCompensated) {
+    s.lx = r[0].lo;
+    s.ly = r[1].lo;
+    s.lz = r[2].lo;
+  }
+  const uint32_t type = types ? types[i] : 0u;
+  s.meta = uint32_t(control[i]) | (type < num_types ? type : 0u) << 16;
+  return s;
+}
 __device__ __forceinline__ uint32_t type_of(uint32_t meta) { return meta >> 16; }
 
 // d = x_a - x_b (minimum image along axes that need it inside a cell); returns r^2.

@@ -197,6 +197,33 @@ TEST(PairListRepeat, TwoEnginesAreBitwiseEqual) {
   }
 }
 
+// The lean memory mode (the build stages occupants as it loads them and frees what is dead first,
+// chosen for systems near the device's memory) makes the same list as the staged build: the same
+// results, bit for bit, at the build and on a reused step, in every precision.
+TEST(PairListLean, LeanBuildIsBitwiseTheStagedOne) {
+  CF_SKIP_WITHOUT_DEVICE();
+  for (const char* name : {"multitype3d_lb", "random3d_periodic"}) {
+    const Scene s = make_scene(name);
+    if (!lists_fit(s, kSkin)) continue;
+    const Configuration m = moved(s.config, 0.14, 5);
+    for (Precision p : {Precision::kSingle, Precision::kMixed, Precision::kDouble}) {
+      GpuOptions lean = list_options(p), fast = list_options(p);
+      lean.lean_lists = true;
+      fast.lean_lists = false;
+      GpuEngine a(lean), b(fast);
+      for (const Configuration* c : {&s.config, &m, &s.config}) {
+        ForceResult ra, rb;
+        a.evaluate(c->view(), s.ff, Request{true, true}, ra);
+        b.evaluate(c->view(), s.ff, Request{true, true}, rb);
+        EXPECT_GT(a.listed_pairs(), 0u) << name;
+        EXPECT_EQ(a.listed_pairs(), b.listed_pairs()) << name;
+        EXPECT_EQ(a.stats().rebuilt, b.stats().rebuilt) << name;
+        EXPECT_TRUE(bitwise_equal(ra, rb)) << name << " " << cellforce::to_string(p);
+      }
+    }
+  }
+}
+
 // A restored structure (a bitwise restart: rebuilt from the positions it was built from) lists the
 // pairs of those positions, not of the positions it is next evaluated at: the same results, bit for
 // bit, as the engine that built it, on every evaluation it serves.
