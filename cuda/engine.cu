@@ -798,6 +798,7 @@ void GpuEngine::settle_gate(int64_t served, double served_d2) {
   if (served <= 0) return;
   reuse_.reused(served);
   stats_.rebuilt = false;
+  stats_.dangerous_build = false;
   stats_.max_displacement = std::sqrt(served_d2);
   stats_.missed_pairs = stats_.repeated_pairs = 0;
   stats_.builds = reuse_.builds();

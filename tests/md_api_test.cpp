@@ -274,6 +274,57 @@ TEST_P(MdApi, GatedStepsEqualStepByStep) {
   }
 }
 
+// Dangerous builds (LAMMPS's term): with neighbor-check false a structure serves `every` evaluations
+// whatever the particles do, and a build that retires one after a particle moved more than skin / 2
+// since its build is counted. The oracle: the state read every `every` steps (the rebuild steps)
+// and the largest minimum-image displacement between consecutive reads, computed here. With the
+// check on there are none.
+TEST_P(MdApi, DangerousBuildsAreCounted) {
+  constexpr int kEvery = 8, kChunks = 25;
+  constexpr double kSkin = 0.3;
+  for (const bool check : {false, true}) {
+    SCOPED_TRACE(check ? "neighbor-check true" : "neighbor-check false");
+    RunSetup s;
+    s.backend = GetParam();
+    s.options = {{"skin", "0.3"}, {"neighbor-check", check ? "true" : "false"},
+                 {"neighbor-every", std::to_string(kEvery)}};
+    std::size_t n = 0;
+    cf::Context ctx = liquid(s, &n);
+    const double edge = cf::make_lattice(cf::Lattice::kFcc, s.cells, 0.8442).box.length[0];
+    std::vector<double> then(3 * n), now(3 * n);
+    ctx.get_state(then.data(), nullptr, nullptr);
+    ctx.reset_run_statistics();
+    int64_t expected = 0;
+    for (int c = 0; c < kChunks; ++c) {
+      ctx.step(kEvery, false);
+      ctx.get_state(now.data(), nullptr, nullptr);
+      double worst = 0;
+      for (std::size_t i = 0; i < n; ++i) {
+        double d2 = 0;
+        for (int a = 0; a < 3; ++a) {
+          const double d = cf::minimum_image(now[3 * i + a] - then[3 * i + a], edge, 1.0 / edge);
+          d2 += d * d;
+        }
+        worst = std::max(worst, d2);
+      }
+      if (worst > 0.25 * kSkin * kSkin) ++expected;
+      then = now;
+    }
+    const cf::RunStatistics st = ctx.run_statistics();
+    std::printf("dangerous builds %s, check %s: %lld of %lld builds (oracle %lld of %d)\n",
+                cf::to_string(GetParam()), check ? "on" : "off", (long long)st.dangerous_builds,
+                (long long)st.builds, (long long)expected, kChunks);
+    if (!check) {
+      EXPECT_GT(expected, 2) << "the run never drifted past skin / 2 between builds: the count is not exercised";
+      EXPECT_LT(expected, kChunks) << "every build dangerous: the count is not exercised";
+      EXPECT_EQ(st.builds, kChunks);
+      EXPECT_EQ(st.dangerous_builds, expected);
+    } else {
+      EXPECT_EQ(st.dangerous_builds, 0);
+    }
+  }
+}
+
 // dt far too large: the step call that diverged throws, naming the particle and its steps.
 TEST_P(MdApi, DivergenceNamesTheParticleAndTheSteps) {
   RunSetup s;

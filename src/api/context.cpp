@@ -478,6 +478,7 @@ RunStatistics Context::run_statistics() const {
   r.total = per * c.stages.t_total;
   r.builds = c.builds;
   r.largest_served_displacement = c.served;
+  r.dangerous_builds = c.dangerous_builds;
   r.gated_steps = c.gated_steps;
   r.missed_pairs = c.missed_pairs;
   r.repeated_pairs = c.repeated_pairs;

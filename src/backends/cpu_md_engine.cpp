@@ -35,6 +35,7 @@ void add_stage_sample(MdCounters& c, const PipelineStats& s) {
 
 void add_reuse(MdCounters& c, const PipelineStats& s) {
   c.builds += s.rebuilt ? 1 : 0;
+  c.dangerous_builds += s.dangerous_build ? 1 : 0;
   if (!s.rebuilt) c.served = std::max(c.served, s.max_displacement);
   c.missed_pairs += s.missed_pairs;
   c.repeated_pairs += s.repeated_pairs;

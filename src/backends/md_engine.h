@@ -40,6 +40,7 @@ struct MdCounters {
   // Reuse of the neighbour structure (skin > 0), over every evaluation: builds, the largest
   // displacement a reused structure served, and the audit's counts (CPU only).
   int64_t builds = 0;
+  int64_t dangerous_builds = 0;  // builds that retired a structure past skin / 2 (check = false)
   double served = 0;
   int64_t gated_steps = 0;  // CUDA: steps the structure served behind the step gate (cuda/step_gate.h)
   std::size_t missed_pairs = 0, repeated_pairs = 0;

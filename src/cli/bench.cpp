@@ -167,6 +167,7 @@ SizeResult bench_size(const BenchArgs& args, const EngineChoice& engine, int cel
       row["builds"] = st.builds;
       row["evaluations"] = st.evaluations;
       row["gated_steps"] = st.gated_steps;
+      row["dangerous_builds"] = st.dangerous_builds;
       row["bytes_per_step_host_device"] = double(st.bytes_to_host + st.bytes_to_device) / double(steps);
       row["buffer_bytes"] = st.buffer_bytes;
       row["state_bytes"] = st.state_bytes;

@@ -398,11 +398,13 @@ void print_summary(const Scene& scene, const RunStatistics& st, std::size_t n, i
                 1e3 * st.traversal, 1e3 * st.accumulate, 1e3 * st.total);
   const ReuseOptions& reuse = scene.backend.reuse;
   if (reuse.skin > 0)
-    std::printf("  neighbour structure: skin %g, %lld builds in %lld evaluations (one per %.1f steps); "
-                "largest displacement served %.4g (limit skin/2 = %g%s); check %.4f ms per evaluation\n",
+    std::printf("  neighbour structure: skin %g, %lld builds in %lld evaluations (one per %.1f steps), "
+                "%lld dangerous; largest displacement served %.4g (limit skin/2 = %g%s); check %.4f ms per "
+                "evaluation\n",
                 reuse.skin, (long long)st.builds, (long long)st.evaluations,
-                steps / double(std::max<int64_t>(st.builds, 1)), st.largest_served_displacement, 0.5 * reuse.skin,
-                reuse.check ? "" : ", not checked", 1e3 * st.check);
+                steps / double(std::max<int64_t>(st.builds, 1)), (long long)st.dangerous_builds,
+                st.largest_served_displacement, 0.5 * reuse.skin, reuse.check ? "" : ", not checked",
+                1e3 * st.check);
   if (reuse.skin > 0 && reuse.audit)
     std::printf("  audit: missed pairs %zu, repeated pairs %zu\n", st.missed_pairs, st.repeated_pairs);
 }

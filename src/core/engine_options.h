@@ -69,6 +69,10 @@ struct PipelineStats {
   // evaluated (missed) or evaluated more than once (repeated). The stage counts above (entries,
   // collision cells) are those of the build in use; t_check is the displacement check.
   bool rebuilt = true;
+  // This build replaced a structure that `every` retired after a particle had moved more than
+  // skin / 2 since its build (possible only with check = false, measured only then): the
+  // evaluations it served may have missed pairs. LAMMPS calls such a build dangerous.
+  bool dangerous_build = false;
   std::size_t builds = 0;
   double max_displacement = 0;
   std::size_t missed_pairs = 0, repeated_pairs = 0;

@@ -21,13 +21,25 @@ void validate_reuse(const ReuseOptions& o) {
     throw Error("every " + std::to_string(o.every) + ": expected a count >= 0 (0: no limit)");
 }
 
+namespace {
+
+bool same_system(const Box& box, std::size_t n, double cutoff, const SystemView& system, double system_cutoff) {
+  if (system.n != n || system_cutoff != cutoff || system.box.dim != box.dim) return false;
+  for (int a = 0; a < box.dim; ++a)
+    if (system.box.length[a] != box.length[a] || system.box.periodic[a] != box.periodic[a]) return false;
+  return true;
+}
+
+}  // namespace
+
 bool ReusePolicy::must_rebuild(const SystemView& system, double cutoff) const {
-  if (!enabled() || !valid_ || system.n != n_ || cutoff != cutoff_ || system.box.dim != box_.dim)
-    return true;
-  for (int a = 0; a < box_.dim; ++a)
-    if (system.box.length[a] != box_.length[a] || system.box.periodic[a] != box_.periodic[a])
-      return true;
+  if (!enabled() || !valid_ || !same_system(box_, n_, cutoff_, system, cutoff)) return true;
   return options_.every > 0 && served_ >= options_.every;
+}
+
+bool ReusePolicy::retired(const SystemView& system, double cutoff) const {
+  return enabled() && valid_ && same_system(box_, n_, cutoff_, system, cutoff) && options_.every > 0 &&
+         served_ >= options_.every;
 }
 
 void ReusePolicy::built(const SystemView& system, double cutoff) {

@@ -52,6 +52,8 @@ class ReusePolicy {
   bool enabled() const { return options_.skin > 0.0; }
   // Whether the structure must be rebuilt whatever the displacement.
   bool must_rebuild(const SystemView& system, double cutoff) const;
+  // Whether it must be rebuilt only because it has served `every` evaluations (same system).
+  bool retired(const SystemView& system, double cutoff) const;
   // The decision of one evaluation, shared by the engines: must_rebuild(), else (when measured)
   // the largest squared displacement since the build, from displacement2() (the engine's own
   // reduction), against skin / 2. Sets stats.rebuilt and stats.max_displacement and zeroes the
@@ -62,10 +64,16 @@ class ReusePolicy {
     bool rebuild = must_rebuild(system, cutoff);
     stats.max_displacement = 0;
     stats.missed_pairs = stats.repeated_pairs = 0;
+    stats.dangerous_build = false;
     if (!rebuild && measures_displacement()) {
       const double d2 = displacement2();
       stats.max_displacement = std::sqrt(d2);
       rebuild = too_far(d2);
+    } else if (rebuild && !options_.check && retired(system, cutoff)) {
+      // Unchecked reuse: did the structure `every` retires outlive its exactness? (One reduction
+      // per build; with the check on every structure is retired before that.)
+      const double half = 0.5 * options_.skin;
+      stats.dangerous_build = displacement2() > half * half;
     }
     stats.rebuilt = rebuild;
     return rebuild;
