@@ -1,4 +1,5 @@
-// Device memory sized from counts: a buffer grows (never shrinks) when a count says it must.
+// Device memory sized from counts: a buffer grows when a count says it must, and shrinks only when
+// its owner releases it (release(): dead until its next use).
 // A buffer bound to a stream (bind) grows in stream order (cudaFreeAsync / cudaMallocAsync on that
 // stream), so that growing it never waits for the device: work queued earlier on the stream still
 // reads the old memory, work queued later the new. Unbound, growth frees with cudaFree, which

@@ -3,7 +3,8 @@
 // counts in device memory (cuda::PipelineCounts) and the buffers are sized by bounds the host
 // knows from n and the grid, so that no stage waits for the host. Device buffers live in Impl,
 // grow in the stream's order (DeviceBuffer::bind) and are reused, so repeated evaluations
-// allocate nothing.
+// allocate nothing (except pair lists in lean memory, whose builds free and take again what is
+// dead between builds).
 #include "engine.h"
 
 #include <cuda_runtime.h>

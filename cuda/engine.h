@@ -56,8 +56,9 @@ class GpuEngine {
   // out of range, a pair whose force is not finite) is raised by synchronize(). The host waits
   // only with an open axis (the particles' bounds, 2 x dim numbers, plan the grid when the
   // structure is built), with a skin and the displacement check (the largest displacement, 8
-  // bytes), with pair lists when the structure is built (the longest list and the pair count, 16
-  // bytes: they size the list) and with the reuse audit. Results are bitwise those of evaluate() on the same input.
+  // bytes; with the check off, once per build retired by `every`, for the dangerous-build count),
+  // with pair lists when the structure is built (the list's size, 24 bytes, and the free memory)
+  // and with the reuse audit. Results are bitwise those of evaluate() on the same input.
   // Throws cellforce::Error for bad pointers or physics, before anything is queued.
   void evaluate_device(const DeviceSystemView& system, const ForceField& ff, const DeviceOutputs& out,
                        void* stream);
@@ -72,8 +73,8 @@ class GpuEngine {
   // arrays, validated by the caller before its run. The work is queued on the engine's stream()
   // and the host does not wait, except with an open axis when the structure is built (the
   // particles' bounds, 2 x dim numbers), with a skin and the displacement check (the largest
-  // displacement; evaluate_gated() has none) and with pair lists when the structure is built (the
-  // list's size). Forces stay on the
+  // displacement; evaluate_gated() has none; with the check off, once per build retired by `every`)
+  // and with pair lists when the structure is built (the list's size). Forces stay on the
   // device (device_forces(), n x dim); with `request`, so do the energy and virial totals
   // (device_totals(): energy, then w_xx, w_yy, w_zz, w_xy, w_xz, w_yz). The kernels' flags are
   // not read: they accumulate until check_flags() (or synchronize()). Stage times are not read either

@@ -1,5 +1,5 @@
-// Pair lists for a reused structure: the build (ranks, counts, the column-major list) and the force
-// kernel of the evaluations it serves. See pair_list.cuh.
+// Pair lists for a reused structure: the build (ranks, counts, the list stored by groups of 32
+// ranks) and the force kernel of the evaluations it serves. See pair_list.cuh.
 #include <cub/device/device_reduce.cuh>
 #include <cub/device/device_scan.cuh>
 #include <cub/device/device_select.cuh>
@@ -291,7 +291,7 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
   list.length.reserve(std::max<std::size_t>(n, 1));
   list.sizes.reserve(2);
   list.selected.reserve(1);
-  list.width = list.pairs = 0;
+  list.width = list.pairs = list.slots = 0;
   if (n == 0) return true;
 
   // Ranks: the particles of the H entries in sorted order (each particle has exactly one).
@@ -375,18 +375,26 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
   CF_CUDA_CHECK(cudaMemGetInfo(&free_bytes, &total_bytes));
   free_bytes += list.neighbors.bytes();
   const std::size_t spare = std::max<std::size_t>(free_bytes / 16, std::size_t(512) << 20);
-  if (entries_total > 2 * pairs + 64 * n || entries_total * sizeof(uint32_t) + spare > free_bytes) return false;
+  const std::size_t need = entries_total * sizeof(uint32_t);
+  if (entries_total > 2 * pairs + 64 * n || need + spare > free_bytes) {
+    list.neighbors.release();  // dead: the cells serve, and need the room
+    return false;
+  }
   if (entries_total > list.neighbors.capacity()) {
-    // The largest buffer: the old one is freed and the pool trimmed before the new one is taken (in
-    // stream order alone the pool could hold both), with 1/16 to spare for the next builds.
+    // The largest buffer: the old one is freed and the pool it came from (the device's current
+    // one, which cudaMallocAsync uses) trimmed before the new one is taken (in stream order alone
+    // the pool could hold both). With a staged build (fast mode), 1/16 to spare for the next
+    // builds where that still leaves the spare free; lean mode takes the exact size.
     list.neighbors.release();
     CF_CUDA_CHECK(cudaStreamSynchronize(stream));
     int device = 0;
     cudaMemPool_t pool = nullptr;
     CF_CUDA_CHECK(cudaGetDevice(&device));
-    CF_CUDA_CHECK(cudaDeviceGetDefaultMemPool(&pool, device));
+    CF_CUDA_CHECK(cudaDeviceGetMemPool(&pool, device));
     CF_CUDA_CHECK(cudaMemPoolTrimTo(pool, 0));
-    list.neighbors.reserve(cells.staged ? entries_total + entries_total / 16 : entries_total);  // lean: exact
+    const std::size_t headroom = entries_total / 16;
+    const bool roomy = cells.staged && need + headroom * sizeof(uint32_t) + 2 * spare <= free_bytes;
+    list.neighbors.reserve(roomy ? entries_total + headroom : entries_total);
   }
   if (row_blocks && width) walk_rows(std::true_type{});
   list.width = width;

@@ -96,8 +96,10 @@ struct ListStaging {
 // sorted_keys and control: stage 1-2's; the positions of `list_args`) for partners closer than
 // list_cutoff. Synchronises the stream once, to read the list's size (twice when the array grows:
 // the old one is freed first).
-// Returns false, leaving no list, when the grouped array would hold more than twice the
-// pairs plus 64 per particle (a few very crowded particles): the caller then traverses the cells.
+// Returns false, leaving no list (its array freed), when the grouped array would hold more than
+// twice the pairs plus 64 per particle (a few very crowded particles), or would not fit in the
+// device's free memory with 1/16 of it (at least 512 MiB) to spare: the caller then traverses the
+// cells.
 template <class Real, class Accum>
 bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* sorted_keys, const Control* control,
                      std::size_t entries, double list_cutoff,

@@ -117,9 +117,10 @@ struct RunStatistics {
   // structure served.
   int64_t builds = 0;
   double largest_served_displacement = 0;
-  // Builds that replaced a structure after a particle had moved more than skin / 2 since its build
-  // (LAMMPS's dangerous builds: possible only with neighbor-check false; its evaluations may have
-  // missed pairs). Always 0 with the check on.
+  // Builds that retired a structure (after neighbor-every evaluations) when a particle had moved
+  // more than skin / 2 since its build: LAMMPS's dangerous builds, whose structure's evaluations may
+  // have missed pairs. Possible only with neighbor-check false; a rebuild for a changed box, count
+  // or cutoff is not measured. Always 0 with the check on.
   int64_t dangerous_builds = 0;
   // CUDA with neighbor-list: the steps run behind the step gate (queued in chunks, the rebuild
   // decided on the device: no host wait per step for the displacement check).

@@ -57,7 +57,8 @@ class ReusePolicy {
   // The decision of one evaluation, shared by the engines: must_rebuild(), else (when measured)
   // the largest squared displacement since the build, from displacement2() (the engine's own
   // reduction), against skin / 2. Sets stats.rebuilt and stats.max_displacement and zeroes the
-  // audit's counts.
+  // audit's counts. With the check off, a rebuild that retires a structure after `every`
+  // evaluations measures the displacement once, for stats.dangerous_build.
   template <class Displacement2>
   bool decide(const SystemView& system, double cutoff, Displacement2&& displacement2,
               PipelineStats& stats) const {
@@ -89,7 +90,8 @@ class ReusePolicy {
     if (!valid_) return 0;
     return options_.every > 0 ? std::max<int64_t>(options_.every - served_, 0) : INT64_MAX;
   }
-  // Whether the displacement needs computing at all (for the check or for the statistics).
+  // Whether the displacement needs computing on a reused evaluation (for the check or the audit;
+  // a retiring build measures it once more for the dangerous-build count).
   bool measures_displacement() const { return enabled() && (options_.check || options_.audit); }
   void built(const SystemView& system, double cutoff);
   void reused(int64_t evaluations = 1) { served_ += evaluations; }
