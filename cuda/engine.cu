@@ -222,16 +222,20 @@ struct GpuEngine::Impl {
     record(kStart);
     const std::size_t nd = sys.n * std::size_t(sys.box.dim);
     if (on_device) {  // borrowed: the caller keeps them unchanged until the work is done
-      pos = on_device->positions;
-      typ = on_device->types;
+      borrow(on_device->positions, on_device->types);
     } else {
       upload(positions, sys.positions, nd, stream);
       if (sys.types) upload(types, sys.types, sys.n, stream);
-      pos = positions.data();
-      typ = sys.types ? types.data() : nullptr;
+      borrow(positions.data(), sys.types ? types.data() : nullptr);
     }
-    has_types = typ != nullptr;
     record(kUploaded);
+  }
+
+  // The device arrays this evaluation reads (types null: all type 0).
+  void borrow(const double* p, const uint32_t* t) {
+    pos = p;
+    typ = t;
+    has_types = t != nullptr;
   }
 
   // The evaluation's device positions and types (the engine's copies of host arrays, or the
@@ -418,15 +422,9 @@ struct GpuEngine::Impl {
     if (list_built_for != builds)  // every build makes its list (GpuEngine::build): a bug otherwise
       throw Error("internal error: the pair list does not belong to the structure in use");
     if (!list_usable || sys.n == 0) return false;  // the cells serve it (and an empty system)
-    const cuda::ListArgs<Real, Accum> la = list_args<Real, Accum>(g, sys, ff, req);
-    cuda::Switches sw;
-    sw.dim = g.dim;
-    sw.multi_type = ff.num_types() > 1;
-    sw.mode = ff.mode;
-    sw.observables = req.energy || req.virial;
-    cuda::list_forces<Real, Accum>(sw, la, list, stream);
+    const bool observables = list_forces<Real, Accum>(g, sys, ff, req, cuda::GateView{});
     record(kTraversed);
-    if (sw.observables) {
+    if (observables) {
       totals.reserve(cuda::kCellSums);
       cuda::sum_cells<Accum>(as<Accum>(list.block_sums), list.blocks.data(), totals.data(), stream);
     }
@@ -434,17 +432,19 @@ struct GpuEngine::Impl {
     return true;
   }
 
-  // One evaluation behind the step gate: the list's forces, queued with no host read (the caller
-  // made sure the structure has its list: GpuEngine::gate_steps).
+  // The listed pairs' kernels at this evaluation's positions (behind `gate` when it has one: the
+  // step gate's evaluations, GpuEngine::evaluate_gated). Returns whether energy and virial were asked.
   template <class Real, class Accum>
-  void evaluate_gated(const Grid& g, const SystemView& sys, const ForceField& ff, const cuda::GateView& gate) {
-    const cuda::ListArgs<Real, Accum> la = list_args<Real, Accum>(g, sys, ff, Request{false, false});
+  bool list_forces(const Grid& g, const SystemView& sys, const ForceField& ff, const Request& req,
+                   const cuda::GateView& gate) {
+    const cuda::ListArgs<Real, Accum> la = list_args<Real, Accum>(g, sys, ff, req);
     cuda::Switches sw;
     sw.dim = g.dim;
     sw.multi_type = ff.num_types() > 1;
     sw.mode = ff.mode;
-    sw.observables = false;
+    sw.observables = req.energy || req.virial;
     cuda::list_forces<Real, Accum>(sw, la, list, stream, gate);
+    return sw.observables;
   }
 
   // A reused structure: the stage events recorded back to back (zero stage times).
@@ -770,8 +770,7 @@ int64_t GpuEngine::gate_steps(const Box& box, std::size_t n, const ForceField& f
 }
 
 unsigned long long GpuEngine::gate_limit() const {
-  const double half = 0.5 * options_.reuse.skin;  // ReusePolicy::too_far's threshold, bit for bit
-  const double limit = half * half;
+  const double limit = reuse_.limit2();
   unsigned long long bits = 0;
   std::memcpy(&bits, &limit, sizeof bits);
   return bits;
@@ -784,14 +783,13 @@ void GpuEngine::evaluate_gated(const Box& box, std::size_t n, const double* posi
   const DeviceScope scope(options_.device);
   Impl& s = *impl_;
   const SystemView system{box, n, nullptr, nullptr};
-  s.pos = positions;  // borrowed, as upload_system() does (without its timing events)
-  s.typ = types;
-  s.has_types = types != nullptr;
+  s.borrow(positions, types);  // no timing events: the gated evaluations are not timed by stage
   const Grid& g = stats_.grid;
+  const Request forces_only{false, false};
   switch (options_.precision) {
-    case Precision::kSingle: s.evaluate_gated<float, float>(g, system, ff, gate); break;
-    case Precision::kMixed: s.evaluate_gated<float, double>(g, system, ff, gate); break;
-    case Precision::kDouble: s.evaluate_gated<double, double>(g, system, ff, gate); break;
+    case Precision::kSingle: s.list_forces<float, float>(g, system, ff, forces_only, gate); break;
+    case Precision::kMixed: s.list_forces<float, double>(g, system, ff, forces_only, gate); break;
+    case Precision::kDouble: s.list_forces<double, double>(g, system, ff, forces_only, gate); break;
   }
 }
 

@@ -161,8 +161,7 @@ __global__ void __launch_bounds__(kGateParticles * 3)
   if (k < n * std::size_t(box.dim)) {
     const double xa = kick_drift_coordinate(x, v, f, mass, h, kicks, dt, box, k, flags);
     const int a = int(k % std::size_t(box.dim));
-    const double d = separation(xa, built[k], box.length[a], box.inv_length[a]);
-    sq = mul_rn(d, d);
+    sq = displacement_term(xa, built[k], box.length[a], box.inv_length[a]);
   }
   square[threadIdx.x] = sq;
   __syncthreads();

@@ -20,8 +20,7 @@ struct Displacement2 {
   __host__ __device__ double operator()(std::size_t i) const {
     double d2 = 0;
     for (int a = 0; a < dim; ++a) {
-      const double d = separation(now[i * dim + a], then[i * dim + a], length[a], inv_length[a]);
-      d2 += mul_rn(d, d);  // rounded product, no FMA: the host's bits, and the step gate's
+      d2 += displacement_term(now[i * dim + a], then[i * dim + a], length[a], inv_length[a]);
     }
     return d2;
   }

@@ -226,19 +226,15 @@ def measure_in(args: argparse.Namespace, work: Path) -> int:
                 print(f"  OpenMM CUDA: {summary(omm)}", flush=True)
             delete_saved(cf)
             save()
-        if n <= args.cells_max:
-            print(f"[{n:,} mixed] cellforce bench, the cells on every step", flush=True)
-            cells = run_bench(args.cellforce, n, "mixed", args.seconds, out, work, "default", args.skin, save=False)
-            rows.append(cells)
-            failed |= "error" in cells
-            print(f"  cells: {summary(cells)}", flush=True)
-            save()
-        if n <= args.chapter_max:
-            print(f"[{n:,} mixed] cellforce bench --chapter", flush=True)
-            ch = run_bench(args.cellforce, n, "mixed", args.seconds, out, work, "chapter", args.skin, save=False)
-            rows.append(ch)
-            failed |= "error" in ch
-            print(f"  chapter: {summary(ch)}", flush=True)
+        for limit, config, label, what in ((args.cells_max, "default", "cells", "the cells on every step"),
+                                           (args.chapter_max, "chapter", "chapter", "--chapter")):
+            if n > limit:
+                continue
+            print(f"[{n:,} mixed] cellforce bench, {what}", flush=True)
+            row = run_bench(args.cellforce, n, "mixed", args.seconds, out, work, config, args.skin, save=False)
+            rows.append(row)
+            failed |= "error" in row
+            print(f"  {label}: {summary(row)}", flush=True)
             save()
     save()
     print(tables(doc), flush=True)

@@ -61,4 +61,12 @@ CF_HD Real separation(Real xi, Real xj, Real length, Real inv_length) {
   return minimum_image(wrap_coordinate(xi, length) - wrap_coordinate(xj, length), length, inv_length);
 }
 
+// One axis's share of a particle's squared displacement from `then` to `now` (a rounded square:
+// no FMA with the sum over axes). Summed over axes in order, from 0, it gives the reuse check's
+// number with the same bits on the host, in the device's reduction and in the step gate.
+CF_HD double displacement_term(double now, double then, double length, double inv_length) {
+  const double d = separation(now, then, length, inv_length);
+  return mul_rn(d, d);
+}
+
 }  // namespace cellforce

@@ -61,8 +61,7 @@ double max_displacement2(const Box& box, std::size_t n, const double* now, const
     double d2 = 0;
     for (int a = 0; a < dim; ++a) {
       const std::size_t k = i * std::size_t(dim) + std::size_t(a);
-      const double d = separation(now[k], then[k], box.length[a], inv[a]);
-      d2 += mul_rn(d, d);  // rounded product: the same bits on the device (cuda/reuse.cu)
+      d2 += displacement_term(now[k], then[k], box.length[a], inv[a]);
     }
     worst = std::max(worst, d2);
   }

@@ -73,16 +73,18 @@ class ReusePolicy {
     } else if (rebuild && !options_.check && retired(system, cutoff)) {
       // Unchecked reuse: did the structure `every` retires outlive its exactness? (One reduction
       // per build; with the check on every structure is retired before that.)
-      const double half = 0.5 * options_.skin;
-      stats.dangerous_build = displacement2() > half * half;
+      stats.dangerous_build = displacement2() > limit2();
     }
     stats.rebuilt = rebuild;
     return rebuild;
   }
   // Whether the displacement since the build (squared, largest over particles) asks for one.
-  bool too_far(double max_displacement2) const {
+  bool too_far(double max_displacement2) const { return options_.check && max_displacement2 > limit2(); }
+  // (skin / 2)^2: the squared displacement a structure serves up to (the step gate compares its
+  // bits on the device).
+  double limit2() const {
     const double half = 0.5 * options_.skin;
-    return options_.check && max_displacement2 > half * half;
+    return half * half;
   }
   // Evaluations the structure in use may still serve before `every` asks for a rebuild (INT64_MAX
   // without a limit; 0 when none is valid).
