@@ -494,10 +494,11 @@ struct GpuEngine::Impl {
     return args;
   }
 
+  // Returns whether the pair lists served (else the cells did).
   template <class Real, class Accum>
-  void traverse_and_sum(const GpuOptions& o, const Grid& g, const SystemView& sys,
+  bool traverse_and_sum(const GpuOptions& o, const Grid& g, const SystemView& sys,
                         const ForceField& ff, const Request& req) {
-    if (lists(o, sys.box, ff.cutoff) && evaluate_lists<Real, Accum>(g, sys, ff, req)) return;
+    if (lists(o, sys.box, ff.cutoff) && evaluate_lists<Real, Accum>(g, sys, ff, req)) return true;
     const bool gs = o.accumulation == Accumulation::kGaussSeidel;
     const bool observables = req.energy || req.virial;
     const std::size_t n = sys.n, dim = std::size_t(g.dim);
@@ -546,6 +547,7 @@ struct GpuEngine::Impl {
                              totals.data(), stream);
     }
     record(kAccumulated);
+    return false;
   }
 };
 
@@ -601,9 +603,11 @@ void GpuEngine::traverse(const SystemView& system, const ForceField& ff, const R
   Impl& s = *impl_;
   const Grid& g = stats_.grid;
   switch (options_.precision) {
-    case Precision::kSingle: s.traverse_and_sum<float, float>(options_, g, system, ff, request); break;
-    case Precision::kMixed: s.traverse_and_sum<float, double>(options_, g, system, ff, request); break;
-    case Precision::kDouble: s.traverse_and_sum<double, double>(options_, g, system, ff, request); break;
+    case Precision::kSingle: stats_.listed = s.traverse_and_sum<float, float>(options_, g, system, ff, request); break;
+    case Precision::kMixed: stats_.listed = s.traverse_and_sum<float, double>(options_, g, system, ff, request); break;
+    case Precision::kDouble:
+      stats_.listed = s.traverse_and_sum<double, double>(options_, g, system, ff, request);
+      break;
   }
   if (!read_flags) return;
   cuda::DeviceFlags flags{};
@@ -797,6 +801,7 @@ void GpuEngine::settle_gate(int64_t served, double served_d2) {
   if (served <= 0) return;
   reuse_.reused(served);
   stats_.rebuilt = false;
+  stats_.listed = true;  // the gated evaluations walk the lists
   stats_.dangerous_build = false;
   stats_.max_displacement = std::sqrt(served_d2);
   stats_.missed_pairs = stats_.repeated_pairs = 0;

@@ -633,7 +633,7 @@ class CudaMdEngine final : public MdEngine {
     gpu_.settle_gate(served, served_d2);
     if (served > 0) {
       counters_.evaluations += served;
-      add_reuse(counters_, gpu_.stats());
+      add_reuse(counters_, gpu_.stats(), served);
     }
     since_build_ += served;
     counters_.gated_steps += served;

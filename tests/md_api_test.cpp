@@ -274,6 +274,59 @@ TEST_P(MdApi, GatedStepsEqualStepByStep) {
   }
 }
 
+// skin = auto, the context's default: the MD state of the in.lj-sized liquid (2,048 particles,
+// edge 13.4 > 2 (rc + 0.6)) gets pair lists with a skin of 0.24 rc = 0.6 on CUDA and no skin on the
+// CPU, as core/reuse.h's rule says; the CUDA run walks the lists on every evaluation and builds
+// less often than it evaluates, and follows the run without a skin (the same pairs, summed in
+// another order) to round-off over 50 double steps. Force calls get no skin on either.
+TEST_P(MdApi, SkinAutoIsTheBackendsRule) {
+  const bool cuda = GetParam() == cf::Backend::kCuda;
+  RunSetup s;
+  s.backend = GetParam();
+  s.cells = 8;
+  std::size_t n = 0;
+  cf::Context ctx = liquid(s, &n);
+  EXPECT_EQ(ctx.skin(), cuda ? 0.24 * 2.5 : 0.0);
+  EXPECT_EQ(ctx.neighbor(), cuda ? "skin 0.6 (auto: 0.24 rc), pair lists"
+                                 : "none, stages 1-3 every evaluation (auto: no skin on the cpu)");
+  RunSetup plain = s;
+  plain.options = {{"skin", "0"}};
+  cf::Context ref = liquid(plain);
+  EXPECT_EQ(ref.skin(), 0.0);
+  ctx.step(50);
+  ref.step(50);
+  const cf::RunStatistics st = ctx.run_statistics();
+  EXPECT_EQ(st.list_evaluations, cuda ? st.evaluations : 0);
+  if (cuda) {
+    EXPECT_GE(st.builds, 1);
+    EXPECT_LT(st.builds, st.evaluations) << "the lists were never reused";
+  }
+  std::vector<double> x(3 * n), y(3 * n);
+  ctx.get_state(x.data(), nullptr, nullptr);
+  ref.get_state(y.data(), nullptr, nullptr);
+  const double edge = cf::make_lattice(cf::Lattice::kFcc, s.cells, 0.8442).box.length[0];
+  double worst = 0;
+  for (std::size_t k = 0; k < x.size(); ++k) {
+    double d = std::abs(x[k] - y[k]);
+    d = std::min(d, std::abs(d - edge));
+    worst = std::max(worst, d);
+  }
+  EXPECT_LT(worst, 1e-9);
+  EXPECT_NEAR(ctx.thermo().potential, ref.thermo().potential, 1e-10 * std::abs(ref.thermo().potential));
+
+  cf::Context forces = liquid(s);  // the same context, asked for forces only: no MD state used
+  forces.set_backend(s.backend);   // drops the MD state
+  EXPECT_EQ(forces.skin(), 0.0);
+  EXPECT_THAT(forces.neighbor(), HasSubstr("auto: no skin for force calls"));
+  EXPECT_THROW(forces.set_option("neighbor-list", "true"), cf::Error) << "lists are auto's to choose";
+  forces.set_skin(0.3);
+  EXPECT_EQ(forces.skin(), 0.3);
+  EXPECT_EQ(forces.neighbor(), "skin 0.3, cells reused");
+  forces.set_option("neighbor-list", "true");
+  forces.set_option("skin", "auto");
+  EXPECT_EQ(forces.skin(), 0.0);
+}
+
 // Dangerous builds (LAMMPS's term): with neighbor-check false a structure serves `every` evaluations
 // whatever the particles do, and a build that retires one after a particle moved more than skin / 2
 // since its build is counted. The oracle: the state read every `every` steps (the rebuild steps)

@@ -59,6 +59,59 @@ TEST(ReuseOptions, BadValuesAreRejectedNamingTheParameter) {
   EXPECT_EQ(error_of(r), "");
 }
 
+// skin = auto (resolve_reuse): pair lists with a skin of 0.24 rc for an MD engine on CUDA with
+// Jacobi accumulation where rc + skin fits in half of every periodic edge (the bound inclusive, as
+// the engine's own test of it); none for force calls, the CPU, Gauss-Seidel or a smaller box. The
+// caller's check, every and audit pass through; a skin given by the caller comes back as it is.
+TEST(ReuseOptions, AutoIsARuleOfTheBackendAndTheBox) {
+  using cellforce::Accumulation;
+  using cellforce::Backend;
+  using cellforce::resolve_reuse;
+  const double rc = 2.5, skin = 0.24 * rc;  // 0.6
+  cellforce::Box box;
+  box.dim = 3;
+  for (int a = 0; a < 3; ++a) box.length[a] = 20.0, box.periodic[a] = true;
+  ReuseOptions automatic;
+  automatic.automatic = true;
+  automatic.check = false;
+  automatic.every = 7;
+  automatic.audit = true;
+  const ReuseOptions lists = resolve_reuse(automatic, Backend::kCuda, Accumulation::kJacobi, true, box, rc);
+  EXPECT_DOUBLE_EQ(lists.skin, skin);
+  EXPECT_TRUE(lists.list);
+  EXPECT_FALSE(lists.check);
+  EXPECT_EQ(lists.every, 7);
+  EXPECT_TRUE(lists.audit);
+  EXPECT_EQ(cellforce::describe_reuse(automatic, lists, Backend::kCuda, Accumulation::kJacobi, true),
+            "skin 0.6 (auto: 0.24 rc), pair lists, rebuilt every 7 (not checked)");
+  auto none = [&](Backend b, Accumulation acc, bool md, const cellforce::Box& bx, const char* why) {
+    const ReuseOptions r = resolve_reuse(automatic, b, acc, md, bx, rc);
+    EXPECT_EQ(r.skin, 0.0) << why;
+    EXPECT_FALSE(r.list) << why;
+    EXPECT_EQ(r.every, 7) << why;
+    EXPECT_NE(cellforce::describe_reuse(automatic, r, b, acc, md).find(why), std::string::npos)
+        << cellforce::describe_reuse(automatic, r, b, acc, md);
+  };
+  none(Backend::kCpu, Accumulation::kJacobi, true, box, "no skin on the cpu");
+  none(Backend::kCuda, Accumulation::kJacobi, false, box, "no skin for force calls");
+  none(Backend::kCuda, Accumulation::kGaussSeidel, true, box, "pair lists need jacobi");
+  cellforce::Box small = box;
+  small.length[1] = std::nextafter(2.0 * (rc + skin), 0.0);
+  none(Backend::kCuda, Accumulation::kJacobi, true, small, "rc + skin exceeds half the box");
+  small.length[1] = 2.0 * (rc + skin);  // equality fits: 2 (rc + skin) <= L
+  EXPECT_TRUE(resolve_reuse(automatic, Backend::kCuda, Accumulation::kJacobi, true, small, rc).list);
+  small.periodic[1] = false;  // an open axis sets no bound
+  small.length[1] = 0.0;
+  EXPECT_TRUE(resolve_reuse(automatic, Backend::kCuda, Accumulation::kJacobi, true, small, rc).list);
+  ReuseOptions given;
+  given.skin = 0.3;
+  const ReuseOptions same = resolve_reuse(given, Backend::kCuda, Accumulation::kJacobi, true, box, rc);
+  EXPECT_EQ(same.skin, 0.3);
+  EXPECT_FALSE(same.list);
+  EXPECT_EQ(cellforce::describe_reuse(given, same, Backend::kCuda, Accumulation::kJacobi, true),
+            "skin 0.3, cells reused");
+}
+
 // The condition a skin adds (grid.h): on a periodic axis of two or more cells, c/2 + h + skin/2 <
 // L/2, so that a particle moved by skin / 2 is still staged as the image next to its cell. In a
 // box of 6.2 with rc 1 and skin 0.8 two cells would break it: the planner takes one, check_grid

@@ -142,6 +142,32 @@ TEST_F(RunFolder, AuditFindsNothingMissedWithTheCheck) {
   }
 }
 
+// The run header names the neighbour search the engine chose: a scene without [neighbor] has skin
+// auto (no skin on the CPU; on CUDA pair lists with a skin of 0.24 rc where rc + skin fits in half
+// the box, as 2 x 3.1 does in this 2D box of edges 10.27 and 11.12); --skin 0.3 is given as it is.
+TEST_F(RunFolder, HeaderNamesTheNeighbourSearch) {
+  for (const std::string& backend : backends_here()) {
+    SCOPED_TRACE(backend);
+    std::ofstream("scene.toml") << scene_text("nve", backend, 5);
+    for (const double skin : {-1.0, 0.3}) {
+      RunArgs args;
+      args.scene = "scene.toml";
+      args.quiet = true;
+      args.overwrite = true;
+      args.skin = skin;
+      testing::internal::CaptureStdout();
+      EXPECT_EQ(run_md(args), 0);
+      const std::string out = testing::internal::GetCapturedStdout();
+      if (skin > 0)
+        EXPECT_THAT(out, HasSubstr("  neighbour search: skin 0.3, cells reused\n"));
+      else if (backend == "cpu")
+        EXPECT_THAT(out, HasSubstr("  neighbour search: none, stages 1-3 every evaluation (auto: no skin on the cpu)\n"));
+      else
+        EXPECT_THAT(out, HasSubstr("  neighbour search: skin 0.6 (auto: 0.24 rc), pair lists\n"));
+    }
+  }
+}
+
 TEST_F(RunFolder, ThermoFileHoldsTheStepsAskedFor) {
   std::ofstream("scene.toml") << scene_text("nve", "cpu", 23);
   RunArgs args;

@@ -178,8 +178,18 @@ TEST(Scene, MalformedScenesNameFileLineAndKey) {
 // with the file, line and key.
 TEST(Scene, NeighborSection) {
   const Scene plain = parse_scene(kMinimal, "plain.toml");
+  EXPECT_TRUE(plain.backend.reuse.automatic) << "no [neighbor]: skin auto";
   EXPECT_EQ(plain.backend.reuse.skin, 0.0);
   EXPECT_FALSE(plain.backend.reuse.list);
+  EXPECT_TRUE(cellforce::default_scene().backend.reuse.automatic);
+  const Scene named = parse_scene(std::string(kMinimal) + "[neighbor]\nskin = \"auto\"\ncheck = false\nevery = 9\n",
+                                  "auto.toml");
+  EXPECT_TRUE(named.backend.reuse.automatic);
+  EXPECT_FALSE(named.backend.reuse.check);
+  EXPECT_EQ(named.backend.reuse.every, 9);
+  const Scene off = parse_scene(std::string(kMinimal) + "[neighbor]\nskin = 0\n", "off.toml");
+  EXPECT_FALSE(off.backend.reuse.automatic);
+  EXPECT_EQ(off.backend.reuse.skin, 0.0);
   const Scene s = parse_scene(std::string(kMinimal) +
                                   "[neighbor]\nskin = 0.3\ncheck = false\nevery = 10\naudit = true\nlist = true\n",
                               "n.toml");
@@ -194,8 +204,10 @@ TEST(Scene, NeighborSection) {
   EXPECT_THAT(error_of(base + "skin = -0.1\n"), HasSubstr("skin"));
   EXPECT_THAT(error_of(base + "skin = 0.3\nevery = -1\n"), HasSubstr("every"));
   EXPECT_THAT(error_of(base + "skin = 0.3\ncheck = \"yes\"\n"), HasSubstr("check"));
-  EXPECT_THAT(error_of(base + "every = 5\n"), HasSubstr("applies only with a skin"));
-  EXPECT_THAT(error_of(base + "list = true\n"), HasSubstr("applies only with a skin"));
+  EXPECT_THAT(error_of(base + "skin = 0\nevery = 5\n"), HasSubstr("applies only with a skin"));
+  EXPECT_THAT(error_of(base + "skin = 0\nlist = true\n"), HasSubstr("applies only with a skin"));
+  EXPECT_THAT(error_of(base + "list = true\n"), HasSubstr("chooses pair lists itself"));
+  EXPECT_THAT(error_of(base + "skin = \"thick\"\n"), HasSubstr("expected \"auto\" or a length"));
   EXPECT_THAT(error_of(base + "skin = 0.3\nlist = 1\n"), HasSubstr("list"));
   EXPECT_THAT(error_of(base + "skin = 0.3\ncheck = false\n"), HasSubstr("never rebuilds"));
   EXPECT_THAT(error_of(base + "skin = 0.3\nsize = 2\n"), HasSubstr("size"));

@@ -47,7 +47,7 @@ typedef enum {
 CELLFORCE_API const char* cf_version(void);
 
 /* A new context for dim = 2 or 3 in *ctx: no box, cutoff or types yet; defaults: CPU backend,
- * double precision, truncated cutoff, Lorentz-Berthelot mixing, no skin. On failure *ctx is NULL
+ * double precision, truncated cutoff, Lorentz-Berthelot mixing, skin auto. On failure *ctx is NULL
  * (when ctx is not) and cf_last_error(NULL) says why. */
 CELLFORCE_API cf_status cf_create(cf_context** ctx, int dim);
 
@@ -70,7 +70,9 @@ CELLFORCE_API cf_status cf_set_pair(cf_context* ctx, uint32_t a, uint32_t b, dou
  *   backend       cpu | cuda | auto        precision     single | mixed | double
  *   mixing        lorentz-berthelot | geometric
  *   cutoff-mode   truncate | shift | force-shift
- *   skin          a length >= 0 (Verlet skin of the neighbour structure; 0 rebuilds every call)
+ *   skin          auto (the default: none for the force calls; the C++ API's MD state gets pair
+ *                 lists with a skin of 0.24 rc on CUDA) | a length >= 0 (Verlet skin of the
+ *                 neighbour structure; 0 rebuilds every call)
  *   device        CUDA device ordinal      accumulation  jacobi | gauss-seidel
  *   cell-rule     tight | chapter          sort          cub | chapter
  *   traversal     auto | warp | thread | tile (CUDA; auto, the default, picks tile or warp) */

@@ -125,6 +125,8 @@ struct RunStatistics {
   // CUDA with neighbor-list: the steps run behind the step gate (queued in chunks, the rebuild
   // decided on the device: no host wait per step for the displacement check).
   int64_t gated_steps = 0;
+  // CUDA: evaluations that walked pair lists (skin with lists, auto's choice on CUDA), not the cells.
+  int64_t list_evaluations = 0;
   // Memory held now (device memory with cuda, host memory on the CPU): the force engine's stage
   // buffers (as of the last sampled evaluation) and the MD state (positions, velocities, masses,
   // types and the integrator's and minimiser's working arrays).
@@ -143,7 +145,7 @@ struct NeighborState {
 class CELLFORCE_API Context {
  public:
   // An empty context for 2 or 3 dimensions: no box, cutoff or types yet; CPU backend, double
-  // precision, Lorentz-Berthelot mixing, no skin.
+  // precision, Lorentz-Berthelot mixing, skin auto.
   explicit Context(int dim = 3);
   ~Context();
   Context(Context&&) noexcept;
@@ -169,7 +171,12 @@ class CELLFORCE_API Context {
   void set_backend(Backend backend, int device = 0);
   void set_precision(Precision precision);
   // Verlet skin of the neighbour structure (length): stages 1-3 are built for rc + skin and reused
-  // while no particle has moved more than skin / 2; 0 (the default) rebuilds on every call.
+  // while no particle has moved more than skin / 2; 0 rebuilds on every call. The default is auto
+  // (option skin = auto): the MD state (set_state, step, minimize) on CUDA with Jacobi accumulation
+  // gets pair lists with a skin of 0.24 rc where rc + skin fits in half of every periodic edge;
+  // otherwise (the CPU, and the force calls compute and compute_device, which then never wait for
+  // a displacement check) no skin. A rule of the backend and the box, not a timing: skin() and
+  // neighbor() say what it chose.
   void set_skin(double skin);
   // Every choice by name, as the C API and scene files write them:
   //   backend       cpu | cuda | auto
@@ -177,13 +184,13 @@ class CELLFORCE_API Context {
   //   precision     single | mixed | double
   //   mixing        lorentz-berthelot | geometric
   //   cutoff-mode   truncate | shift | force-shift
-  //   skin          a length >= 0
+  //   skin          auto (the default) | a length >= 0 (set_skin)
   //   neighbor-check  true | false (rebuild when a particle moved more than skin / 2; default true)
   //   neighbor-every  N >= 0 (a structure serves at most N evaluations; 0: no limit)
   //   neighbor-audit  true | false (count pairs a reused structure misses; slow, CPU diagnostics)
   //   neighbor-list   true | false (CUDA, skin > 0, Jacobi: each build records every particle's
   //                   partners within rc + skin and the evaluations it serves walk those lists;
-  //                   default false)
+  //                   default false; true needs a skin given: auto chooses lists itself)
   //   accumulation  jacobi | gauss-seidel
   //   cell-rule     tight | chapter
   //   traversal     auto | warp | thread | tile   (CUDA: warp per cell, the chapter's thread per
@@ -265,6 +272,12 @@ class CELLFORCE_API Context {
   std::string description();
   std::string traversal();
   std::string sort();
+  // The skin in effect (the automatic one resolved for the box and backend; 0: none) and the
+  // neighbour structure in words, e.g. "skin 0.6 (auto: 0.24 rc), pair lists" or "none, stages 1-3
+  // every evaluation (auto: no skin on the cpu)". For the MD state when there is one, else for
+  // the current box.
+  double skin();
+  std::string neighbor();
 
   struct Impl;  // the engine and the physics it is given
 

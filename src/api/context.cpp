@@ -85,10 +85,36 @@ struct Context::Impl {
     ff.types.clear();
     choice.backend = Backend::kCpu;
     choice.precision = Precision::kDouble;
+    choice.reuse.automatic = true;  // the skin: auto (resolve_reuse)
   }
 
+  // What the engines are made from: the backend kAuto stands for, and an automatic skin resolved
+  // for the force calls' or the MD engine's use (md), `b` and the cutoff (resolve_reuse: a rule of
+  // the backend and the system).
+  EngineChoice resolved(const Box& b, bool for_md) const {
+    EngineChoice c = choice;
+    c.backend = resolve_backend(choice.backend);
+    c.reuse = resolve_reuse(choice.reuse, c.backend, choice.accumulation, for_md, b, ff.cutoff);
+    return c;
+  }
+  ReuseOptions engine_reuse, md_reuse;  // what `engine` and `md` were made with
+
+  static bool same_reuse(const ReuseOptions& a, const ReuseOptions& b) {
+    return a.skin == b.skin && a.list == b.list && a.check == b.check && a.every == b.every && a.audit == b.audit;
+  }
+
+  // The force engine for the current box: made again when the automatic choice for it differs
+  // from the one the engine has (a box changed past the lists' limit), after its queued work.
   ForceEngine& get_engine() {
-    if (!engine) engine = make_force_engine(choice);
+    const EngineChoice c = resolved(box, false);
+    if (engine && !same_reuse(c.reuse, engine_reuse)) {
+      synchronize();
+      engine.reset();
+    }
+    if (!engine) {
+      engine = make_force_engine(c);
+      engine_reuse = c.reuse;
+    }
     return *engine;
   }
   ForceEngine& named_engine() { return md ? md->forces() : get_engine(); }
@@ -223,6 +249,7 @@ void Context::set_precision(Precision precision) {
 void Context::set_skin(double skin) {
   ReuseOptions reuse = impl_->choice.reuse;
   reuse.skin = skin;
+  reuse.automatic = false;
   validate_reuse(reuse);
   impl_->choice.reuse = reuse;
   impl_->engine_changed();
@@ -241,12 +268,22 @@ void Context::set_option(std::string_view key, std::string_view value) {
   } else if (key == "cutoff-mode") {
     impl_->ff.mode = parse_option(key, value, kCutoffModeNames);
   } else if (key == "skin") {
-    set_skin(parse_number(key, value));
+    if (value == "auto") {
+      c.reuse.automatic = true;
+      c.reuse.skin = 0.0;
+      c.reuse.list = false;
+      impl_->engine_changed();
+    } else {
+      set_skin(parse_number(key, value));
+    }
   } else if (key == "neighbor-check" || key == "neighbor-audit" || key == "neighbor-list") {
     bool v = false;
     if (value == "true") v = true;
     else if (value != "false")
       throw Error("option " + std::string(key) + ": " + quote_excerpt(std::string(value)) + " is not true or false");
+    if (key == "neighbor-list" && c.reuse.automatic && v)
+      throw Error("option neighbor-list: the skin is auto, which chooses pair lists itself (where they pay: CUDA, "
+                  "Jacobi); give a skin first (option skin) to ask for them");
     ReuseOptions reuse = c.reuse;
     (key == "neighbor-check" ? reuse.check : key == "neighbor-audit" ? reuse.audit : reuse.list) = v;
     validate_reuse(reuse);
@@ -366,7 +403,12 @@ void Context::set_state(std::size_t n, const double* positions, const double* ve
   state.step = step;
   state.time = double(step) * s.integrator.dt;
   std::vector<double> m(masses, masses + n);
-  if (!s.md) s.md = make_md_engine(s.choice);
+  const EngineChoice resolved = s.resolved(s.box, true);
+  if (s.md && !Impl::same_reuse(resolved.reuse, s.md_reuse)) s.md.reset();  // an automatic skin for another box
+  if (!s.md) {
+    s.md = make_md_engine(resolved);
+    s.md_reuse = resolved.reuse;
+  }
   try {
     s.md->set_state(state, m, s.ff);
   } catch (...) {
@@ -480,6 +522,7 @@ RunStatistics Context::run_statistics() const {
   r.largest_served_displacement = c.served;
   r.dangerous_builds = c.dangerous_builds;
   r.gated_steps = c.gated_steps;
+  r.list_evaluations = c.list_evaluations;
   r.missed_pairs = c.missed_pairs;
   r.repeated_pairs = c.repeated_pairs;
   r.buffer_bytes = impl_->md->forces().stats().buffer_bytes;
@@ -493,6 +536,18 @@ void Context::reset_run_statistics() {
 int Context::dim() const { return impl_->dim; }
 std::size_t Context::num_types() const { return impl_->ff.types.size(); }
 // The MD engine's force engine when there is one (no second engine is built just to be named).
+double Context::skin() {
+  Impl& s = *impl_;
+  return s.md ? s.md_reuse.skin : s.resolved(s.box, false).reuse.skin;
+}
+
+std::string Context::neighbor() {
+  Impl& s = *impl_;
+  const bool md = s.md != nullptr;
+  const EngineChoice c = s.resolved(md ? s.md_box : s.box, md);
+  return describe_reuse(s.choice.reuse, md ? s.md_reuse : c.reuse, c.backend, c.accumulation, md);
+}
+
 std::string Context::backend_name() { return to_string(impl_->named_engine().backend()); }
 std::string Context::description() { return impl_->named_engine().description(); }
 std::string Context::traversal() { return impl_->named_engine().traversal(); }

@@ -30,7 +30,7 @@ struct EngineChoice {
   CellRule rule = CellRule::kTight;
   TraversalForm traversal = TraversalForm::kAuto;         // CUDA only
   SortMethod sort = SortMethod::kCub;                     // CUDA only
-  ReuseOptions reuse;                                     // skin, check, every, audit
+  ReuseOptions reuse;                                     // skin (or automatic), check, every, audit, list
   int device = 0;                                         // CUDA device ordinal
   std::optional<Grid> grid_override;                      // tests only: this grid, unchecked
 };
@@ -84,7 +84,11 @@ class ForceEngine {
 // The engine that `choice` names (kAuto: CUDA when a device can be used, else the CPU). Throws
 // cellforce::Error when the backend cannot be used (no CUDA device, a CPU-only build) or an
 // option is out of range (the skin).
+// choice.reuse must be resolved (resolve_reuse: not automatic).
 std::unique_ptr<ForceEngine> make_force_engine(const EngineChoice& choice);
+
+// The backend kAuto stands for here (CUDA when a device can be used, else the CPU); others as given.
+Backend resolve_backend(Backend backend);
 
 // The backends themselves (make_force_engine picks one).
 std::unique_ptr<ForceEngine> make_cpu_force_engine(const EngineChoice& choice);

@@ -4,13 +4,22 @@
 
 namespace cellforce {
 
-std::unique_ptr<ForceEngine> make_force_engine(const EngineChoice& choice) {
-  Backend backend = choice.backend;
+Backend resolve_backend(Backend backend) {
+  if (backend != Backend::kAuto) return backend;
 #ifdef CELLFORCE_HAVE_CUDA
-  if (backend == Backend::kAuto) backend = cuda_unavailable().empty() ? Backend::kCuda : Backend::kCpu;
+  return cuda_unavailable().empty() ? Backend::kCuda : Backend::kCpu;
+#else
+  return Backend::kCpu;
+#endif
+}
+
+std::unique_ptr<ForceEngine> make_force_engine(const EngineChoice& choice) {
+  if (choice.reuse.automatic)  // the caller resolves it for its system (resolve_reuse)
+    throw Error("internal error: an engine was asked for with an unresolved automatic skin");
+  const Backend backend = resolve_backend(choice.backend);
+#ifdef CELLFORCE_HAVE_CUDA
   if (backend == Backend::kCuda) return make_cuda_force_engine(choice);
 #else
-  if (backend == Backend::kAuto) backend = Backend::kCpu;
   if (backend == Backend::kCuda) throw DeviceError("backend cuda: this cellforce was built without CUDA");
 #endif
   return make_cpu_force_engine(choice);

@@ -43,6 +43,7 @@ struct MdCounters {
   int64_t dangerous_builds = 0;  // builds that retired a structure past skin / 2 (check = false)
   double served = 0;
   int64_t gated_steps = 0;  // CUDA: steps the structure served behind the step gate (cuda/step_gate.h)
+  int64_t list_evaluations = 0;  // CUDA: evaluations that walked pair lists (PipelineStats::listed)
   std::size_t missed_pairs = 0, repeated_pairs = 0;
 };
 
@@ -105,7 +106,7 @@ std::unique_ptr<MdEngine> make_cuda_md_engine(std::unique_ptr<ForceEngine> force
 // Adds one evaluation's statistics: its stage times to c.stages (one more sample), its build or
 // reuse to the reuse figures.
 void add_stage_sample(MdCounters& c, const PipelineStats& s);
-void add_reuse(MdCounters& c, const PipelineStats& s);
+void add_reuse(MdCounters& c, const PipelineStats& s, int64_t evaluations = 1);
 
 // Throws cellforce::Error naming the first particle whose mass is not finite and > 0.
 void validate_masses(const std::vector<double>& masses, std::size_t n);

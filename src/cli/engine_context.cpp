@@ -16,11 +16,12 @@ Context make_context(const Box& box, const ForceField& ff, const EngineChoice& e
   for (const PairOverride& o : ff.overrides) ctx.set_pair(uint32_t(o.a), uint32_t(o.b), o.sigma, o.epsilon);
   ctx.set_backend(engine.backend, engine.device);
   ctx.set_precision(engine.precision);
-  ctx.set_skin(engine.reuse.skin);
+  if (engine.reuse.automatic) ctx.set_option("skin", "auto");  // the engine's rule picks skin and lists
+  else ctx.set_skin(engine.reuse.skin);
   ctx.set_option("neighbor-check", engine.reuse.check ? "true" : "false");
   ctx.set_option("neighbor-every", std::to_string(engine.reuse.every));
   ctx.set_option("neighbor-audit", engine.reuse.audit ? "true" : "false");
-  ctx.set_option("neighbor-list", engine.reuse.list ? "true" : "false");
+  if (!engine.reuse.automatic) ctx.set_option("neighbor-list", engine.reuse.list ? "true" : "false");
   ctx.set_option("accumulation", name_of(engine.accumulation, kAccumulationNames));
   ctx.set_option("cell-rule", name_of(engine.rule, kCellRuleNames));
   ctx.set_option("traversal", name_of(engine.traversal, kTraversalNames));

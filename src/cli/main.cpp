@@ -261,8 +261,8 @@ int main(int argc, char** argv) {
   run_cmd->add_option("--restart", ra.restart, "Continue from this checkpoint (written by the same scene)")
       ->check(CLI::ExistingFile);
   run_cmd->add_option("--skin", ra.skin,
-                      "Override the scene's [neighbor] skin: build the cell structure for rc + skin and reuse "
-                      "it while no particle has moved more than skin/2 (0: rebuild every step)")
+                      "Override the scene's [neighbor] skin (default auto): build the cell structure for rc + skin "
+                      "and reuse it while no particle has moved more than skin/2 (0: rebuild every step)")
       ->check(CLI::NonNegativeNumber);  // NaN passes this: the engines' validate_reuse refuses it
   run_cmd->add_flag("--quiet,-q", ra.quiet, "Only the setup and the performance summary on the screen");
   run_cmd->add_flag("--overwrite", ra.overwrite,
@@ -279,9 +279,16 @@ int main(int argc, char** argv) {
   bench_cmd->add_option("--cells", ba.cells, "fcc unit cells per axis instead (4 c^3 particles)")
       ->check(CLI::PositiveNumber);
   add_backend_options(bench_cmd, ba.engine);
-  bench_cmd->add_option("--skin", ba.engine.reuse.skin,
-                        "Build the cell structure for rc + skin and reuse it while no particle moved more than "
-                        "skin/2 (default 0: rebuild every step)")
+  ba.engine.reuse.automatic = true;  // as a scene without [neighbor]
+  bench_cmd
+      ->add_option_function<double>(
+          "--skin",
+          [&ba](const double& skin) {
+            ba.engine.reuse.skin = skin;
+            ba.engine.reuse.automatic = false;
+          },
+          "Build the cell structure for rc + skin and reuse it while no particle moved more than skin/2 (0: "
+          "rebuild every step; default: auto, the engine's rule, as a scene without [neighbor])")
       ->check(CLI::NonNegativeNumber);
   bench_cmd->add_flag("--neighbor-list", ba.engine.reuse.list,
                       "With a skin (CUDA, Jacobi): each build records every particle's partners within rc + skin and "

@@ -178,7 +178,10 @@ Scene scene_for(const RunArgs& args) {
     scene.backend.traversal = *form;
   }
   if (!args.thermo_file.empty()) scene.output.thermo_file = args.thermo_file;
-  if (!(args.skin < 0)) scene.backend.reuse.skin = args.skin;  // NaN too: validate_reuse names it
+  if (!(args.skin < 0)) {  // NaN too: validate_reuse names it
+    scene.backend.reuse.skin = args.skin;
+    scene.backend.reuse.automatic = false;
+  }
   if (!args.trajectory.empty()) scene.output.trajectory = args.trajectory;
   if (args.trajectory_every > 0) {
     if (scene.output.trajectory.empty()) throw Error("--trajectory-every: the run writes no trajectory (--trajectory)");
@@ -354,11 +357,13 @@ void print_header(const Scene& scene, const MdState& state, Context& ctx, const 
   for (int a = 0; a < dim; ++a)
     std::printf(" %.6g%s", state.config.box.length[a], state.config.box.periodic[a] ? "" : " (open)");
   std::printf(", %zu type(s); cutoff %g (%s)\n", ff.types.size(), ff.cutoff, to_string(ff.mode));
+  // The neighbour structure as the engine resolved it (skin auto: a rule of backend and box).
   const ReuseOptions& reuse = scene.backend.reuse;
-  if (reuse.skin > 0)
-    std::printf("  cell structure built for rc + skin %g, reused while no particle moved more than %g%s\n",
-                reuse.skin, 0.5 * reuse.skin,
-                reuse.every > 0 ? (", and for at most " + std::to_string(reuse.every) + " steps").c_str() : "");
+  const double skin = ctx.skin();
+  std::printf("  neighbour search: %s\n", ctx.neighbor().c_str());
+  if (skin > 0)
+    std::printf("  cell structure built for rc + skin %g, reused while no particle moved more than %g%s\n", skin,
+                0.5 * skin, reuse.every > 0 ? (", and for at most " + std::to_string(reuse.every) + " steps").c_str() : "");
   std::printf("  %s, dt %g, %lld steps; %s, precision %s\n",
               scene.integrator.kind == IntegratorKind::kLangevin ? "Langevin (BAOAB)" : "NVE (velocity Verlet)",
               scene.integrator.dt, (long long)scene.steps, ctx.description().c_str(),
@@ -373,8 +378,8 @@ void print_header(const Scene& scene, const MdState& state, Context& ctx, const 
 // The performance summary of the loop: rates, where a step's time went (forces, integration,
 // output, the host's own), the bytes that crossed between host and device per step, and the
 // force engine's stages.
-void print_summary(const Scene& scene, const RunStatistics& st, std::size_t n, int64_t steps_done, double loop_seconds,
-                   double setup_seconds, double output_seconds, std::size_t output_bytes) {
+void print_summary(const Scene& scene, double skin, const RunStatistics& st, std::size_t n, int64_t steps_done,
+                   double loop_seconds, double setup_seconds, double output_seconds, std::size_t output_bytes) {
   std::printf("\nperformance: %lld steps of %zu particles in %.3f s (setup %.3f s)\n", (long long)steps_done, n,
               loop_seconds, setup_seconds);
   if (steps_done <= 0) return;
@@ -397,15 +402,15 @@ void print_summary(const Scene& scene, const RunStatistics& st, std::size_t n, i
                 (long long)st.stage_samples, 1e3 * st.cell_ids, 1e3 * st.sort, 1e3 * st.collision_cells,
                 1e3 * st.traversal, 1e3 * st.accumulate, 1e3 * st.total);
   const ReuseOptions& reuse = scene.backend.reuse;
-  if (reuse.skin > 0)
+  if (skin > 0)
     std::printf("  neighbour structure: skin %g, %lld builds in %lld evaluations (one per %.1f steps), "
                 "%lld dangerous; largest displacement served %.4g (limit skin/2 = %g%s); check %.4f ms per "
                 "evaluation\n",
-                reuse.skin, (long long)st.builds, (long long)st.evaluations,
+                skin, (long long)st.builds, (long long)st.evaluations,
                 steps / double(std::max<int64_t>(st.builds, 1)), (long long)st.dangerous_builds,
-                st.largest_served_displacement, 0.5 * reuse.skin, reuse.check ? "" : ", not checked",
+                st.largest_served_displacement, 0.5 * skin, reuse.check ? "" : ", not checked",
                 1e3 * st.check);
-  if (reuse.skin > 0 && reuse.audit)
+  if (skin > 0 && reuse.audit)
     std::printf("  audit: missed pairs %zu, repeated pairs %zu\n", st.missed_pairs, st.repeated_pairs);
 }
 
@@ -454,7 +459,7 @@ int run_md(const RunArgs& args) {
   if (restart) {
     // With a skin, the structure the uninterrupted run was reusing is built again from the
     // positions it was built from, so that the force sums keep their order (bit for bit).
-    const double skin = scene.backend.reuse.skin;
+    const double skin = ctx.skin();
     if (skin > 0 && saved.skin == skin && !saved.reuse.build_positions.empty()) {
       with_context(args.restart, [&] {
         ctx.restore_neighbor_state(NeighborState{saved.reuse.build_positions, saved.reuse.served});
@@ -508,7 +513,7 @@ int run_md(const RunArgs& args) {
     state.time = double(state.step) * scene.integrator.dt;
     // The structure in use; the restart evaluates this step's forces once more, which serves it
     // once more: it is saved one evaluation short.
-    checkpoint_info.skin = scene.backend.reuse.skin;
+    checkpoint_info.skin = ctx.skin();
     const NeighborState ns = ctx.neighbor_state();
     checkpoint_info.reuse = ReuseState{ns.build_positions, ns.served};
     if (checkpoint_info.reuse.served > 0) checkpoint_info.reuse.served -= 1;
@@ -556,7 +561,7 @@ int run_md(const RunArgs& args) {
   files.close();
   progress.finish();
   const double loop_seconds = seconds_since(t_loop);
-  print_summary(scene, ctx.run_statistics(), n, last - first, loop_seconds, setup_seconds, t_output, output_bytes);
+  print_summary(scene, ctx.skin(), ctx.run_statistics(), n, last - first, loop_seconds, setup_seconds, t_output, output_bytes);
   return 0;
 }
 

@@ -73,6 +73,9 @@ struct PipelineStats {
   // skin / 2 since its build (possible only with check = false, measured only then): the
   // evaluations it served may have missed pairs. LAMMPS calls such a build dangerous.
   bool dangerous_build = false;
+  // This evaluation walked the pair lists of its structure (CUDA, ReuseOptions::list), not the
+  // collision cells (a declined list, or none asked for).
+  bool listed = false;
   std::size_t builds = 0;
   double max_displacement = 0;
   std::size_t missed_pairs = 0, repeated_pairs = 0;

@@ -21,6 +21,43 @@ void validate_reuse(const ReuseOptions& o) {
     throw Error("every " + std::to_string(o.every) + ": expected a count >= 0 (0: no limit)");
 }
 
+ReuseOptions resolve_reuse(const ReuseOptions& options, Backend backend, Accumulation accumulation, bool md,
+                           const Box& box, double cutoff) {
+  if (!options.automatic) return options;
+  ReuseOptions r = options;
+  r.automatic = false;  // resolved: what the engine runs
+  r.skin = 0.0;
+  r.list = false;
+  if (!md || backend != Backend::kCuda || accumulation != Accumulation::kJacobi || !(cutoff > 0)) return r;
+  const double skin = kAutoSkinPerCutoff * cutoff;
+  for (int a = 0; a < box.dim; ++a)  // the lists' minimum image names each pair once (GpuEngine)
+    if (box.periodic[a] && 2.0 * (cutoff + skin) > box.length[a]) return r;
+  r.skin = skin;
+  r.list = true;
+  return r;
+}
+
+std::string describe_reuse(const ReuseOptions& requested, const ReuseOptions& resolved, Backend backend,
+                           Accumulation accumulation, bool md) {
+  std::ostringstream s;
+  if (resolved.skin > 0) {
+    s << "skin " << resolved.skin;
+    if (requested.automatic) s << " (auto: " << kAutoSkinPerCutoff << " rc)";
+    s << (resolved.list ? ", pair lists" : ", cells reused");
+    if (!resolved.check) s << ", rebuilt every " << resolved.every << " (not checked)";
+    else if (resolved.every > 0) s << ", rebuilt at least every " << resolved.every;
+  } else {
+    s << "none, stages 1-3 every evaluation";
+    if (requested.automatic)
+      s << " (auto: " << (!md                                     ? "no skin for force calls"
+                          : backend != Backend::kCuda                 ? "no skin on the cpu"
+                          : accumulation != Accumulation::kJacobi ? "pair lists need jacobi"
+                                                                  : "rc + skin exceeds half the box")
+        << ")";
+  }
+  return s.str();
+}
+
 namespace {
 
 bool same_system(const Box& box, std::size_t n, double cutoff, const SystemView& system, double system_cutoff) {

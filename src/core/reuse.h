@@ -17,6 +17,7 @@
 #include <cmath>
 #include <cstddef>
 #include <cstdint>
+#include <string>
 #include <utility>
 #include <vector>
 
@@ -29,6 +30,8 @@ namespace cellforce {
 
 struct ReuseOptions {
   double skin = 0.0;    // length units; 0: stages 1-3 run on every evaluation
+  bool automatic = false;  // skin and list chosen by resolve_reuse() from the backend and the
+                           // system (the API's and the scenes' default; the engines see the result)
   bool check = true;    // rebuild when a particle has moved more than skin / 2 since the build
   int64_t every = 0;    // a structure serves at most this many evaluations, its build's included
                         // (1: rebuild on every one; 0: no limit)
@@ -41,6 +44,29 @@ struct ReuseOptions {
 
 // Throws cellforce::Error naming the parameter (skin, every) when it is not usable.
 void validate_reuse(const ReuseOptions& options);
+
+// The automatic choice (ReuseOptions::automatic): a rule of the backend and the system, not a
+// timing, so that every run of a scene makes the same choice and the same bits.
+// - An MD engine (md: its steps, minimisation) on CUDA with Jacobi accumulation, where rc + skin
+//   fits in half of every periodic edge: pair lists with a skin of kAutoSkinPerCutoff x rc. Measured on the H100 (in.lj, rc 2.5, mixed, lists,
+//   validation/reports/performance.md): skin 0.4 / 0.6 / 0.8 gave 7,861 / 8,280 / 7,855 steps/s at
+//   32,000 particles and 823 / 825 / 774 at 1,048,576; cells every step 3,976 and 380.
+// - Force calls (md false: compute, compute_device): no skin. Each call's positions are the
+//   caller's, and the displacement check would make compute_device wait for the host.
+// - Otherwise no skin: without lists the skin's larger cells cost the traversal about what the
+//   skipped builds save (H100: 4,189 against 3,976 steps/s at 32k, 356 against 380 at 1M), and on
+//   the CPU the build is a few percent of an evaluation (validation/reports/stability.md, table 11;
+//   performance.md, the CPU backend).
+// `backend` is the one the engine runs on (cpu or cuda, not auto). check, every and audit are the
+// caller's; with automatic false the options come back as they are.
+inline constexpr double kAutoSkinPerCutoff = 0.24;
+ReuseOptions resolve_reuse(const ReuseOptions& options, Backend backend, Accumulation accumulation, bool md,
+                           const Box& box, double cutoff);
+
+// The resolved choice in words, for run headers: "skin 0.6 (auto: 0.24 rc), pair lists",
+// "none, stages 1-3 every evaluation (auto: no skin on the cpu)", "skin 0.3, cells reused".
+std::string describe_reuse(const ReuseOptions& requested, const ReuseOptions& resolved, Backend backend,
+                           Accumulation accumulation, bool md);
 
 // When to rebuild, apart from the displacement: the first evaluation, a change of box, particle
 // count or cutoff, skin 0, or a structure that has served `every` evaluations. Shared by both

@@ -203,6 +203,7 @@ Scene default_scene() {
   s.steps = 1000;
   s.backend.backend = Backend::kAuto;
   s.backend.precision = Precision::kMixed;
+  s.backend.reuse.automatic = true;  // as a scene without [neighbor]
   s.output.thermo_every = 100;
   return s;
 }
@@ -397,14 +398,22 @@ void read_minimize(const toml::table& root, const std::string& name, Scene& scen
 void read_neighbor(const toml::table& root, const std::string& name, Scene& scene) {
   Section neighbor = section(root, "neighbor", name);
   ReuseOptions& reuse = scene.backend.reuse;
-  reuse.skin = neighbor.non_negative("skin", 0.0);
+  // skin: "auto" (also when absent) lets the engine choose (resolve_reuse), or a length.
+  const toml::node* skin = neighbor.node("skin");
+  reuse.automatic = !skin || (skin->is_string() && skin->value<std::string>() == "auto");
+  if (skin && skin->is_string() && !reuse.automatic)
+    neighbor.fail("skin", "expected \"auto\" or a length >= 0, got \"" + *skin->value<std::string>() + "\"");
+  reuse.skin = reuse.automatic ? 0.0 : neighbor.non_negative("skin", 0.0);
   reuse.check = neighbor.boolean("check", true);
   reuse.every = neighbor.integer("every", 0, 0);
   reuse.audit = neighbor.boolean("audit", false);
   reuse.list = neighbor.boolean("list", false);
-  if (reuse.skin == 0.0)
+  if (reuse.automatic && neighbor.node("list"))
+    neighbor.fail("list", "applies to a skin given as a length (skin = \"auto\", the default, chooses pair lists "
+                          "itself where they pay: CUDA with Jacobi accumulation)");
+  if (!reuse.automatic && reuse.skin == 0.0)
     for (const char* key : {"check", "every", "audit", "list"})
-      if (neighbor.node(key)) neighbor.fail(key, "applies only with a skin (skin > 0)");
+      if (neighbor.node(key)) neighbor.fail(key, "applies only with a skin (skin > 0 or \"auto\")");
   if (!reuse.check && reuse.every == 0 && !reuse.audit)
     neighbor.fail("check", "false with every = 0 never rebuilds the cell structure: give every = N (LAMMPS's "
                            "'neigh_modify every N check no'), keep the check, or set audit = true to count "
