@@ -367,13 +367,9 @@ struct GpuEngine::Impl {
     st.valid_entries = st.collision_cells = 0;  // on the device until read_counts()
   }
 
-  // Whether evaluations walk pair lists: asked for, with a skin and Jacobi accumulation, and with
-  // rc + skin within half of every periodic edge (the minimum image then names each pair once).
+  // Whether evaluations walk pair lists (core/reuse.h states the condition).
   static bool lists(const GpuOptions& o, const Box& box, double cutoff) {
-    if (!o.reuse.list || !(o.reuse.skin > 0) || o.accumulation != Accumulation::kJacobi) return false;
-    for (int a = 0; a < box.dim; ++a)
-      if (box.periodic[a] && 2 * (cutoff + o.reuse.skin) > box.length[a]) return false;
-    return true;
+    return pair_lists_serve(o.reuse, o.accumulation, box, cutoff);
   }
 
   // What the list kernels read: the positions of this evaluation, the physics, the outputs.
@@ -409,6 +405,7 @@ struct GpuEngine::Impl {
     // bytes less); otherwise staged once, which the build's two passes read faster.
     const cuda::TraversalArgs<Real, Accum> cell_args =
         lean ? traversal_args<Real, Accum>(g, sys, ff, ff.mode) : prepare<Real, Accum>(g, sys, ff, ff.mode);
+    list.forced_splits = o.list_splits.value_or(0);
     list_usable = cuda::build_pair_list<Real, Accum>(cell_args, sorted_keys.data(), control.data(), entries,
                                                      ff.cutoff + o.reuse.skin, la, list, stream);
     if (lean) collision.flags.release();

@@ -86,12 +86,15 @@ __global__ void gather_ranked(Grid g, const double* __restrict__ positions, cons
   ranked[p] = RankedParticle{x[0], x[1], x[2], t < num_types ? t : 0u, 0u};
 }
 
-// One warp per row tile of a collision cell (the tile form's work units and candidate rule): lane
-// l holds row occupant a, and every lane walks the same columns. The occupants come from the staged
-// array, or, without one (lean memory), are staged as they are loaded (detail::stage_entry, the
-// values stage_kernel would write). Count: the partners of each row
-// within the list cutoff, into slot_counts[rank * 2^d + cell type]. Fill: the same walk writes
-// them, after the partners the row's particle found in cells of lower type. The test reads the
+// One warp per work unit: a row tile of a collision cell (the tile form's work units and candidate
+// rule) and one of `splits` contiguous ranges of its columns (build_splits): lane l holds row
+// occupant a, and every lane walks the same columns. The occupants come from the staged array, or,
+// without one (lean memory), are staged as they are loaded (detail::stage_entry, the values
+// stage_kernel would write). Count: the partners of each row within the list cutoff, into
+// slot_counts[rank * 2^d + cell type] (a store with one split; with several, each range's count is
+// added there, an integer sum, and kept per unit and lane in split_counts). Fill: the same walk
+// writes them, after the partners the row's particle found in cells of lower type and in the
+// ranges before this one (so the list does not depend on the splits). The test reads the
 // staged coordinates (relative to the cell centre, in the pair precision): below the cutoff by more
 // than their rounding (1e-5 relative in r^2) a pair is in, above it by as much it is out, and
 // between, the double positions decide, so that the list is exactly the pairs closer than the
@@ -100,8 +103,9 @@ template <class T, bool Fill, class Real, class Accum>
 __global__ void __launch_bounds__(kBlock)
     list_rows(const TraversalArgs<Real, Accum> args, const ListStaging staging,
               const RankedParticle* __restrict__ ranked, const uint32_t* __restrict__ rank, Real in2, Real out2,
-              double cutoff2, uint32_t* __restrict__ slot_counts,
-              const unsigned long long* __restrict__ group_rows, uint32_t* __restrict__ neighbors) {
+              double cutoff2, uint32_t splits, uint32_t* __restrict__ slot_counts,
+              uint32_t* __restrict__ split_counts, const unsigned long long* __restrict__ group_rows,
+              uint32_t* __restrict__ neighbors) {
   constexpr int D = T::kDim;
   constexpr uint32_t kSlots = 1u << D;
   // A column occupant as staged (with the lo parts of compensated coordinates: r_ij then keeps the
@@ -113,7 +117,8 @@ __global__ void __launch_bounds__(kBlock)
   Column* column = columns[warp];
   uint32_t* column_ranks = column_rank[warp];
   const uint32_t first_cell = args.cell_range[0], end_cell = args.cell_range[1];
-  const uint32_t w = args.tile_start[first_cell] + blockIdx.x * (kBlock / 32) + uint32_t(warp);
+  const uint32_t unit = blockIdx.x * (kBlock / 32) + uint32_t(warp);  // row tile x column range
+  const uint32_t w = args.tile_start[first_cell] + unit / splits, split = unit % splits;
   if (w >= args.tile_start[end_cell]) return;  // the whole warp
   uint32_t row = 0;
   const CollisionCell cell = args.cells[detail::tile_cell(args, w, row)];
@@ -132,24 +137,28 @@ __global__ void __launch_bounds__(kBlock)
   const StagedEntry<Real> A = row_ok ? stage(a) : StagedEntry<Real>{};
   const Control ca = detail::control_of(A.meta);
   const uint32_t pa = row_ok ? rank[ids[a]] : 0u;
-  uint32_t written = 0;
-  if constexpr (Fill) {
-    if (row_ok)
-      for (unsigned t = 0; t < type; ++t) written += slot_counts[std::size_t(pa) * kSlots + t];
-  }
-  const std::size_t n = args.n;
-  uint32_t count = 0;
   // A tile of P rows pairs with H columns only; rows beyond the cell (row_ok false) test nothing.
+  // This unit's columns: range `split` of the tile's, in whole column tiles of 32.
   const uint32_t ncols = row >= h ? h : m;
   const uint32_t row_cols = row_ok ? (a_home ? m : h) : 0u;
-  for (uint32_t col = 0; col < ncols; col += 32u) {
+  const uint32_t chunk = ((ncols + splits - 1) / splits + 31u) & ~31u;
+  const uint32_t c0 = min(split * chunk, ncols), c1 = min(c0 + chunk, ncols);
+  uint32_t written = 0;
+  if constexpr (Fill) {
+    if (row_ok) {
+      for (unsigned t = 0; t < type; ++t) written += slot_counts[std::size_t(pa) * kSlots + t];
+      for (uint32_t s = 0; s < split; ++s) written += split_counts[std::size_t(unit - split + s) * 32u + lane];
+    }
+  }
+  uint32_t count = 0;
+  for (uint32_t col = c0; col < c1; col += 32u) {
     const uint32_t own = col + uint32_t(lane);
-    if (own < ncols) {
+    if (own < c1) {
       column[lane] = stage(own);
       column_ranks[lane] = rank[ids[own]];
     }
     __syncwarp();
-    const uint32_t cnt = min(ncols - col, 32u);
+    const uint32_t cnt = min(c1 - col, 32u);
     for (uint32_t k = 0; k < cnt; ++k) {
       // The distance first (most candidates fail it), the candidate rule only for the few within.
       const Column B = column[k];
@@ -170,7 +179,12 @@ __global__ void __launch_bounds__(kBlock)
     __syncwarp();
   }
   if constexpr (!Fill) {
-    if (row_ok) slot_counts[std::size_t(pa) * kSlots + type] = count;
+    if (splits == 1) {
+      if (row_ok) slot_counts[std::size_t(pa) * kSlots + type] = count;
+    } else {
+      split_counts[std::size_t(unit) * 32u + lane] = count;  // 0 for rows beyond the cell
+      if (row_ok && count) atomicAdd(&slot_counts[std::size_t(pa) * kSlots + type], count);
+    }
   }
 }
 
@@ -278,6 +292,13 @@ void gather(const ListArgs<Real, Accum>& args, PairList& list, cudaStream_t stre
 
 }  // namespace
 
+int build_splits(std::size_t max_tiles, int multiprocessors) {
+  const std::size_t wanted = std::size_t(std::max(multiprocessors, 1)) * 128;  // warps: two waves of 64 per SM
+  int splits = 1;
+  while (splits < 8 && max_tiles * std::size_t(splits) < wanted) splits *= 2;
+  return splits;
+}
+
 template <class Real, class Accum>
 bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* sorted_keys, const Control* control,
                      std::size_t entries, double list_cutoff, const ListArgs<Real, Accum>& args, PairList& list,
@@ -310,7 +331,10 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
   CF_CUDA_CHECK(cudaMemsetAsync(list.slot_counts.data(), 0, n * slots * sizeof(uint32_t), stream));
   const double cutoff2 = list_cutoff * list_cutoff;
   const Real in2 = Real(cutoff2 * (1 - 1e-5)), out2 = Real(cutoff2 * (1 + 1e-5));
-  const unsigned row_blocks = unsigned((cells.max_tiles + kBlock / 32 - 1) / (kBlock / 32));
+  list.splits = list.forced_splits > 0 ? list.forced_splits : build_splits(cells.max_tiles, cells.multiprocessors);
+  const std::size_t units = std::size_t(cells.max_tiles) * std::size_t(list.splits);
+  const unsigned row_blocks = unsigned((units + kBlock / 32 - 1) / (kBlock / 32));
+  if (list.splits > 1) list.split_counts.reserve(std::size_t(row_blocks) * kBlock);  // a word per warp lane
   const ListStaging staging{sorted_keys, args.positions, args.types, args.num_types, control};
   // The rows' walk, counting or filling, in the geometry's instantiation (2D/3D, wrap in a cell).
   auto walk_rows = [&](auto fill_constant) {
@@ -321,10 +345,10 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
     detail::dispatch(sw, [&](auto traits) {
       using T = decltype(traits);
       if constexpr (!T::kMultiType && T::kMode == CutoffMode::kTruncate && !T::kObservables)
-        list_rows<T, kFill><<<row_blocks, kBlock, 0, stream>>>(cells, staging, list.ranked.data(), list.rank.data(), in2,
-                                                               out2, cutoff2, list.slot_counts.data(),
-                                                               list.group_rows.data(),
-                                                               kFill ? list.neighbors.data() : nullptr);
+        list_rows<T, kFill><<<row_blocks, kBlock, 0, stream>>>(
+            cells, staging, list.ranked.data(), list.rank.data(), in2, out2, cutoff2, uint32_t(list.splits),
+            list.slot_counts.data(), list.splits > 1 ? list.split_counts.data() : nullptr, list.group_rows.data(),
+            kFill ? list.neighbors.data() : nullptr);
     });
     CF_CUDA_CHECK_LAUNCH();
   };

@@ -52,17 +52,21 @@ struct PairList {
   DeviceBuffer<RankedParticle> ranked; // n: gathered at every evaluation
   DeviceBuffer<unsigned long long> sizes;  // 2: the longest list and the sum of the lengths
   DeviceBuffer<uint32_t> selected;     // 1: CUB's count of H entries (n)
+  DeviceBuffer<uint32_t> split_counts; // splits > 1: the count pass's partners per work unit (row
+                                       // tile x column split) and lane, for the fill's offsets
   DeviceBuffer<uint32_t> blocks;       // 1: the force kernel's blocks (their sums' count)
   DeviceBuffer<std::byte> block_sums;  // kCellSums per block of the force kernel
   DeviceBuffer<std::byte> scratch;     // CUB
   std::size_t width = 0, pairs = 0;    // of the last build (width: the longest list; pairs: the sum
   std::size_t slots = 0;               // of the lengths; slots: the entries the layout holds)
   int threads_per_particle = 1;        // the force kernel's: 1, 2, 4 or 8 (from n and the device)
+  int splits = 1;                      // the build's column splits per row tile (build_splits)
+  int forced_splits = 0;               // tests only: this many splits (1, 2, 4, 8) instead of the rule
 
   template <class F>
   void for_each_buffer(F&& f) {
     f(order), f(rank), f(slot_counts), f(length), f(group_rows), f(neighbors), f(ranked), f(sizes), f(selected);
-    f(blocks);
+    f(split_counts), f(blocks);
     f(block_sums), f(scratch);
   }
 };
@@ -90,6 +94,16 @@ struct ListStaging {
   uint32_t num_types = 1;
   const Control* control = nullptr;       // n: stage 1's control bits
 };
+
+// The build's column splits per row tile: a row tile of H occupants walks every occupant of its
+// cell (m columns, ~4x the h of a P tile), so with few tiles (a small system: 4,320 at 32,000
+// particles in.lj) those long walks are the build's critical path and leave most warp slots idle.
+// Each row tile's columns are cut into `splits` contiguous ranges, one warp each; the fill places a
+// range's partners after those of the ranges before it (their counts kept by the count pass), so
+// the list is the same, entry for entry, for any number of splits. The rule: the smallest power of
+// two up to 8 that gives at least 128 warps per multiprocessor (two waves of 64) over the tiles'
+// bound; 1 from about 64,000 particles in.lj on the H100. A rule of the system and the device.
+int build_splits(std::size_t max_tiles, int multiprocessors);
 
 // Builds the list from the structure just built (cells: its cells, tile starts, sorted IDs and
 // staged occupants, or none: then they are staged as the build loads them;

@@ -318,11 +318,13 @@ TEST_P(MdApi, SkinAutoIsTheBackendsRule) {
   forces.set_backend(s.backend);   // drops the MD state
   EXPECT_EQ(forces.skin(), 0.0);
   EXPECT_THAT(forces.neighbor(), HasSubstr("auto: no skin for force calls"));
-  EXPECT_THROW(forces.set_option("neighbor-list", "true"), cf::Error) << "lists are auto's to choose";
+  forces.set_option("neighbor-list", "true");  // for a skin given as a length; auto chooses itself
+  EXPECT_EQ(forces.skin(), 0.0);
   forces.set_skin(0.3);
   EXPECT_EQ(forces.skin(), 0.3);
+  EXPECT_EQ(forces.neighbor(), cuda ? "skin 0.3, pair lists" : "skin 0.3, cells reused");
+  forces.set_option("neighbor-list", "false");
   EXPECT_EQ(forces.neighbor(), "skin 0.3, cells reused");
-  forces.set_option("neighbor-list", "true");
   forces.set_option("skin", "auto");
   EXPECT_EQ(forces.skin(), 0.0);
 }

@@ -217,12 +217,45 @@ TEST(PairListLean, LeanBuildIsBitwiseTheStagedOne) {
       ForceResult rx, ry;
       x.evaluate(c->view(), scene->ff, Request{true, true}, rx);
       y.evaluate(c->view(), scene->ff, Request{true, true}, ry);
-      if (lists_fit(*scene, kSkin)) EXPECT_GT(x.listed_pairs(), 0u);
+      if (lists_fit(*scene, kSkin)) {
+        EXPECT_GT(x.listed_pairs(), 0u);
+      }
       EXPECT_EQ(x.listed_pairs(), y.listed_pairs());
       EXPECT_EQ(x.stats().rebuilt, y.stats().rebuilt);
       EXPECT_TRUE(bitwise_equal(rx, ry)) << cellforce::to_string(p);
     }
   }
+}
+
+// The build's column splits (build_splits: each row tile's columns cut into 2, 4 or 8 ranges, one
+// warp each, the fill placing each range after the ones before it) give the list of one split, entry
+// for entry: the same listed pairs and bitwise the same forces, energies and virial (summed in list
+// order) on every scene of the sequence, after moves and rebuilds, staged (fast) and lean.
+TEST(PairListSplits, SplitWalksListWhatOneWalkLists) {
+  CF_SKIP_WITHOUT_DEVICE();
+  const Scene a = make_scene("multitype3d_lb"), b = make_scene("random3d_periodic");
+  const Configuration am = moved(a.config, 0.14, 5);
+  const std::pair<const Configuration*, const Scene*> sequence[] = {
+      {&a.config, &a}, {&am, &a}, {&b.config, &b}, {&a.config, &a}};
+  for (const bool lean : {false, true})
+    for (const int splits : {2, 4, 8}) {
+      SCOPED_TRACE(std::to_string(splits) + " splits" + (lean ? ", lean" : ""));
+      GpuOptions one = list_options(Precision::kMixed), many = list_options(Precision::kMixed);
+      one.list_splits = 1;
+      many.list_splits = splits;
+      one.lean_lists = many.lean_lists = lean;
+      GpuEngine x(one), y(many);
+      for (const auto& [c, scene] : sequence) {
+        ForceResult rx, ry;
+        x.evaluate(c->view(), scene->ff, Request{true, true}, rx);
+        y.evaluate(c->view(), scene->ff, Request{true, true}, ry);
+        if (lists_fit(*scene, kSkin)) {
+          EXPECT_GT(x.listed_pairs(), 0u);
+        }
+        EXPECT_EQ(x.listed_pairs(), y.listed_pairs());
+        EXPECT_TRUE(bitwise_equal(rx, ry));
+      }
+    }
 }
 
 // A restored structure (a bitwise restart: rebuilt from the positions it was built from) lists the

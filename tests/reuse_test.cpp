@@ -82,15 +82,15 @@ TEST(ReuseOptions, AutoIsARuleOfTheBackendAndTheBox) {
   EXPECT_FALSE(lists.check);
   EXPECT_EQ(lists.every, 7);
   EXPECT_TRUE(lists.audit);
-  EXPECT_EQ(cellforce::describe_reuse(automatic, lists, Backend::kCuda, Accumulation::kJacobi, true),
+  EXPECT_EQ(cellforce::describe_reuse(automatic, lists, Backend::kCuda, Accumulation::kJacobi, true, box, rc),
             "skin 0.6 (auto: 0.24 rc), pair lists, rebuilt every 7 (not checked)");
   auto none = [&](Backend b, Accumulation acc, bool md, const cellforce::Box& bx, const char* why) {
     const ReuseOptions r = resolve_reuse(automatic, b, acc, md, bx, rc);
     EXPECT_EQ(r.skin, 0.0) << why;
     EXPECT_FALSE(r.list) << why;
     EXPECT_EQ(r.every, 7) << why;
-    EXPECT_NE(cellforce::describe_reuse(automatic, r, b, acc, md).find(why), std::string::npos)
-        << cellforce::describe_reuse(automatic, r, b, acc, md);
+    EXPECT_NE(cellforce::describe_reuse(automatic, r, b, acc, md, bx, rc).find(why), std::string::npos)
+        << cellforce::describe_reuse(automatic, r, b, acc, md, bx, rc);
   };
   none(Backend::kCpu, Accumulation::kJacobi, true, box, "no skin on the cpu");
   none(Backend::kCuda, Accumulation::kJacobi, false, box, "no skin for force calls");
@@ -108,8 +108,19 @@ TEST(ReuseOptions, AutoIsARuleOfTheBackendAndTheBox) {
   const ReuseOptions same = resolve_reuse(given, Backend::kCuda, Accumulation::kJacobi, true, box, rc);
   EXPECT_EQ(same.skin, 0.3);
   EXPECT_FALSE(same.list);
-  EXPECT_EQ(cellforce::describe_reuse(given, same, Backend::kCuda, Accumulation::kJacobi, true),
+  EXPECT_EQ(cellforce::describe_reuse(given, same, Backend::kCuda, Accumulation::kJacobi, true, box, rc),
             "skin 0.3, cells reused");
+  given.list = true;  // asked for: served on CUDA with Jacobi where rc + skin fits, else the cells
+  EXPECT_EQ(cellforce::describe_reuse(given, given, Backend::kCuda, Accumulation::kJacobi, false, box, rc),
+            "skin 0.3, pair lists");
+  EXPECT_EQ(cellforce::describe_reuse(given, given, Backend::kCpu, Accumulation::kJacobi, false, box, rc),
+            "skin 0.3, cells reused");
+  EXPECT_EQ(cellforce::describe_reuse(given, given, Backend::kCuda, Accumulation::kGaussSeidel, false, box, rc),
+            "skin 0.3, cells reused");
+  EXPECT_TRUE(cellforce::pair_lists_serve(given, Accumulation::kJacobi, box, rc));
+  small.periodic[1] = true;
+  small.length[1] = std::nextafter(2.0 * (rc + 0.3), 0.0);
+  EXPECT_FALSE(cellforce::pair_lists_serve(given, Accumulation::kJacobi, small, rc));
 }
 
 // The condition a skin adds (grid.h): on a periodic axis of two or more cells, c/2 + h + skin/2 <

@@ -190,7 +190,8 @@ class CELLFORCE_API Context {
   //   neighbor-audit  true | false (count pairs a reused structure misses; slow, CPU diagnostics)
   //   neighbor-list   true | false (CUDA, skin > 0, Jacobi: each build records every particle's
   //                   partners within rc + skin and the evaluations it serves walk those lists;
-  //                   default false; true needs a skin given: auto chooses lists itself)
+  //                   default false; it applies to a skin given as a length: skin auto chooses
+  //                   lists itself)
   //   accumulation  jacobi | gauss-seidel
   //   cell-rule     tight | chapter
   //   traversal     auto | warp | thread | tile   (CUDA: warp per cell, the chapter's thread per

@@ -269,9 +269,8 @@ void Context::set_option(std::string_view key, std::string_view value) {
     impl_->ff.mode = parse_option(key, value, kCutoffModeNames);
   } else if (key == "skin") {
     if (value == "auto") {
-      c.reuse.automatic = true;
+      c.reuse.automatic = true;  // skin and lists from the rule; a later skin length restores the caller's
       c.reuse.skin = 0.0;
-      c.reuse.list = false;
       impl_->engine_changed();
     } else {
       set_skin(parse_number(key, value));
@@ -281,9 +280,6 @@ void Context::set_option(std::string_view key, std::string_view value) {
     if (value == "true") v = true;
     else if (value != "false")
       throw Error("option " + std::string(key) + ": " + quote_excerpt(std::string(value)) + " is not true or false");
-    if (key == "neighbor-list" && c.reuse.automatic && v)
-      throw Error("option neighbor-list: the skin is auto, which chooses pair lists itself (where they pay: CUDA, "
-                  "Jacobi); give a skin first (option skin) to ask for them");
     ReuseOptions reuse = c.reuse;
     (key == "neighbor-check" ? reuse.check : key == "neighbor-audit" ? reuse.audit : reuse.list) = v;
     validate_reuse(reuse);
@@ -545,7 +541,8 @@ std::string Context::neighbor() {
   Impl& s = *impl_;
   const bool md = s.md != nullptr;
   const EngineChoice c = s.resolved(md ? s.md_box : s.box, md);
-  return describe_reuse(s.choice.reuse, md ? s.md_reuse : c.reuse, c.backend, c.accumulation, md);
+  return describe_reuse(s.choice.reuse, md ? s.md_reuse : c.reuse, c.backend, c.accumulation, md,
+                        md ? s.md_box : s.box, md ? s.md_ff.cutoff : s.ff.cutoff);
 }
 
 std::string Context::backend_name() { return to_string(impl_->named_engine().backend()); }

@@ -21,6 +21,13 @@ void validate_reuse(const ReuseOptions& o) {
     throw Error("every " + std::to_string(o.every) + ": expected a count >= 0 (0: no limit)");
 }
 
+bool pair_lists_serve(const ReuseOptions& r, Accumulation accumulation, const Box& box, double cutoff) {
+  if (!r.list || !(r.skin > 0) || accumulation != Accumulation::kJacobi) return false;
+  for (int a = 0; a < box.dim; ++a)
+    if (box.periodic[a] && 2.0 * (cutoff + r.skin) > box.length[a]) return false;
+  return true;
+}
+
 ReuseOptions resolve_reuse(const ReuseOptions& options, Backend backend, Accumulation accumulation, bool md,
                            const Box& box, double cutoff) {
   if (!options.automatic) return options;
@@ -28,22 +35,21 @@ ReuseOptions resolve_reuse(const ReuseOptions& options, Backend backend, Accumul
   r.automatic = false;  // resolved: what the engine runs
   r.skin = 0.0;
   r.list = false;
-  if (!md || backend != Backend::kCuda || accumulation != Accumulation::kJacobi || !(cutoff > 0)) return r;
-  const double skin = kAutoSkinPerCutoff * cutoff;
-  for (int a = 0; a < box.dim; ++a)  // the lists' minimum image names each pair once (GpuEngine)
-    if (box.periodic[a] && 2.0 * (cutoff + skin) > box.length[a]) return r;
-  r.skin = skin;
-  r.list = true;
-  return r;
+  if (!md || backend != Backend::kCuda || !(cutoff > 0)) return r;
+  ReuseOptions lists = r;
+  lists.skin = kAutoSkinPerCutoff * cutoff;
+  lists.list = true;
+  return pair_lists_serve(lists, accumulation, box, cutoff) ? lists : r;
 }
 
 std::string describe_reuse(const ReuseOptions& requested, const ReuseOptions& resolved, Backend backend,
-                           Accumulation accumulation, bool md) {
+                           Accumulation accumulation, bool md, const Box& box, double cutoff) {
   std::ostringstream s;
   if (resolved.skin > 0) {
     s << "skin " << resolved.skin;
     if (requested.automatic) s << " (auto: " << kAutoSkinPerCutoff << " rc)";
-    s << (resolved.list ? ", pair lists" : ", cells reused");
+    const bool lists = backend == Backend::kCuda && pair_lists_serve(resolved, accumulation, box, cutoff);
+    s << (lists ? ", pair lists" : ", cells reused");
     if (!resolved.check) s << ", rebuilt every " << resolved.every << " (not checked)";
     else if (resolved.every > 0) s << ", rebuilt at least every " << resolved.every;
   } else {

@@ -45,6 +45,12 @@ struct ReuseOptions {
 // Throws cellforce::Error naming the parameter (skin, every) when it is not usable.
 void validate_reuse(const ReuseOptions& options);
 
+// Whether the CUDA engine's evaluations walk pair lists with these (resolved) options: lists asked
+// for, a skin, Jacobi accumulation, and rc + skin within half of every periodic edge (the minimum
+// image then names each pair once). The one statement of the condition: the engine, the automatic
+// choice and the description use it.
+bool pair_lists_serve(const ReuseOptions& resolved, Accumulation accumulation, const Box& box, double cutoff);
+
 // The automatic choice (ReuseOptions::automatic): a rule of the backend and the system, not a
 // timing, so that every run of a scene makes the same choice and the same bits.
 // - An MD engine (md: its steps, minimisation) on CUDA with Jacobi accumulation, where rc + skin
@@ -64,9 +70,10 @@ ReuseOptions resolve_reuse(const ReuseOptions& options, Backend backend, Accumul
                            const Box& box, double cutoff);
 
 // The resolved choice in words, for run headers: "skin 0.6 (auto: 0.24 rc), pair lists",
-// "none, stages 1-3 every evaluation (auto: no skin on the cpu)", "skin 0.3, cells reused".
+// "none, stages 1-3 every evaluation (auto: no skin on the cpu)", "skin 0.3, cells reused" (what
+// the engine does: lists asked for on the CPU, or where they do not fit, are cells reused).
 std::string describe_reuse(const ReuseOptions& requested, const ReuseOptions& resolved, Backend backend,
-                           Accumulation accumulation, bool md);
+                           Accumulation accumulation, bool md, const Box& box, double cutoff);
 
 // When to rebuild, apart from the displacement: the first evaluation, a change of box, particle
 // count or cutoff, skin 0, or a structure that has served `every` evaluations. Shared by both
