@@ -352,7 +352,7 @@ TEST(CApi, BadInputGivesAStatusAndAMessageNamingIt) {
          {CF_ERROR_INPUT, "option precision: 'quad' is not one of single, mixed or double"});
   expect(cf_set_option(c, "backend", "opencl"), c, {CF_ERROR_INPUT, "is not one of auto, cpu or cuda"});
   expect(cf_set_option(c, "skin", "-0.3"), c, {CF_ERROR_INPUT, "skin -0.3"});
-  expect(cf_set_option(c, "skin", "thick"), c, {CF_ERROR_INPUT, "option skin: 'thick' is not a number"});
+  expect(cf_set_option(c, "skin", "thick"), c, {CF_ERROR_INPUT, "option skin: 'thick' is not auto or a number"});
   expect(cf_set_option(c, "device", "-1"), c, {CF_ERROR_INPUT, "device -1"});
   expect(cf_set_option(c, nullptr, "x"), c, {CF_ERROR_INPUT, "option key is a null pointer"});
   expect(cf_set_option(c, "mixing", nullptr), c, {CF_ERROR_INPUT, "value of option mixing is a null pointer"});

@@ -41,6 +41,11 @@ TEST_F(Bench, RowsCarryTheReportsNumbers) {
     EXPECT_EQ(r["precision"], "mixed");
     EXPECT_EQ(r["steps"].get<int64_t>(), 20);  // 4 samples of 5 steps
     EXPECT_EQ(r["builds"].get<int64_t>(), r["evaluations"].get<int64_t>()) << "no skin: a build per evaluation";
+    EXPECT_EQ(r["skin_requested"], "auto");  // BenchArgs' default, as a scene without [neighbor]
+    EXPECT_EQ(r["skin"].get<double>(), 0.0);  // what auto chose on the CPU
+    EXPECT_EQ(r["neighbor"], "none, stages 1-3 every evaluation (auto: no skin on the cpu)");
+    EXPECT_EQ(r["list_evaluations"].get<int64_t>(), 0);
+    EXPECT_FALSE(r["neighbor_list"].get<bool>());
     const double rate = r["steps_per_second"].get<double>();
     EXPECT_GT(rate, 0.0);
     EXPECT_NEAR(r["particle_steps_per_second"].get<double>(), rate * double(expected_n[k]), 1e-9 * rate * 256);

@@ -123,17 +123,21 @@ INSTANTIATE_TEST_SUITE_P(Scenes, PairList,
 
 // The list holds every pair within rc + skin exactly once from each side: its entries are twice
 // the pairs the test counts by brute force (random positions: no pair sits at rc + skin to the
-// last bit).
+// last bit), in every precision (float coordinates pass the hi-part prefilter and the compensated
+// test, with the double positions deciding near the cutoff).
 TEST(PairListBuild, EntriesAreTwiceThePairsWithinTheListCutoff) {
   CF_SKIP_WITHOUT_DEVICE();
   for (const char* name : {"random3d_periodic", "random2d_periodic", "random3d_open", "slab3d", "multitype3d_lb",
                            "clustered3d_corner", "uneven3d"}) {
     const Scene s = make_scene(name);
     if (!lists_fit(s, kSkin)) continue;
-    GpuEngine e(list_options(Precision::kDouble));
-    ForceResult r;
-    e.evaluate(s.config.view(), s.ff, Request{false, false}, r);
-    EXPECT_EQ(e.listed_pairs(), 2 * pairs_within(s.config, s.ff.cutoff + kSkin)) << name;
+    const std::size_t expected = 2 * pairs_within(s.config, s.ff.cutoff + kSkin);
+    for (Precision p : {Precision::kDouble, Precision::kMixed, Precision::kSingle}) {
+      GpuEngine e(list_options(p));
+      ForceResult r;
+      e.evaluate(s.config.view(), s.ff, Request{false, false}, r);
+      EXPECT_EQ(e.listed_pairs(), expected) << name << " " << cellforce::to_string(p);
+    }
   }
 }
 

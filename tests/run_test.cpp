@@ -66,11 +66,12 @@ Saved load(const std::string& path) {
 }
 
 // With a skin too: the checkpoint keeps the cell structure in use (the positions it was built
-// from), and the restart builds it again, so the force sums keep their order.
+// from), and the restart builds it again, so the force sums keep their order. Skin -1: none given,
+// the scene's auto (on CUDA pair lists with skin 0.6 in this box, the step gate included).
 TEST_F(RunFolder, RestartReproducesTheUninterruptedRunBitwise) {
   for (const std::string& backend : backends_here())
     for (const std::string kind : {"nve", "langevin"})
-    for (const double skin : {0.0, 0.3}) {
+    for (const double skin : {-1.0, 0.0, 0.3}) {
       SCOPED_TRACE(backend + " " + kind + " skin " + std::to_string(skin));
       std::ofstream("scene.toml") << scene_text(kind, backend, 60);
       RunArgs args;
@@ -144,17 +145,20 @@ TEST_F(RunFolder, AuditFindsNothingMissedWithTheCheck) {
 
 // The run header names the neighbour search the engine chose: a scene without [neighbor] has skin
 // auto (no skin on the CPU; on CUDA pair lists with a skin of 0.24 rc where rc + skin fits in half
-// the box, as 2 x 3.1 does in this 2D box of edges 10.27 and 11.12); --skin 0.3 is given as it is.
+// the box, as 2 x 3.1 does in this 2D box of edges 10.27 and 11.12); --skin 0.3 is given as it is,
+// and --skin auto (skin -1 below) overrides a scene's length.
 TEST_F(RunFolder, HeaderNamesTheNeighbourSearch) {
   for (const std::string& backend : backends_here()) {
     SCOPED_TRACE(backend);
-    std::ofstream("scene.toml") << scene_text("nve", backend, 5);
-    for (const double skin : {-1.0, 0.3}) {
+    std::ofstream("scene.toml") << scene_text("nve", backend, 5) << "[neighbor]\nskin = 0.3\n";
+    std::ofstream("auto.toml") << scene_text("nve", backend, 5);
+    for (const double skin : {-2.0, -1.0, 0.3}) {
       RunArgs args;
-      args.scene = "scene.toml";
+      args.scene = skin == -2.0 ? "auto.toml" : "scene.toml";  // -2: no [neighbor]
       args.quiet = true;
       args.overwrite = true;
-      args.skin = skin;
+      args.skin_auto = skin == -1.0;
+      if (skin > 0) args.skin = skin;
       testing::internal::CaptureStdout();
       EXPECT_EQ(run_md(args), 0);
       const std::string out = testing::internal::GetCapturedStdout();
@@ -165,6 +169,33 @@ TEST_F(RunFolder, HeaderNamesTheNeighbourSearch) {
       else
         EXPECT_THAT(out, HasSubstr("  neighbour search: skin 0.6 (auto: 0.24 rc), pair lists\n"));
     }
+  }
+}
+
+// A checkpoint of a structure served by the cells (--skin 0.6: lists not asked for) restarted with
+// skin auto (on CUDA: the same skin with pair lists, another summation order) is not restored as
+// if it were the same: the run says it continues to round-off. The CPU has no lists: nothing to
+// test there.
+TEST_F(RunFolder, RestartWithAnotherNeighbourChoiceSaysSo) {
+  for (const std::string& backend : backends_here()) {
+    if (backend != "cuda") continue;
+    std::ofstream("scene.toml") << scene_text("nve", backend, 30);
+    RunArgs args;
+    args.scene = "scene.toml";
+    args.quiet = true;
+    args.overwrite = true;
+    args.skin = 0.6;
+    ASSERT_EQ(run_md(args), 0);
+    fs::copy_file("ckpt.h5", "cells.h5", fs::copy_options::overwrite_existing);
+    args.skin = -1;
+    args.skin_auto = true;
+    args.steps = 40;
+    args.restart = "cells.h5";
+    testing::internal::CaptureStdout();
+    EXPECT_EQ(run_md(args), 0);
+    const std::string out = testing::internal::GetCapturedStdout();
+    EXPECT_THAT(out, HasSubstr("neighbour search: skin 0.6 (auto: 0.24 rc), pair lists"));
+    EXPECT_THAT(out, HasSubstr("holds no cell structure for skin 0.6 with pair lists"));
   }
 }
 

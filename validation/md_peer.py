@@ -7,8 +7,11 @@ mass = 1, cutoff 2.5 (truncated, no dispersion correction), T0 = 1.44, dt 0.005,
 OpenMM: NonbondedForce CutoffPeriodic, VerletIntegrator, precision single and mixed, on the CUDA
 platform; `warmup` steps (context creation, kernel compilation, first neighbour list) are excluded,
 then `steps` steps are timed to the end of a getState. cellforce: `cellforce run` of a generated
-scene on the CUDA backend in the same precision; its own summary gives the loop's steps/s (setup
-excluded), the forces' device time per step and the force engine's time per evaluation.
+scene on the CUDA backend in the same precision, with no [neighbor] section: skin auto, which on
+CUDA is pair lists with a skin of 0.24 rc (until 2026-11-25 it was no skin: the tables in
+validation/reports/md-run.md before then are of the cells on every step); its own summary gives the
+loop's steps/s (setup excluded), the forces' device time per step and the force engine's time per
+evaluation.
 
 Writes a Markdown table (--md) and the raw numbers (--json); exits 1 when a run fails.
 

@@ -4,7 +4,8 @@ For each backend x cutoff mode x time step x precision x size, runs an LJ liquid
 0.8442, T0 = 1.44, rc 2.5, velocity Verlet) for --steps steps (or for --time in reduced time, the
 same span for every time step), reads the thermo CSV (every 20 steps) and reports, per particle:
 the drift (least-squares slope of E_total/N against time) and the RMS fluctuation of E_total/N
-about its mean, with the run's speed.
+about its mean, with the run's speed. The scenes have no [neighbor] section: skin auto (pair lists
+with a skin of 0.24 rc on CUDA since 2026-11-25; no skin on the CPU, and on CUDA before).
 
     python validation/nve_drift.py --cellforce build/cellforce [--backends cpu cuda]
         [--precisions single mixed double] [--cells 5 20] [--steps 20000 | --time 100]

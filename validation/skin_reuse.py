@@ -107,7 +107,8 @@ def main() -> int:
                     tag = f"{backend}_{precision}_{skin}_{len(rows)}"
                     thermo = Path(work) / f"{tag}.csv"
                     scene = Path(work) / f"{tag}.toml"
-                    neighbor = (f"[neighbor]\nskin = {skin}\naudit = {str(args.audit).lower()}" if skin > 0 else "")
+                    # Always a length: a scene without one gets skin auto (pair lists on CUDA).
+                    neighbor = f"[neighbor]\nskin = {skin}" + (f"\naudit = {str(args.audit).lower()}" if skin > 0 else "")
                     scene.write_text(SCENE.format(cells=args.cells, mode="truncate", dt=0.005, steps=args.steps,
                                                   backend=backend, precision=precision, thermo=thermo)
                                      + neighbor + "\n")

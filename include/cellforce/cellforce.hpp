@@ -237,6 +237,8 @@ class CELLFORCE_API Context {
   // null: all type 0), masses n (finite, > 0). Positions on periodic axes are wrapped into the box.
   // Uploads the state, evaluates the forces at it, and sets the step counter (time = step x dt).
   // The physics (box, cutoff, types) is taken as it is now; change it, and set the state again.
+  // With skin auto, a box or cutoff for which the rule chooses otherwise than for the state before
+  // makes a new MD engine: its run statistics and neighbour structure start afresh.
   void set_state(std::size_t n, const double* positions, const double* velocities, const uint32_t* types,
                  const double* masses, int64_t step = 0);
   // Advances `count` steps. With the cuda backend the host queues them and waits only for the
@@ -275,10 +277,14 @@ class CELLFORCE_API Context {
   std::string sort();
   // The skin in effect (the automatic one resolved for the box and backend; 0: none) and the
   // neighbour structure in words, e.g. "skin 0.6 (auto: 0.24 rc), pair lists" or "none, stages 1-3
-  // every evaluation (auto: no skin on the cpu)". For the MD state when there is one, else for
-  // the current box.
+  // every evaluation (auto: no skin on the cpu)". For the MD state when there is one (as set_state
+  // resolved it), else for force calls on the current box (auto: none).
   double skin();
   std::string neighbor();
+  // Whether the evaluations walk pair lists (CUDA, a skin with lists, Jacobi accumulation, rc + skin
+  // within half of every periodic edge); a list the engine declines at a build (too crowded for the
+  // device's memory) is counted by RunStatistics::list_evaluations, not here.
+  bool neighbor_lists();
 
   struct Impl;  // the engine and the physics it is given
 

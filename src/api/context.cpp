@@ -37,11 +37,11 @@ E parse_option(std::string_view key, std::string_view value, const Named<E> (&ta
               name_list(table));
 }
 
-double parse_number(std::string_view key, std::string_view value) {
+double parse_number(std::string_view key, std::string_view value, const char* expected = "a number") {
   double v = 0;
   const auto [end, ec] = std::from_chars(value.data(), value.data() + value.size(), v);
   if (ec != std::errc() || end != value.data() + value.size() || value.empty())
-    throw Error("option " + std::string(key) + ": " + quote_excerpt(std::string(value)) + " is not a number");
+    throw Error("option " + std::string(key) + ": " + quote_excerpt(std::string(value)) + " is not " + expected);
   return v;
 }
 
@@ -97,24 +97,15 @@ struct Context::Impl {
     c.reuse = resolve_reuse(choice.reuse, c.backend, choice.accumulation, for_md, b, ff.cutoff);
     return c;
   }
-  ReuseOptions engine_reuse, md_reuse;  // what `engine` and `md` were made with
+  ReuseOptions md_reuse;  // what `md` was made with
 
   static bool same_reuse(const ReuseOptions& a, const ReuseOptions& b) {
     return a.skin == b.skin && a.list == b.list && a.check == b.check && a.every == b.every && a.audit == b.audit;
   }
 
-  // The force engine for the current box: made again when the automatic choice for it differs
-  // from the one the engine has (a box changed past the lists' limit), after its queued work.
+  // The force engine (force calls: an automatic skin resolves to none whatever the box).
   ForceEngine& get_engine() {
-    const EngineChoice c = resolved(box, false);
-    if (engine && !same_reuse(c.reuse, engine_reuse)) {
-      synchronize();
-      engine.reset();
-    }
-    if (!engine) {
-      engine = make_force_engine(c);
-      engine_reuse = c.reuse;
-    }
+    if (!engine) engine = make_force_engine(resolved(box, false));
     return *engine;
   }
   ForceEngine& named_engine() { return md ? md->forces() : get_engine(); }
@@ -273,7 +264,7 @@ void Context::set_option(std::string_view key, std::string_view value) {
       c.reuse.skin = 0.0;
       impl_->engine_changed();
     } else {
-      set_skin(parse_number(key, value));
+      set_skin(parse_number(key, value, "auto or a number"));
     }
   } else if (key == "neighbor-check" || key == "neighbor-audit" || key == "neighbor-list") {
     bool v = false;
@@ -531,10 +522,19 @@ void Context::reset_run_statistics() {
 }
 int Context::dim() const { return impl_->dim; }
 std::size_t Context::num_types() const { return impl_->ff.types.size(); }
-// The MD engine's force engine when there is one (no second engine is built just to be named).
+// The neighbour structure of the MD state when there is one, else of force calls (resolved here:
+// no engine is made for it).
 double Context::skin() {
   Impl& s = *impl_;
   return s.md ? s.md_reuse.skin : s.resolved(s.box, false).reuse.skin;
+}
+
+bool Context::neighbor_lists() {
+  Impl& s = *impl_;
+  const bool md = s.md != nullptr;
+  const EngineChoice c = s.resolved(md ? s.md_box : s.box, md);
+  return c.backend == Backend::kCuda && pair_lists_serve(md ? s.md_reuse : c.reuse, c.accumulation,
+                                                         md ? s.md_box : s.box, md ? s.md_ff.cutoff : s.ff.cutoff);
 }
 
 std::string Context::neighbor() {
@@ -545,6 +545,7 @@ std::string Context::neighbor() {
                         md ? s.md_box : s.box, md ? s.md_ff.cutoff : s.ff.cutoff);
 }
 
+// The MD engine's force engine when there is one (no second engine is built just to be named).
 std::string Context::backend_name() { return to_string(impl_->named_engine().backend()); }
 std::string Context::description() { return impl_->named_engine().description(); }
 std::string Context::traversal() { return impl_->named_engine().traversal(); }

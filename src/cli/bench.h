@@ -17,9 +17,10 @@
 namespace cellforce {
 
 struct BenchArgs {
+  BenchArgs() { engine.reuse.automatic = true; }  // skin auto, as a scene without [neighbor]
   std::vector<double> sizes;      // particle counts; each runs the nearest fcc lattice (4 c^3)
   std::vector<int> cells;         // or fcc unit cells per axis
-  EngineChoice engine;            // backend, precision, traversal, sort, cell rule, skin
+  EngineChoice engine;            // backend, precision, traversal, sort, cell rule, skin (auto)
   bool chapter = false;           // the chapter's configuration: thread per cell, its radix sort,
                                   // cells >= 1.5 x 2h, rebuild every step
   CutoffMode mode = CutoffMode::kTruncate;

@@ -5,6 +5,7 @@
 // pipeline's counts and its stage times, optionally next to the O(n^2) brute force.
 #include <CLI/CLI.hpp>
 #include <algorithm>
+#include <charconv>
 #include <csignal>
 #include <chrono>
 #include <cmath>
@@ -260,10 +261,23 @@ int main(int argc, char** argv) {
       ->check(CLI::PositiveNumber);
   run_cmd->add_option("--restart", ra.restart, "Continue from this checkpoint (written by the same scene)")
       ->check(CLI::ExistingFile);
-  run_cmd->add_option("--skin", ra.skin,
-                      "Override the scene's [neighbor] skin (default auto): build the cell structure for rc + skin "
-                      "and reuse it while no particle has moved more than skin/2 (0: rebuild every step)")
-      ->check(CLI::NonNegativeNumber);  // NaN passes this: the engines' validate_reuse refuses it
+  run_cmd
+      ->add_option_function<std::string>(
+          "--skin",
+          [&ra](const std::string& value) {
+            if (value == "auto") {
+              ra.skin_auto = true;
+              return;
+            }
+            double skin = 0;
+            const auto [end, ec] = std::from_chars(value.data(), value.data() + value.size(), skin);
+            if (ec != std::errc() || end != value.data() + value.size() || !(skin >= 0))
+              throw CLI::ValidationError("--skin", "expected auto or a length >= 0, got " + value);
+            ra.skin = skin;
+          },
+          "Override the scene's [neighbor] skin: auto (the engine's rule, the default without [neighbor]) or "
+          "a length: build the cell structure for rc + skin and reuse it while no particle has moved more "
+          "than skin/2 (0: rebuild every step)");
   run_cmd->add_flag("--quiet,-q", ra.quiet, "Only the setup and the performance summary on the screen");
   run_cmd->add_flag("--overwrite", ra.overwrite,
                     "Replace the thermo, trajectory and checkpoint files of an earlier run (refused otherwise)");
@@ -279,7 +293,6 @@ int main(int argc, char** argv) {
   bench_cmd->add_option("--cells", ba.cells, "fcc unit cells per axis instead (4 c^3 particles)")
       ->check(CLI::PositiveNumber);
   add_backend_options(bench_cmd, ba.engine);
-  ba.engine.reuse.automatic = true;  // as a scene without [neighbor]
   bench_cmd
       ->add_option_function<double>(
           "--skin",

@@ -178,7 +178,10 @@ Scene scene_for(const RunArgs& args) {
     scene.backend.traversal = *form;
   }
   if (!args.thermo_file.empty()) scene.output.thermo_file = args.thermo_file;
-  if (!(args.skin < 0)) {  // NaN too: validate_reuse names it
+  if (args.skin_auto) {
+    scene.backend.reuse.automatic = true;
+    scene.backend.reuse.skin = 0.0;
+  } else if (!(args.skin < 0)) {  // NaN too: validate_reuse names it
     scene.backend.reuse.skin = args.skin;
     scene.backend.reuse.automatic = false;
   }
@@ -460,14 +463,16 @@ int run_md(const RunArgs& args) {
     // With a skin, the structure the uninterrupted run was reusing is built again from the
     // positions it was built from, so that the force sums keep their order (bit for bit).
     const double skin = ctx.skin();
-    if (skin > 0 && saved.skin == skin && !saved.reuse.build_positions.empty()) {
+    const bool same_lists = !saved.neighbor_list || *saved.neighbor_list == ctx.neighbor_lists();
+    if (skin > 0 && saved.skin == skin && same_lists && !saved.reuse.build_positions.empty()) {
       with_context(args.restart, [&] {
         ctx.restore_neighbor_state(NeighborState{saved.reuse.build_positions, saved.reuse.served});
       });
     } else if (skin > 0) {
-      std::printf("note: %s holds no cell structure for skin %g: the restarted run builds its own at step %lld, "
+      std::printf("note: %s holds no cell structure for skin %g%s: the restarted run builds its own at step %lld, "
                   "so it continues the run to round-off, not bit for bit\n",
-                  args.restart.c_str(), skin, (long long)state.step);
+                  args.restart.c_str(), skin, ctx.neighbor_lists() ? " with pair lists" : " without pair lists",
+                  (long long)state.step);
     }
   }
   fetch_state(ctx, state);
@@ -514,6 +519,7 @@ int run_md(const RunArgs& args) {
     // The structure in use; the restart evaluates this step's forces once more, which serves it
     // once more: it is saved one evaluation short.
     checkpoint_info.skin = ctx.skin();
+    checkpoint_info.neighbor_list = ctx.neighbor_lists();
     const NeighborState ns = ctx.neighbor_state();
     checkpoint_info.reuse = ReuseState{ns.build_positions, ns.served};
     if (checkpoint_info.reuse.served > 0) checkpoint_info.reuse.served -= 1;

@@ -20,6 +20,7 @@ struct RunArgs {
   std::string trajectory;     // non-empty: overrides [output] trajectory
   int64_t trajectory_every = 0;  // > 0: overrides [output] trajectory_every
   double skin = -1;           // not < 0: overrides [neighbor] skin (NaN reaches validate_reuse)
+  bool skin_auto = false;     // --skin auto: overrides [neighbor] skin with the engine's rule
   bool quiet = false;         // no thermo lines or progress on the screen (summary only)
   bool overwrite = false;     // a fresh run may replace the outputs of an earlier one
 };

@@ -33,6 +33,7 @@ void write_checkpoint(const std::string& path, const MdState& state, const Check
       char skin[40];  // as text, exactly: there is no double-attribute reader in this layer
       std::snprintf(skin, sizeof skin, "%.17g", info.skin);
       h5::write_attribute(root, "neighbor_skin", std::string(skin), path);
+      if (info.neighbor_list) h5::write_attribute(root, "neighbor_list", int64_t(*info.neighbor_list ? 1 : 0), path);
     }
   });
 }
@@ -77,12 +78,14 @@ CheckpointInfo read_checkpoint(const std::string& path, MdState& state, const Ch
   saved.precision = h5::read_string_attribute(root, "precision", path).at(0);
   saved.reuse = {};
   saved.skin = 0;
+  saved.neighbor_list.reset();
   if (h5::exists(root, "neighbor_build_positions")) {
     const h5::Array<double> built = h5::read_doubles(root, "neighbor_build_positions", path);
     if (built.shape != shape) throw Error(path + ": neighbor_build_positions has the wrong shape");
     saved.reuse.build_positions = built.values;
     saved.reuse.served = h5::read_int_attribute(root, "neighbor_served", path);
     saved.skin = std::strtod(h5::read_string_attribute(root, "neighbor_skin", path).at(0).c_str(), nullptr);
+    if (h5::has_attribute(root, "neighbor_list")) saved.neighbor_list = h5::read_int_attribute(root, "neighbor_list", path) != 0;
   }
   f.close();
   return saved;

@@ -7,6 +7,7 @@
 #pragma once
 
 #include <cstdint>
+#include <optional>
 #include <string>
 
 #include "core/reuse.h"
@@ -23,6 +24,9 @@ struct CheckpointInfo {
   // rebuild it (read back only when the file has it and was written with the same skin).
   double skin = 0;
   ReuseState reuse;
+  // Whether that structure's evaluations walked pair lists (another summation order than the cells):
+  // a restart rebuilds it only for the same choice. Absent in files written before skin auto.
+  std::optional<bool> neighbor_list;
 };
 
 void write_checkpoint(const std::string& path, const MdState& state, const CheckpointInfo& info);

@@ -27,7 +27,8 @@
 // not converging within max_steps stops the run. Without it, a start whose first time step would
 // move a particle by more than 0.1 x the smallest sigma (an overlap) is refused; so is such a
 // restart.
-//   [neighbor]     skin = "auto", check = true, every = 0, audit = false, list = false
+//   [neighbor]     skin = "auto", check = true, every = 0, audit = false, list = false (list only
+//                  with a skin given as a length)
 // skin = "auto" (the default, also without [neighbor]) lets the engine choose (core/reuse.h
 // resolve_reuse: pair lists with a skin of 0.24 rc on CUDA with Jacobi accumulation where they fit
 // the box, else no skin; the run header prints the choice). A length: skin > 0 builds the cell structure (stages 1-3) for rc + skin and reuses it while no
