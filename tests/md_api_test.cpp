@@ -164,32 +164,37 @@ TEST_P(MdApi, RepeatIsBitwise) {
 }
 
 // The backend's run follows the CPU's (the reference integrator on host arrays) to round-off:
-// 50 NVE steps in double, positions within 1e-9 and the energies within 1e-10 relative.
+// 50 NVE steps in double, positions within 1e-9 and the energies within 1e-10 relative; with the
+// default skin (auto: pair lists on CUDA) and with none (the cells on every step).
 TEST_P(MdApi, FollowsTheCpuRun) {
-  RunSetup s;
-  s.backend = GetParam();
-  std::size_t n = 0;
-  cf::Context ctx = liquid(s, &n);
-  RunSetup cpu = s;
-  cpu.backend = cf::Backend::kCpu;
-  cf::Context ref = liquid(cpu);
-  ctx.step(50);
-  ref.step(50);
-  std::vector<double> x(3 * n), y(3 * n);
-  ctx.get_state(x.data(), nullptr, nullptr);
-  ref.get_state(y.data(), nullptr, nullptr);
-  const double edge = cf::make_lattice(cf::Lattice::kFcc, s.cells, 0.8442).box.length[0];
-  double worst = 0;
-  for (std::size_t k = 0; k < x.size(); ++k) {
-    double d = std::abs(x[k] - y[k]);
-    d = std::min(d, std::abs(d - edge));  // one wrapped to 0, the other to just below the edge
-    worst = std::max(worst, d);
+  for (const char* skin : {"auto", "0"}) {
+    SCOPED_TRACE(std::string("skin ") + skin);
+    RunSetup s;
+    s.backend = GetParam();
+    s.options = {{"skin", skin}};
+    std::size_t n = 0;
+    cf::Context ctx = liquid(s, &n);
+    RunSetup cpu = s;
+    cpu.backend = cf::Backend::kCpu;
+    cf::Context ref = liquid(cpu);
+    ctx.step(50);
+    ref.step(50);
+    std::vector<double> x(3 * n), y(3 * n);
+    ctx.get_state(x.data(), nullptr, nullptr);
+    ref.get_state(y.data(), nullptr, nullptr);
+    const double edge = cf::make_lattice(cf::Lattice::kFcc, s.cells, 0.8442).box.length[0];
+    double worst = 0;
+    for (std::size_t k = 0; k < x.size(); ++k) {
+      double d = std::abs(x[k] - y[k]);
+      d = std::min(d, std::abs(d - edge));  // one wrapped to 0, the other to just below the edge
+      worst = std::max(worst, d);
+    }
+    EXPECT_LT(worst, 1e-9);
+    const cf::Thermo a = ctx.thermo(), b = ref.thermo();
+    EXPECT_NEAR(a.potential, b.potential, 1e-10 * std::abs(b.potential));
+    EXPECT_NEAR(a.kinetic, b.kinetic, 1e-10 * std::abs(b.kinetic));
+    EXPECT_NEAR(a.pressure, b.pressure, 1e-9 * std::max(1.0, std::abs(b.pressure)));
   }
-  EXPECT_LT(worst, 1e-9);
-  const cf::Thermo a = ctx.thermo(), b = ref.thermo();
-  EXPECT_NEAR(a.potential, b.potential, 1e-10 * std::abs(b.potential));
-  EXPECT_NEAR(a.kinetic, b.kinetic, 1e-10 * std::abs(b.kinetic));
-  EXPECT_NEAR(a.pressure, b.pressure, 1e-9 * std::max(1.0, std::abs(b.pressure)));
 }
 
 // An open box (the grid spans the particles' bounds, read on the device for CUDA), with and without

@@ -1,0 +1,107 @@
+#!/usr/bin/env python3
+r"""A/B of the pair-list build between two `cellforce` binaries, in one call on one GPU.
+
+For each size, the two binaries run `cellforce bench` of the in.lj fluid with pair lists (skin 0.6,
+mixed precision, no reference), interleaved, --repeats times each; the table gives the median
+steps/s per binary and their ratio. With --ncu, Nsight Compute then times the list build's
+kernels (`list_rows`: its count and fill passes) of each binary at each size: the median duration
+of the captured launches.
+
+  python3 validation/list_build_ab.py --base old/cellforce --new build-gpu-bin/cellforce \
+      --sizes 32000 256000 1048576 --repeats 2 --ncu --out $OUT
+
+Writes list_build_ab.md (the table) and list_build_ab.json (every run) to --out. Exits 1 when a
+run failed (its row says why).
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import io
+import json
+import statistics
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+
+def bench(binary: str, n: int, seconds: float, work: Path) -> dict:
+    out = work / "row.json"
+    out.unlink(missing_ok=True)
+    command = [binary, "bench", "--sizes", str(n), "--precision", "mixed", "--backend", "cuda", "--skin", "0.6",
+               "--neighbor-list", "--seconds", f"{seconds:g}", "--no-reference", "--json", str(out)]
+    p = subprocess.run(command, capture_output=True, text=True)
+    try:
+        row = json.loads(out.read_text())["rows"][0]
+    except Exception:  # noqa: BLE001 - no row: the run's own words
+        return {"error": f"exit {p.returncode}: {(p.stderr or p.stdout).strip()[-500:]}"}
+    if p.returncode != 0 and "error" not in row:
+        row["error"] = f"exit {p.returncode}: {p.stderr.strip()[-500:]}"
+    return row
+
+
+def ncu_list_rows(binary: str, n: int) -> dict:
+    """Median duration (us) of the captured list_rows launches, and how many were captured."""
+    command = ["ncu", "--kernel-name", "regex:list_rows", "--launch-count", "6", "--metrics",
+               "gpu__time_duration.sum", "--csv", binary, "bench", "--sizes", str(n), "--precision", "mixed",
+               "--backend", "cuda", "--skin", "0.6", "--neighbor-list", "--steps", "40", "--warmup", "5",
+               "--samples", "2", "--no-reference"]
+    p = subprocess.run(command, capture_output=True, text=True, timeout=300)
+    text = p.stdout[p.stdout.find('"ID"'):] if '"ID"' in p.stdout else ""
+    times = []
+    for rec in csv.DictReader(io.StringIO(text)):
+        if rec.get("Metric Name") == "gpu__time_duration.sum":
+            value = float(rec["Metric Value"].replace(",", ""))
+            times.append(value / 1e3 if rec.get("Metric Unit") == "ns" else value)
+    if not times:
+        return {"error": f"ncu exit {p.returncode}: {(p.stderr or p.stdout).strip()[-300:]}"}
+    return {"list_rows_us_median": statistics.median(times), "launches": len(times)}
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--base", required=True, help="the binary before the change")
+    ap.add_argument("--new", required=True, help="the binary with it")
+    ap.add_argument("--sizes", type=int, nargs="+", default=[32000, 256000, 1048576])
+    ap.add_argument("--repeats", type=int, default=2)
+    ap.add_argument("--seconds", type=float, default=1.5)
+    ap.add_argument("--ncu", action="store_true", help="also time list_rows with Nsight Compute")
+    ap.add_argument("--out", type=Path, required=True)
+    args = ap.parse_args()
+    args.out.mkdir(parents=True, exist_ok=True)
+    runs, failed = [], False
+    lines = ["| N | base steps/s | new steps/s | new / base | base list_rows us | new list_rows us |",
+             "|---|---|---|---|---|---|"]
+    with tempfile.TemporaryDirectory(prefix="cellforce-ab-") as tmp:
+        work = Path(tmp)
+        for n in args.sizes:
+            rates = {"base": [], "new": []}
+            for _ in range(args.repeats):
+                for label in ("base", "new"):  # interleaved: drifts of the machine fall on both
+                    row = bench(getattr(args, label), n, args.seconds, work)
+                    runs.append({"n": n, "binary": label, **row})
+                    if "error" in row:
+                        failed = True
+                        print(f"{n} {label}: {row['error']}", flush=True)
+                    else:
+                        rates[label].append(row["steps_per_second"])
+                        print(f"{n} {label}: {row['steps_per_second']:.1f} steps/s", flush=True)
+            med = {k: statistics.median(v) if v else float("nan") for k, v in rates.items()}
+            kern = {"base": {}, "new": {}}
+            if args.ncu:
+                for label in ("base", "new"):
+                    kern[label] = ncu_list_rows(getattr(args, label), n)
+                    runs.append({"n": n, "binary": label, "ncu": kern[label]})
+            us = {k: f"{v['list_rows_us_median']:.1f}" if "list_rows_us_median" in v else "-" for k, v in kern.items()}
+            lines.append(f"| {n:,} | {med['base']:,.0f} | {med['new']:,.0f} | {med['new'] / med['base']:.3f} | "
+                         f"{us['base']} | {us['new']} |")
+            (args.out / "list_build_ab.json").write_text(json.dumps(runs, indent=1))
+    table = "\n".join(lines) + "\n"
+    (args.out / "list_build_ab.md").write_text(table)
+    print(table)
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
