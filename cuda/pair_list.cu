@@ -101,7 +101,7 @@ __global__ void gather_ranked(Grid g, const double* __restrict__ positions, cons
 // between, the double positions decide, so that the list is exactly the pairs closer than the
 // cutoff in double. With compensated coordinates (float) and no wrap inside a cell, a prefilter on
 // the hi parts alone drops what cannot pass: hi-part r^2 >= pre2 (prefilter_bound) implies the
-// compensated r^2 >= out2, so it rejects exactly pairs the full test rejects (the same list) at half
+// compensated r^2 >= out2, so it rejects only pairs the full test rejects (the same list) at half
 // the instructions of a test, and ~93% of the candidates are rejected.
 template <class T, bool Fill, class Real, class Accum>
 __global__ void __launch_bounds__(kBlock)
@@ -304,7 +304,10 @@ void gather(const ListArgs<Real, Accum>& args, PairList& list, cudaStream_t stre
 // hi-part difference is within 2 ulp(X) of the compensated one (the lo difference, and the rounding
 // of adding it); so the separations differ by at most sqrt(3) x 2 ulp(X), and with the rounding of
 // both r^2 sums (a few float ulps), hi-part r^2 >= (sqrt(out2) + sqrt(3) x 3 ulp(X))^2 (1 + 1e-6)
-// implies the compensated r^2 >= out2. Rounded up to float.
+// implies the compensated r^2 >= out2. Rounded up to float. It assumes what a planned grid gives:
+// every particle within its cells (a grid_override, tests only, or particles clamped into an open
+// axis's fallback cell when a coordinate is not finite, an evaluation that raises an error anyway,
+// may not); the margin covers coordinates up to the next power of two above X.
 float prefilter_bound(const Grid& g, double out2) {
   double x = 0;
   for (int a = 0; a < g.dim; ++a) x = std::max(x, 0.5 * g.cell[a] + g.half_width);
@@ -356,7 +359,8 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
   const double cutoff2 = list_cutoff * list_cutoff;
   const Real in2 = Real(cutoff2 * (1 - 1e-5)), out2 = Real(cutoff2 * (1 + 1e-5));
   const Real pre2 = Real(prefilter_bound(cells.grid, double(out2)));  // used with float coordinates
-  list.splits = list.forced_splits > 0 ? list.forced_splits : build_splits(cells.max_tiles, cells.multiprocessors);
+  list.splits = list.forced_splits > 0 ? std::min(list.forced_splits, 8)
+                                       : build_splits(cells.max_tiles, cells.multiprocessors);
   const std::size_t units = std::size_t(cells.max_tiles) * std::size_t(list.splits);
   const unsigned row_blocks = unsigned((units + kBlock / 32 - 1) / (kBlock / 32));
   if (list.splits > 1) list.split_counts.reserve(std::size_t(row_blocks) * kBlock);  // a word per warp lane

@@ -61,7 +61,7 @@ struct PairList {
   std::size_t slots = 0;               // of the lengths; slots: the entries the layout holds)
   int threads_per_particle = 1;        // the force kernel's: 1, 2, 4 or 8 (from n and the device)
   int splits = 1;                      // the build's column splits per row tile (build_splits)
-  int forced_splits = 0;               // tests only: this many splits (1, 2, 4, 8) instead of the rule
+  int forced_splits = 0;               // tests only: this many splits (at most 8) instead of the rule
 
   template <class F>
   void for_each_buffer(F&& f) {
@@ -102,7 +102,8 @@ struct ListStaging {
 // range's partners after those of the ranges before it (their counts kept by the count pass), so
 // the list is the same, entry for entry, for any number of splits. The rule: the smallest power of
 // two up to 8 that gives at least 128 warps per multiprocessor (two waves of 64) over the tiles'
-// bound; 1 from about 64,000 particles in.lj on the H100. A rule of the system and the device.
+// bound (max_tiles: ~1.9x the tiles there are; the units past them exit at once); 4 at 32,000
+// particles in.lj on the H100, 2 at 64,000, 1 from about 67,000. A rule of the system and device.
 int build_splits(std::size_t max_tiles, int multiprocessors);
 
 // Builds the list from the structure just built (cells: its cells, tile starts, sorted IDs and

@@ -141,6 +141,47 @@ TEST(PairListBuild, EntriesAreTwiceThePairsWithinTheListCutoff) {
   }
 }
 
+// Pairs placed at the list cutoff to within 3e-8..3e-6 relative, either side, in 27 directions (each
+// pair far from the others, straddling cell faces and corners): the float coordinates' prefilter,
+// the compensated test and the double band between in2 and out2 keep exactly the pairs closer than
+// rc + skin in double, in every precision (the brute force's count; 0 relative offset excluded).
+TEST(PairListBuild, PairsAtTheListCutoffAreDecidedInDouble) {
+  const Scene base = make_scene("random3d_periodic");
+  const double cut = base.ff.cutoff + kSkin;
+  const double offsets[] = {-3e-6, -1e-6, -3e-7, -1e-7, -3e-8, 3e-8, 1e-7, 3e-7, 1e-6, 3e-6};
+  Configuration c;
+  c.box.dim = 3;
+  for (int a = 0; a < 3; ++a) c.box.length[a] = 30.0, c.box.periodic[a] = true;
+  std::size_t k = 0;
+  for (int i = 0; i < 3; ++i)
+    for (int j = 0; j < 3; ++j)
+      for (int l = 0; l < 3; ++l, ++k) {
+        double u[3], norm = 0;
+        for (int a = 0; a < 3; ++a) {
+          u[a] = cellforce::unit_open(cellforce::splitmix64(7 * k + uint64_t(a) + 1)) - 0.5;
+          norm += u[a] * u[a];
+        }
+        const double r = cut * (1 + offsets[k % 10]);
+        // Sites 10 apart on every axis (more than 2 (rc + skin) + rc + skin: no pair meets another),
+        // next to the periodic boundary on x and on the faces of the 5-wide cells on y and z.
+        const double site[3] = {10.0 * i + 0.05, 10.0 * j + 5.0, 10.0 * l + 4.97};
+        for (int a = 0; a < 3; ++a) c.positions.push_back(site[a]);
+        for (int a = 0; a < 3; ++a)
+          c.positions.push_back(cellforce::wrap_coordinate(site[a] + r * u[a] / std::sqrt(norm), 30.0));
+        c.types.push_back(0);
+        c.types.push_back(0);
+      }
+  const std::size_t expected = pairs_within(c, cut);
+  ASSERT_EQ(expected, 15u) << "the pairs placed inside (negative offsets)";
+  CF_SKIP_WITHOUT_DEVICE();
+  for (Precision p : {Precision::kDouble, Precision::kMixed, Precision::kSingle}) {
+    GpuEngine e(list_options(p));
+    ForceResult r;
+    e.evaluate(c.view(), base.ff, Request{false, false}, r);
+    EXPECT_EQ(e.listed_pairs(), 2 * expected) << cellforce::to_string(p);
+  }
+}
+
 // MD with lists: the trajectory of a build on every step to round-off (as ReuseMd), far fewer
 // builds.
 TEST(PairListMd, TrajectoryMatchesBuildingEveryStep) {
