@@ -21,6 +21,7 @@ namespace {
 
 using namespace cellforce;
 using ::testing::HasSubstr;
+using ::testing::Not;
 namespace fs = std::filesystem;
 using cftest::backends_here;
 // Runs in a fresh working folder (output paths in scenes are relative to it).
@@ -162,12 +163,17 @@ TEST_F(RunFolder, HeaderNamesTheNeighbourSearch) {
       testing::internal::CaptureStdout();
       EXPECT_EQ(run_md(args), 0);
       const std::string out = testing::internal::GetCapturedStdout();
-      if (skin > 0)
+      if (skin > 0) {
         EXPECT_THAT(out, HasSubstr("  neighbour search: skin 0.3, cells reused\n"));
-      else if (backend == "cpu")
+      } else if (backend == "cpu") {
         EXPECT_THAT(out, HasSubstr("  neighbour search: none, stages 1-3 every evaluation (auto: no skin on the cpu)\n"));
-      else
+      } else {
         EXPECT_THAT(out, HasSubstr("  neighbour search: skin 0.6 (auto: 0.24 rc), pair lists\n"));
+        EXPECT_THAT(out, HasSubstr("  pair lists served 5 of 5 evaluations"));  // the loop's 5 steps
+      }
+      if (backend == "cpu" || skin > 0) {
+        EXPECT_THAT(out, Not(HasSubstr("pair lists served")));
+      }
     }
   }
 }

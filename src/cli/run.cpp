@@ -381,8 +381,9 @@ void print_header(const Scene& scene, const MdState& state, Context& ctx, const 
 // The performance summary of the loop: rates, where a step's time went (forces, integration,
 // output, the host's own), the bytes that crossed between host and device per step, and the
 // force engine's stages.
-void print_summary(const Scene& scene, double skin, const RunStatistics& st, std::size_t n, int64_t steps_done,
-                   double loop_seconds, double setup_seconds, double output_seconds, std::size_t output_bytes) {
+void print_summary(const Scene& scene, double skin, bool lists, const RunStatistics& st, std::size_t n,
+                   int64_t steps_done, double loop_seconds, double setup_seconds, double output_seconds,
+                   std::size_t output_bytes) {
   std::printf("\nperformance: %lld steps of %zu particles in %.3f s (setup %.3f s)\n", (long long)steps_done, n,
               loop_seconds, setup_seconds);
   if (steps_done <= 0) return;
@@ -413,8 +414,14 @@ void print_summary(const Scene& scene, double skin, const RunStatistics& st, std
                 steps / double(std::max<int64_t>(st.builds, 1)), (long long)st.dangerous_builds,
                 st.largest_served_displacement, 0.5 * skin, reuse.check ? "" : ", not checked",
                 1e3 * st.check);
+  // A list the engine declined (too crowded for the device's memory) leaves its evaluations to the cells.
+  if (lists)
+    std::printf("  pair lists served %lld of %lld evaluations (%lld steps behind the step gate)\n",
+                (long long)st.list_evaluations, (long long)st.evaluations, (long long)st.gated_steps);
   if (skin > 0 && reuse.audit)
-    std::printf("  audit: missed pairs %zu, repeated pairs %zu\n", st.missed_pairs, st.repeated_pairs);
+    std::printf("  audit: missed pairs %zu, repeated pairs %zu%s\n", st.missed_pairs, st.repeated_pairs,
+                lists ? " (of the cell structure the lists are built from; the lists themselves are not audited)"
+                      : "");
 }
 
 }  // namespace
@@ -567,7 +574,8 @@ int run_md(const RunArgs& args) {
   files.close();
   progress.finish();
   const double loop_seconds = seconds_since(t_loop);
-  print_summary(scene, ctx.skin(), ctx.run_statistics(), n, last - first, loop_seconds, setup_seconds, t_output, output_bytes);
+  print_summary(scene, ctx.skin(), ctx.neighbor_lists(), ctx.run_statistics(), n, last - first, loop_seconds,
+                setup_seconds, t_output, output_bytes);
   return 0;
 }
 
