@@ -444,6 +444,25 @@ struct GpuEngine::Impl {
     return sw.observables;
   }
 
+  // Every particle's list partners (user indices, list order), downloaded: the list audit's input.
+  std::vector<std::vector<uint32_t>> list_partners(std::size_t n) {
+    std::vector<uint32_t> rank_order, lengths, entries_of;
+    std::vector<unsigned long long> rows;
+    const std::size_t groups = (n + cuda::kGroup - 1) / cuda::kGroup;
+    download(rank_order, list.order.data(), n, stream);
+    download(lengths, list.length.data(), n, stream);
+    download(rows, list.group_rows.data(), groups + 1, stream);
+    download(entries_of, list.neighbors.data(), list.slots, stream);
+    CF_CUDA_CHECK(cudaStreamSynchronize(stream));
+    std::vector<std::vector<uint32_t>> partners(n);
+    for (std::size_t p = 0; p < n; ++p) {
+      std::vector<uint32_t>& mine = partners[rank_order[p]];
+      for (uint32_t k = 0; k < lengths[p]; ++k)
+        mine.push_back(rank_order[entries_of[std::size_t(rows[p / cuda::kGroup] + k) * cuda::kGroup + p % cuda::kGroup]]);
+    }
+    return partners;
+  }
+
   // A reused structure: the stage events recorded back to back (zero stage times).
   void skip_build() {
     record(kCellIds);
@@ -940,11 +959,14 @@ void GpuEngine::restore_reuse(const SystemView& built_from, const ForceField& ff
   CF_CUDA_CHECK(cudaStreamSynchronize(s.stream));
 }
 
-// The audit of a reused structure: pairs closer than rc now that it misses or repeats.
+// The audit of a reused structure: pairs closer than rc now that it misses or repeats: the pair
+// lists when they served this evaluation, else the cells.
 void GpuEngine::audit(const SystemView& system, const ForceField& ff) {
   if (!options_.reuse.audit || stats_.rebuilt) return;
-  const ReuseAudit a = audit_reuse(stats_.grid, impl_->build_keys.data(), impl_->build_control.data(),
-                                   system, ff.cutoff, pairs_within(system, ff.cutoff));
+  const auto pairs = pairs_within(system, ff.cutoff);
+  const ReuseAudit a = stats_.listed ? audit_lists(impl_->list_partners(system.n), pairs)
+                                     : audit_reuse(stats_.grid, impl_->build_keys.data(),
+                                                   impl_->build_control.data(), system, ff.cutoff, pairs);
   stats_.missed_pairs = a.missed;
   stats_.repeated_pairs = a.repeated;
 }

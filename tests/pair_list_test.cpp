@@ -303,6 +303,39 @@ TEST(PairListSplits, SplitWalksListWhatOneWalkLists) {
     }
 }
 
+// The audit of a structure the lists serve audits the lists: with the check off, after moves below
+// and well beyond skin / 2, the missed pairs are those within rc now that were not within rc + skin
+// at the build (counted here pair by pair), and none repeat.
+TEST(PairListAudit, CountsThePairsTheListsLack) {
+  CF_SKIP_WITHOUT_DEVICE();
+  std::size_t total_missed = 0;
+  for (const char* name : {"random3d_periodic", "random2d_periodic", "uneven3d"}) {
+    const Scene s = make_scene(name);
+    if (!lists_fit(s, kSkin)) continue;
+    for (const double factor : {0.45, 4.0}) {
+      SCOPED_TRACE(std::string(name) + " moved " + std::to_string(factor) + " x skin/2");
+      GpuOptions o = list_options(Precision::kDouble);
+      o.reuse.check = false;
+      o.reuse.audit = true;
+      GpuEngine e(o);
+      ForceResult r;
+      e.evaluate(s.config.view(), s.ff, Request{false, false}, r);
+      const Configuration now = moved(s.config, factor * 0.5 * kSkin, 13);
+      e.evaluate(now.view(), s.ff, Request{false, false}, r);
+      ASSERT_FALSE(e.stats().rebuilt);
+      ASSERT_TRUE(e.stats().listed);
+      std::size_t expected = 0;
+      const double cut = s.ff.cutoff + kSkin;
+      for (const auto& [i, j] : cellforce::pairs_within(now.view(), s.ff.cutoff))
+        if (!(distance2(s.config, i, j) < cut * cut)) ++expected;
+      EXPECT_EQ(e.stats().missed_pairs, expected);
+      EXPECT_EQ(e.stats().repeated_pairs, 0u);
+      total_missed += expected;
+    }
+  }
+  EXPECT_GT(total_missed, 0u) << "no move left a pair out: the count is not exercised";
+}
+
 // A restored structure (a bitwise restart: rebuilt from the positions it was built from) lists the
 // pairs of those positions, not of the positions it is next evaluated at: the same results, bit for
 // bit, as the engine that built it, on every evaluation it serves.

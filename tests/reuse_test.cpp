@@ -228,6 +228,49 @@ TEST(ReuseAudit, PairsWithinSurvivesAFarParticle) {
                               cellforce::pairs_within(c.view(), 2.5)));
 }
 
+// The list audit: lists of the pairs within rc + skin at the build (each pair in both lists), then
+// every particle moved by up to `factor` x skin / 2: missed = pairs within rc now that were not within
+// rc + skin then (counted here from the two configurations, pair by pair); none below skin / 2. A
+// list holding a partner twice, or only one side of a pair, is counted as repeated or missed.
+TEST(ReuseAudit, ListAuditCountsThePairsTheListsLack) {
+  const double skin = 0.3;
+  std::size_t total_missed = 0;
+  for (const std::string name : {"random3d_periodic", "random2d_periodic", "random3d_open", "uneven3d"}) {
+    const Scene s = make_scene(name);
+    const std::size_t n = s.config.size();
+    std::vector<std::vector<uint32_t>> partners(n);
+    for (const auto& [i, j] : cellforce::pairs_within(s.config.view(), s.ff.cutoff + skin)) {
+      partners[i].push_back(j);
+      partners[j].push_back(i);
+    }
+    for (double factor : {0.45, 4.0}) {
+      SCOPED_TRACE(name + " moved " + std::to_string(factor) + " x skin/2");
+      const Configuration now = moved(s.config, factor * 0.5 * skin, 11);  // |move| < factor x skin / 2
+      const auto pairs = cellforce::pairs_within(now.view(), s.ff.cutoff);
+      std::size_t expected = 0;
+      for (const auto& [i, j] : pairs)
+        if (!(distance2(s.config, i, j) < (s.ff.cutoff + skin) * (s.ff.cutoff + skin))) ++expected;
+      const cellforce::ReuseAudit a = cellforce::audit_lists(partners, pairs);
+      EXPECT_EQ(a.missed, expected);
+      EXPECT_EQ(a.repeated, 0u);
+      if (factor < 1) {
+        EXPECT_EQ(a.missed, 0u);
+      }
+      total_missed += a.missed;
+    }
+    const auto pairs = cellforce::pairs_within(s.config.view(), s.ff.cutoff);
+    ASSERT_FALSE(pairs.empty());
+    const auto [i, j] = pairs.front();
+    std::vector<std::vector<uint32_t>> twice = partners, one_side = partners;
+    twice[i].push_back(j);
+    std::erase(one_side[j], i);
+    EXPECT_EQ(cellforce::audit_lists(twice, pairs).repeated, 1u);
+    EXPECT_EQ(cellforce::audit_lists(twice, pairs).missed, 0u);
+    EXPECT_EQ(cellforce::audit_lists(one_side, pairs).missed, 1u);
+  }
+  EXPECT_GT(total_missed, 0u) << "the moves beyond skin / 2 never left a pair out: the count is not exercised";
+}
+
 // The audit's counts equal what the reused traversal really does: missed = brute-force pairs it
 // does not find (not visited, or visited as another image of a particle that moved too far),
 // repeated = pairs it finds more than once, for moves below and well beyond skin / 2 with the

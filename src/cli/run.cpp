@@ -419,9 +419,8 @@ void print_summary(const Scene& scene, double skin, bool lists, const RunStatist
     std::printf("  pair lists served %lld of %lld evaluations (%lld steps behind the step gate)\n",
                 (long long)st.list_evaluations, (long long)st.evaluations, (long long)st.gated_steps);
   if (skin > 0 && reuse.audit)
-    std::printf("  audit: missed pairs %zu, repeated pairs %zu%s\n", st.missed_pairs, st.repeated_pairs,
-                lists ? " (of the cell structure the lists are built from; the lists themselves are not audited)"
-                      : "");
+    std::printf("  audit: missed pairs %zu, repeated pairs %zu (%s)\n", st.missed_pairs, st.repeated_pairs,
+                lists ? "of the pair lists" : "of the cell structure");
 }
 
 }  // namespace

@@ -237,4 +237,22 @@ ReuseAudit audit_reuse(const Grid& grid, const uint32_t* build_keys, const Contr
   return audit;
 }
 
+ReuseAudit audit_lists(const std::vector<std::vector<uint32_t>>& partners,
+                       const std::vector<std::pair<uint32_t, uint32_t>>& pairs) {
+  std::vector<std::vector<uint32_t>> sorted = partners;
+  for (std::vector<uint32_t>& p : sorted) std::sort(p.begin(), p.end());
+  auto times = [&](uint32_t i, uint32_t j) -> std::size_t {
+    if (i >= sorted.size()) return 0;
+    const auto [lo, hi] = std::equal_range(sorted[i].begin(), sorted[i].end(), j);
+    return std::size_t(hi - lo);
+  };
+  ReuseAudit a;
+  for (const auto& [i, j] : pairs) {
+    const std::size_t ij = times(i, j), ji = times(j, i);
+    if (ij == 0 || ji == 0) ++a.missed;
+    else if (ij > 1 || ji > 1) ++a.repeated;
+  }
+  return a;
+}
+
 }  // namespace cellforce

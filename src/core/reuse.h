@@ -181,4 +181,11 @@ ReuseAudit audit_reuse(const Grid& grid, const uint32_t* build_keys, const Contr
                        const SystemView& system, double cutoff,
                        const std::vector<std::pair<uint32_t, uint32_t>>& pairs);
 
+// The audit of pair lists (CUDA's, cuda/pair_list.cuh): partners[i] holds the particles in i's
+// list (user indices, any order). A pair of `pairs` (closer than rc now) is missed when either
+// particle's list lacks the other (its force is not summed on that side), repeated when either
+// list holds the other more than once.
+ReuseAudit audit_lists(const std::vector<std::vector<uint32_t>>& partners,
+                       const std::vector<std::pair<uint32_t, uint32_t>>& pairs);
+
 }  // namespace cellforce
