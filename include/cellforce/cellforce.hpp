@@ -227,7 +227,8 @@ class CELLFORCE_API Context {
   // backend or an engine option drops what pending calls found unchecked.
   void synchronize();
   // Pairs tested and within the cutoff for host arrays (an extra pass on CUDA; it counts as one
-  // more use of a reused structure).
+  // more use of a reused structure). The tested pairs are the collision cells' candidates, also
+  // where pair lists serve the evaluations (a list holds the pairs within rc + skin at its build).
   PairCounts count_pairs(std::size_t n, const double* positions, const uint32_t* types);
   Statistics statistics() const;
 
