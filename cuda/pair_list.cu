@@ -145,8 +145,8 @@ __global__ void __launch_bounds__(kBlock)
   // This unit's columns: range `split` of the tile's, in whole column tiles of 32.
   const uint32_t ncols = row >= h ? h : m;
   const uint32_t row_cols = row_ok ? (a_home ? m : h) : 0u;
-  const uint32_t chunk = ((ncols + splits - 1) / splits + 31u) & ~31u;
-  const uint32_t c0 = min(split * chunk, ncols), c1 = min(c0 + chunk, ncols);
+  const ColumnRange range = split_columns(ncols, splits, split);
+  const uint32_t c0 = range.begin, c1 = range.end;
   uint32_t written = 0;
   if constexpr (Fill) {
     if (row_ok) {
@@ -299,32 +299,7 @@ void gather(const ListArgs<Real, Accum>& args, PairList& list, cudaStream_t stre
   CF_CUDA_CHECK_LAUNCH();
 }
 
-// The prefilter's bound (list_rows): with staged coordinates at most X = max(c/2 + h) from their
-// cell's centre, hi and lo parts of float coordinates (|lo| <= ulp(X) / 2), a component of the
-// hi-part difference is within 2 ulp(X) of the compensated one (the lo difference, and the rounding
-// of adding it); so the separations differ by at most sqrt(3) x 2 ulp(X), and with the rounding of
-// both r^2 sums (a few float ulps), hi-part r^2 >= (sqrt(out2) + sqrt(3) x 3 ulp(X))^2 (1 + 1e-6)
-// implies the compensated r^2 >= out2. Rounded up to float. It assumes what a planned grid gives:
-// every particle within its cells (a grid_override, tests only, or particles clamped into an open
-// axis's fallback cell when a coordinate is not finite, an evaluation that raises an error anyway,
-// may not); the margin covers coordinates up to the next power of two above X.
-float prefilter_bound(const Grid& g, double out2) {
-  double x = 0;
-  for (int a = 0; a < g.dim; ++a) x = std::max(x, 0.5 * g.cell[a] + g.half_width);
-  const float xf = std::nextafter(float(x), INFINITY);
-  const double ulp = double(std::nextafter(xf, INFINITY)) - double(xf);
-  const double r = std::sqrt(out2) + std::sqrt(3.0) * 3.0 * ulp;
-  return std::nextafter(float(r * r * (1 + 1e-6)), INFINITY);
-}
-
 }  // namespace
-
-int build_splits(std::size_t max_tiles, int multiprocessors) {
-  const std::size_t wanted = std::size_t(std::max(multiprocessors, 1)) * 128;  // warps: two waves of 64 per SM
-  int splits = 1;
-  while (splits < 8 && max_tiles * std::size_t(splits) < wanted) splits *= 2;
-  return splits;
-}
 
 template <class Real, class Accum>
 bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* sorted_keys, const Control* control,

@@ -26,6 +26,7 @@
 #include <cstddef>
 #include <cstdint>
 
+#include "list_build.h"  // split_columns, build_splits, prefilter_bound
 #include "step_gate.h"
 #include "traversal.cuh"
 
@@ -94,17 +95,6 @@ struct ListStaging {
   uint32_t num_types = 1;
   const Control* control = nullptr;       // n: stage 1's control bits
 };
-
-// The build's column splits per row tile: a row tile of H occupants walks every occupant of its
-// cell (m columns, ~4x the h of a P tile), so with few tiles (a small system: 4,320 at 32,000
-// particles in.lj) those long walks are the build's critical path and leave most warp slots idle.
-// Each row tile's columns are cut into `splits` contiguous ranges, one warp each; the fill places a
-// range's partners after those of the ranges before it (their counts kept by the count pass), so
-// the list is the same, entry for entry, for any number of splits. The rule: the smallest power of
-// two up to 8 that gives at least 128 warps per multiprocessor (two waves of 64) over the tiles'
-// bound (max_tiles: ~1.9x the tiles there are; the units past them exit at once); 4 at 32,000
-// particles in.lj on the H100, 2 at 64,000, 1 from about 67,000. A rule of the system and device.
-int build_splits(std::size_t max_tiles, int multiprocessors);
 
 // Builds the list from the structure just built (cells: its cells, tile starts, sorted IDs and
 // staged occupants, or none: then they are staged as the build loads them;

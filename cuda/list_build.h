@@ -1,0 +1,65 @@
+// The pair-list build's arithmetic that needs no device (cuda/pair_list.cu): the column range of a
+// row tile's split walk, the rule for the number of splits, and the hi-part prefilter's bound.
+// Plain C++ (CF_HD): the kernels and the tests use the same functions.
+#pragma once
+
+#include <algorithm>
+#include <cmath>
+#include <cstddef>
+#include <cstdint>
+
+#include "core/grid.h"
+#include "core/hd.h"
+
+namespace cellforce::cuda {
+
+// Columns [begin, end) of range `split` of a row tile's `ncols` when they are cut into `splits`
+// contiguous ranges of whole 32-column tiles: in order, covering [0, ncols), the last ones possibly
+// empty.
+struct ColumnRange {
+  uint32_t begin, end;
+};
+CF_HD ColumnRange split_columns(uint32_t ncols, uint32_t splits, uint32_t split) {
+  const uint32_t chunk = ((ncols + splits - 1) / splits + 31u) & ~31u;
+  const uint32_t begin = split * chunk < ncols ? split * chunk : ncols;
+  const uint32_t end = ncols - begin < chunk ? ncols : begin + chunk;
+  return {begin, end};
+}
+
+// The build's column splits per row tile: a row tile of H occupants walks every occupant of its
+// cell (m columns, ~4x the h of a P tile), so with few tiles (a small system: 4,320 at 32,000
+// particles in.lj) those long walks are the build's critical path and leave most warp slots idle.
+// Each row tile's columns are cut into `splits` ranges (split_columns), one warp each; the fill
+// places a range's partners after those of the ranges before it (their counts kept by the count
+// pass), so the list is the same, entry for entry, for any number of splits. The rule: the
+// smallest power of two up to 8 that gives at least 128 warps per multiprocessor (two waves of 64)
+// over the tiles' bound (max_tiles: ~1.9x the tiles there are; the units past them exit at once);
+// 4 at 32,000 particles in.lj on the H100, 2 at 64,000, 1 from about 67,000. A rule of the system
+// and the device.
+inline int build_splits(std::size_t max_tiles, int multiprocessors) {
+  const std::size_t wanted = std::size_t(std::max(multiprocessors, 1)) * 128;
+  int splits = 1;
+  while (splits < 8 && max_tiles * std::size_t(splits) < wanted) splits *= 2;
+  return splits;
+}
+
+// The hi-part prefilter's bound (list_rows, float coordinates): with staged coordinates at most
+// X = max(c/2 + h) from their cell's centre, hi and lo parts of float coordinates (|lo| <= ulp(X)
+// / 2), a component of the hi-part difference is within 2 ulp(X) of the compensated one (the lo
+// difference, and the rounding of adding it); so the separations differ by at most sqrt(3) x 2
+// ulp(X), and with the rounding of both r^2 sums (a few float ulps, FMA or not), hi-part r^2 >=
+// (sqrt(out2) + sqrt(3) x 3 ulp(X))^2 (1 + 1e-6) implies the compensated r^2 >= out2. Rounded up to
+// float. It assumes what a planned grid gives: every particle within its cells (a grid_override,
+// tests only, or particles clamped into an open axis's fallback cell when a coordinate is not
+// finite, an evaluation that raises an error anyway, may not); the margin covers coordinates up to
+// the next power of two above X.
+inline float prefilter_bound(const Grid& g, double out2) {
+  double x = 0;
+  for (int a = 0; a < g.dim; ++a) x = std::max(x, 0.5 * g.cell[a] + g.half_width);
+  const float xf = std::nextafter(float(x), INFINITY);
+  const double ulp = double(std::nextafter(xf, INFINITY)) - double(xf);
+  const double r = std::sqrt(out2) + std::sqrt(3.0) * 3.0 * ulp;
+  return std::nextafter(float(r * r * (1 + 1e-6)), INFINITY);
+}
+
+}  // namespace cellforce::cuda
