@@ -75,6 +75,20 @@ cf::Context liquid(const RunSetup& s, std::size_t* n_out = nullptr) {
 using cftest::rms_about_mean;
 using cftest::slope;
 
+// The largest coordinate difference between two contexts' positions (n particles in the fcc box of
+// edge `edge`: a coordinate wrapped to 0 in one and to just below the edge in the other is close).
+double largest_position_difference(cf::Context& a, cf::Context& b, std::size_t n, double edge) {
+  std::vector<double> x(3 * n), y(3 * n);
+  a.get_state(x.data(), nullptr, nullptr);
+  b.get_state(y.data(), nullptr, nullptr);
+  double worst = 0;
+  for (std::size_t k = 0; k < x.size(); ++k) {
+    const double d = std::abs(x[k] - y[k]);
+    worst = std::max(worst, std::min(d, std::abs(d - edge)));
+  }
+  return worst;
+}
+
 class MdApi : public ::testing::TestWithParam<cf::Backend> {
  protected:
   void SetUp() override {
@@ -179,17 +193,8 @@ TEST_P(MdApi, FollowsTheCpuRun) {
     cf::Context ref = liquid(cpu);
     ctx.step(50);
     ref.step(50);
-    std::vector<double> x(3 * n), y(3 * n);
-    ctx.get_state(x.data(), nullptr, nullptr);
-    ref.get_state(y.data(), nullptr, nullptr);
     const double edge = cf::make_lattice(cf::Lattice::kFcc, s.cells, 0.8442).box.length[0];
-    double worst = 0;
-    for (std::size_t k = 0; k < x.size(); ++k) {
-      double d = std::abs(x[k] - y[k]);
-      d = std::min(d, std::abs(d - edge));  // one wrapped to 0, the other to just below the edge
-      worst = std::max(worst, d);
-    }
-    EXPECT_LT(worst, 1e-9);
+    EXPECT_LT(largest_position_difference(ctx, ref, n, edge), 1e-9);
     const cf::Thermo a = ctx.thermo(), b = ref.thermo();
     EXPECT_NEAR(a.potential, b.potential, 1e-10 * std::abs(b.potential));
     EXPECT_NEAR(a.kinetic, b.kinetic, 1e-10 * std::abs(b.kinetic));
@@ -306,17 +311,8 @@ TEST_P(MdApi, SkinAutoIsTheBackendsRule) {
     EXPECT_GE(st.builds, 1);
     EXPECT_LT(st.builds, st.evaluations) << "the lists were never reused";
   }
-  std::vector<double> x(3 * n), y(3 * n);
-  ctx.get_state(x.data(), nullptr, nullptr);
-  ref.get_state(y.data(), nullptr, nullptr);
   const double edge = cf::make_lattice(cf::Lattice::kFcc, s.cells, 0.8442).box.length[0];
-  double worst = 0;
-  for (std::size_t k = 0; k < x.size(); ++k) {
-    double d = std::abs(x[k] - y[k]);
-    d = std::min(d, std::abs(d - edge));
-    worst = std::max(worst, d);
-  }
-  EXPECT_LT(worst, 1e-9);
+  EXPECT_LT(largest_position_difference(ctx, ref, n, edge), 1e-9);
   EXPECT_NEAR(ctx.thermo().potential, ref.thermo().potential, 1e-10 * std::abs(ref.thermo().potential));
 
   cf::Context forces = liquid(s);  // the same context, asked for forces only: no MD state used

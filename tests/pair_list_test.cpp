@@ -62,6 +62,20 @@ std::size_t pairs_within(const Configuration& c, double r) {
   return count;
 }
 
+// Two engines that must build the same lists (another memory mode, another number of splits):
+// the same listed pairs, and bitwise the same forces, energies and virial, evaluation by evaluation.
+void expect_same_lists(GpuEngine& x, GpuEngine& y, const Configuration& c, const Scene& scene) {
+  ForceResult rx, ry;
+  x.evaluate(c.view(), scene.ff, Request{true, true}, rx);
+  y.evaluate(c.view(), scene.ff, Request{true, true}, ry);
+  if (lists_fit(scene, kSkin)) {
+    EXPECT_GT(x.listed_pairs(), 0u);
+  }
+  EXPECT_EQ(x.listed_pairs(), y.listed_pairs());
+  EXPECT_EQ(x.stats().rebuilt, y.stats().rebuilt);
+  EXPECT_TRUE(bitwise_equal(rx, ry));
+}
+
 using ListParam = std::tuple<Precision, std::string>;
 
 class PairList : public ::testing::TestWithParam<ListParam> {
@@ -258,18 +272,9 @@ TEST(PairListLean, LeanBuildIsBitwiseTheStagedOne) {
     GpuOptions lean = list_options(p), fast = list_options(p);
     lean.lean_lists = true;
     fast.lean_lists = false;
+    SCOPED_TRACE(cellforce::to_string(p));
     GpuEngine x(lean), y(fast);
-    for (const auto& [c, scene] : sequence) {
-      ForceResult rx, ry;
-      x.evaluate(c->view(), scene->ff, Request{true, true}, rx);
-      y.evaluate(c->view(), scene->ff, Request{true, true}, ry);
-      if (lists_fit(*scene, kSkin)) {
-        EXPECT_GT(x.listed_pairs(), 0u);
-      }
-      EXPECT_EQ(x.listed_pairs(), y.listed_pairs());
-      EXPECT_EQ(x.stats().rebuilt, y.stats().rebuilt);
-      EXPECT_TRUE(bitwise_equal(rx, ry)) << cellforce::to_string(p);
-    }
+    for (const auto& [c, scene] : sequence) expect_same_lists(x, y, *c, *scene);
   }
 }
 
@@ -373,16 +378,7 @@ TEST(PairListSplits, SplitWalksListWhatOneWalkLists) {
       many.list_splits = splits;
       one.lean_lists = many.lean_lists = lean;
       GpuEngine x(one), y(many);
-      for (const auto& [c, scene] : sequence) {
-        ForceResult rx, ry;
-        x.evaluate(c->view(), scene->ff, Request{true, true}, rx);
-        y.evaluate(c->view(), scene->ff, Request{true, true}, ry);
-        if (lists_fit(*scene, kSkin)) {
-          EXPECT_GT(x.listed_pairs(), 0u);
-        }
-        EXPECT_EQ(x.listed_pairs(), y.listed_pairs());
-        EXPECT_TRUE(bitwise_equal(rx, ry));
-      }
+      for (const auto& [c, scene] : sequence) expect_same_lists(x, y, *c, *scene);
     }
 }
 
