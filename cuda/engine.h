@@ -87,7 +87,7 @@ class GpuEngine {
   // cellforce::Error naming both particles of a pair whose force was not finite (the positions
   // come to the host only then, for the message).
   void check_flags(const Box& box, std::size_t n, const double* positions, const ForceField& ff);
-  // The step gate (step_gate.h), for a resident Verlet run: how many of the next evaluations may be
+  // The step gate (step_gate.h), for a resident MD run: how many of the next evaluations may be
   // queued behind the gate (0: none may). Positive only while the structure in use has its pair
   // list, the displacement check is on, the audit is off, flags accumulate (resident evaluations)
   // and nothing but the displacement could ask for a rebuild before then (same box, count and

@@ -56,12 +56,16 @@ struct MdFlags {
 // v += (h / m) F, per coordinate (rounded product, then sum: the same bits in every kernel that kicks).
 __device__ __forceinline__ double kicked(double v, double hm, double f) { return v + mul_rn(hm, f); }
 
+// `kicks` half kicks (two: a step's closing one, deferred, and the next step's opening one, rounded
+// one after the other as two launches of one would).
 __global__ void kick_kernel(double* __restrict__ v, const double* __restrict__ f,
-                            const double* __restrict__ mass, double h, std::size_t n, int dim) {
+                            const double* __restrict__ mass, double h, int kicks, std::size_t n, int dim) {
   const std::size_t k = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
   if (k >= n * std::size_t(dim)) return;
   const double hm = h / mass[k / std::size_t(dim)];
-  v[k] = kicked(v[k], hm, f[k]);
+  double va = v[k];
+  for (int s = 0; s < kicks; ++s) va = kicked(va, hm, f[k]);
+  v[k] = va;
 }
 
 struct DriftBox {
@@ -129,19 +133,13 @@ __global__ void kick_drift_kernel(double* __restrict__ x, double* __restrict__ v
   kick_drift_coordinate(x, v, f, mass, h, kicks, dt, box, k, flags);
 }
 
-constexpr int kGateParticles = 128;  // particles per block of the gated kick-drift (dim threads each)
+constexpr int kGateParticles = 128;  // particles per block of the gated kernels (dim threads each)
 
-// The kick-drift of a step behind the step gate (step_gate.h). First the gate: shut at an earlier
-// step, or the previous step's displacement past the limit (its evaluation did not run: the gate
-// closes there), and the kernel returns with the state as it was. Otherwise the kick-drift, then
-// each particle's squared displacement from `built` (the build's positions), summed over axes as
-// cuda/reuse.cu sums it (rounded squares, in axis order: the same bits as the host's check), and
-// the block's largest raised into the gate's slot for this step.
-__global__ void __launch_bounds__(kGateParticles * 3)
-    gated_kick_drift_kernel(double* __restrict__ x, double* __restrict__ v, const double* __restrict__ f,
-                            const double* __restrict__ mass, double h, int kicks, double dt, DriftBox box,
-                            std::size_t n, MdFlags* flags, const double* __restrict__ built, cuda::GateView gate) {
-  // The gate, read by one thread per block (see gate_shut) and shared.
+// The gate at the first kernel of a gated step (step_gate.h), read by one thread per block and
+// shared: shut at an earlier step, or the previous step's displacement past the limit (its
+// evaluation did not run: the gate closes there, at step - 1). Open, block 0 zeroes the next
+// step's slot. Every thread of the block must call it (a barrier).
+__device__ __forceinline__ bool step_gate_shut(const cuda::GateView& gate) {
   volatile cuda::StepGate* g = gate.gate;
   __shared__ int shut;
   if (threadIdx.x == 0) {
@@ -153,16 +151,25 @@ __global__ void __launch_bounds__(kGateParticles * 3)
     if (!shut && blockIdx.x == 0) g->d2[(gate.step + 1) % 3] = 0;  // the next step's slot
   }
   __syncthreads();
-  if (shut) return;
+  return shut != 0;
+}
+
+// Whether the gate closed at an earlier step (a later kernel of a gated step: the first one
+// decided). Every thread of the block must call it (a barrier).
+__device__ __forceinline__ bool step_gate_closed(const cuda::GateView& gate) {
+  __shared__ int shut;
+  if (threadIdx.x == 0) shut = static_cast<volatile cuda::StepGate*>(gate.gate)->closed != cuda::kGateOpen;
+  __syncthreads();
+  return shut != 0;
+}
+
+// Raises the block's largest squared displacement into the gate's slot for this step: `sq`, one
+// coordinate's term per thread (dim threads a particle, kGateParticles particles a block), summed
+// over axes as cuda/reuse.cu sums it (rounded squares, in axis order: the same bits as the host's
+// check). A particle whose displacement is not a number closes the gate.
+__device__ __forceinline__ void raise_displacement(double sq, int dim, std::size_t n, const cuda::GateView& gate) {
   __shared__ double square[kGateParticles * kMaxDim];
   __shared__ double warp_worst[kGateParticles / 32];
-  const std::size_t k = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
-  double sq = 0;
-  if (k < n * std::size_t(box.dim)) {
-    const double xa = kick_drift_coordinate(x, v, f, mass, h, kicks, dt, box, k, flags);
-    const int a = int(k % std::size_t(box.dim));
-    sq = displacement_term(xa, built[k], box.length[a], box.inv_length[a]);
-  }
   square[threadIdx.x] = sq;
   __syncthreads();
   if (threadIdx.x < kGateParticles) {
@@ -170,7 +177,7 @@ __global__ void __launch_bounds__(kGateParticles * 3)
     const std::size_t i = std::size_t(blockIdx.x) * kGateParticles + threadIdx.x;
     if (i < n) {
       double d2 = 0;
-      for (int a = 0; a < box.dim; ++a) d2 += square[threadIdx.x * box.dim + a];
+      for (int a = 0; a < dim; ++a) d2 += square[threadIdx.x * dim + a];
       worst = isnan(d2) ? INFINITY : d2;  // a diverged particle closes the gate
     }
     for (int offset = 16; offset > 0; offset >>= 1) worst = fmax(worst, __shfl_xor_sync(0xffffffffu, worst, offset));
@@ -181,8 +188,78 @@ __global__ void __launch_bounds__(kGateParticles * 3)
     double worst = warp_worst[0];
     for (int w = 1; w < kGateParticles / 32; ++w) worst = fmax(worst, warp_worst[w]);
     const auto bits = static_cast<unsigned long long>(__double_as_longlong(worst));
+    volatile cuda::StepGate* g = gate.gate;
     if (bits > g->d2[gate.step % 3]) atomicMax(&gate.gate->d2[gate.step % 3], bits);  // few blocks raise it
   }
+}
+
+// The kick-drift of a Verlet step behind the step gate (step_gate.h): the gate first
+// (step_gate_shut: the kernel returns with the state as it was), then the kick-drift, then each
+// particle's squared displacement from `built` (the build's positions) into the gate.
+__global__ void __launch_bounds__(kGateParticles * 3)
+    gated_kick_drift_kernel(double* __restrict__ x, double* __restrict__ v, const double* __restrict__ f,
+                            const double* __restrict__ mass, double h, int kicks, double dt, DriftBox box,
+                            std::size_t n, MdFlags* flags, const double* __restrict__ built, cuda::GateView gate) {
+  if (step_gate_shut(gate)) return;
+  const std::size_t k = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
+  double sq = 0;
+  if (k < n * std::size_t(box.dim)) {
+    const double xa = kick_drift_coordinate(x, v, f, mass, h, kicks, dt, box, k, flags);
+    const int a = int(k % std::size_t(box.dim));
+    sq = displacement_term(xa, built[k], box.length[a], box.inv_length[a]);
+  }
+  raise_displacement(sq, box.dim, n, gate);
+}
+
+// One coordinate of a drift x += h v with drift_kernel's check (and, with `wrap`, its wrap):
+// the same bits as drift_kernel. Returns the new coordinate.
+__device__ __forceinline__ double drift_coordinate(double* __restrict__ x, const double* __restrict__ v, double h,
+                                                   const DriftBox& box, bool wrap, std::size_t k, MdFlags* flags) {
+  const std::size_t i = k / std::size_t(box.dim);
+  const int a = int(k - i * std::size_t(box.dim));
+  const double dx = mul_rn(h, v[k]);
+  bool bad = !(fabs(dx) <= box.most[a]);  // also catches NaN
+  double xa = x[k] + dx;
+  if (wrap) {
+    if (!isfinite(xa)) bad = true;
+    else if (box.periodic[a]) xa = wrap_coordinate(xa, box.length[a]);
+  }
+  x[k] = xa;
+  if (bad) atomicMin(&flags->diverged, static_cast<unsigned long long>(i));
+  return xa;
+}
+
+// A Langevin (BAOAB) step behind the step gate, in three kernels around the thermostat: (1) the gate
+// (step_gate_shut), `kicks` half kicks (the previous step's closing one, deferred, and this step's
+// opening one, rounded one after the other as kick_kernel would) and the first half drift; (2) the
+// thermostat (gated_thermostat_kernel); (3) the second half drift with the wrap, and the displacement
+// into the gate. The same arithmetic, kernel for kernel, as the ungated step.
+__global__ void __launch_bounds__(kGateParticles * 3)
+    gated_langevin_kick_drift_kernel(double* __restrict__ x, double* __restrict__ v, const double* __restrict__ f,
+                                     const double* __restrict__ mass, double h, int kicks, DriftBox box,
+                                     std::size_t n, MdFlags* flags, cuda::GateView gate) {
+  if (step_gate_shut(gate)) return;
+  const std::size_t k = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
+  if (k >= n * std::size_t(box.dim)) return;
+  const double hm = h / mass[k / std::size_t(box.dim)];
+  double va = v[k];
+  for (int s = 0; s < kicks; ++s) va = kicked(va, hm, f[k]);
+  v[k] = va;
+  drift_coordinate(x, v, h, box, false, k, flags);
+}
+
+__global__ void __launch_bounds__(kGateParticles * 3)
+    gated_langevin_drift_kernel(double* __restrict__ x, const double* __restrict__ v, double h, DriftBox box,
+                                std::size_t n, MdFlags* flags, const double* __restrict__ built, cuda::GateView gate) {
+  if (step_gate_closed(gate)) return;
+  const std::size_t k = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
+  double sq = 0;
+  if (k < n * std::size_t(box.dim)) {
+    const double xa = drift_coordinate(x, v, h, box, true, k, flags);
+    const int a = int(k % std::size_t(box.dim));
+    sq = displacement_term(xa, built[k], box.length[a], box.inv_length[a]);
+  }
+  raise_displacement(sq, box.dim, n, gate);
 }
 
 // BAOAB's O step: v = c1 v + c2 sqrt(kT / m) xi, xi from counter_normal keyed by the step and the
@@ -193,6 +270,16 @@ __global__ void thermostat_kernel(double* __restrict__ v, const double* __restri
   if (k >= n * std::size_t(dim)) return;
   const double sigma = c2 * sqrt(kT / mass[k / std::size_t(dim)]);
   v[k] = c1 * v[k] + sigma * counter_normal(seed, stream, k);
+}
+
+// thermostat_kernel behind the step gate (the step's first kernel decided; stream = the step).
+__global__ void gated_thermostat_kernel(double* __restrict__ v, const double* __restrict__ mass, double c1, double c2,
+                                        double kT, uint64_t seed, std::size_t n, int dim, cuda::GateView gate) {
+  if (step_gate_closed(gate)) return;
+  const std::size_t k = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
+  if (k >= n * std::size_t(dim)) return;
+  const double sigma = c2 * sqrt(kT / mass[k / std::size_t(dim)]);
+  v[k] = c1 * v[k] + sigma * counter_normal(seed, gate.step, k);
 }
 
 // m v^2 / 2 of particle i (summed over axes), for the kinetic-energy reduction.
@@ -513,8 +600,9 @@ class CudaMdEngine final : public MdEngine {
 
   // `steps` steps queued back to back, then the flags read (one synchronisation). An error thrown
   // while queueing (an evaluation of positions that diverged) gives way to the flags' diagnosis.
-  // Verlet steps before the last go behind the step gate in chunks wherever the force engine can
-  // serve them from its pair list (run_gated): one host wait per chunk instead of one per step.
+  // Steps before the last go behind the step gate in chunks wherever the force engine can serve
+  // them from its pair list (run_gated): one host wait per chunk instead of one per step. A step's
+  // closing half kick is deferred into the next step's first kernel, but for the last step's.
   void run(int64_t steps, const IntegratorSettings& settings, bool observe) {
     const int dim = box_.dim;
     const double dt = settings.dt;
@@ -524,10 +612,10 @@ class CudaMdEngine final : public MdEngine {
     try {
       for (int64_t k = 0; k < steps;) {
         const bool last = k + 1 == steps;
-        if (!settings.langevin && !last) {
+        if (!last) {
           const int64_t chunk = gate_chunk(steps - 1 - k);
           if (chunk > 0) {
-            k += run_gated(chunk, k == 0 ? 1 : 2, dt, timed);
+            k += run_gated(chunk, k == 0 ? 1 : 2, settings, timed);
             continue;
           }
         }
@@ -535,7 +623,7 @@ class CudaMdEngine final : public MdEngine {
           // The previous step's closing half kick (deferred) with this step's opening one, and the drift.
           kick_drift(0.5 * dt, k == 0 ? 1 : 2, dt);
         } else {
-          kick(0.5 * dt);
+          kick(0.5 * dt, k == 0 ? 1 : 2);  // the previous step's closing half kick (deferred) and this one's
           drift(0.5 * dt, 0.5, false);  // two half drifts of at most L / 2: a step of at most L
           const double c1 = std::exp(-settings.friction * dt);
           const double c2 = std::sqrt(1.0 - c1 * c1);
@@ -549,7 +637,7 @@ class CudaMdEngine final : public MdEngine {
         step_ += 1;
         time_ = double(step_) * dt;  // not summed: the same after a restart
         timed_evaluation(timed, [&] { evaluate(observe && last); });
-        if (settings.langevin || last) kick(0.5 * dt);  // Verlet: deferred into the next drift
+        if (last) kick(0.5 * dt, 1);  // before the last: deferred into the next step's first kernel
         ++k;
       }
     } catch (const Error& e) {
@@ -596,10 +684,12 @@ class CudaMdEngine final : public MdEngine {
     return std::min(allowed, expected);
   }
 
-  // `count` Verlet steps behind the step gate (step_gate.h), then one read of the gate. Steps the
-  // structure served are done; at the step where the gate closed (its drift done, its evaluation
-  // not run), the ordinary evaluation rebuilds and that step is done too. Returns the steps done.
-  int64_t run_gated(int64_t count, int first_kicks, double dt, std::size_t& timed) {
+  // `count` steps behind the step gate (step_gate.h), then one read of the gate. Steps the structure
+  // served are done; at the step where the gate closed (its drifts done, its evaluation not run),
+  // the ordinary evaluation rebuilds and that step is done too. Returns the steps done. Verlet: one
+  // gated kick-drift a step; Langevin: the gated kick and half drift, thermostat, half drift.
+  int64_t run_gated(int64_t count, int first_kicks, const IntegratorSettings& settings, std::size_t& timed) {
+    const double dt = settings.dt;
     observed_ = false;  // the state moves on: thermo() must evaluate again unless a later step observes
     gate_.reserve(1);
     CF_CUDA_CHECK(cudaMemsetAsync(gate_.data(), 0, sizeof(cuda::StepGate), stream_));
@@ -607,17 +697,31 @@ class CudaMdEngine final : public MdEngine {
     const uint64_t first = uint64_t(step_) + 1;
     cuda::GateView view{gate_.data(), first, gpu_.gate_limit()};
     const double* built = gpu_.device_build_positions();
-    const DriftBox box = drift_box(1.0);
+    const DriftBox box = drift_box(settings.langevin ? 0.5 : 1.0);  // as the ungated steps' drifts
     const unsigned blocks = unsigned((n_ + kGateParticles - 1) / kGateParticles);
     const unsigned threads = unsigned(kGateParticles * box_.dim);
     const uint32_t* types = ff_.num_types() > 1 ? types_.data() : nullptr;
+    const double c1 = std::exp(-settings.friction * dt), c2 = std::sqrt(1.0 - c1 * c1);  // as run()
     for (int64_t j = 0; j < count; ++j) {
       view.step = first + uint64_t(j);
-      gated_kick_drift_kernel<<<blocks, threads, 0, stream_>>>(positions_.data(), velocities_.data(),
-                                                              gpu_.device_forces(), masses_.data(), 0.5 * dt,
-                                                              j == 0 ? first_kicks : 2, dt, box, n_,
-                                                              flags_.data(), built, view);
-      CF_CUDA_CHECK_LAUNCH();
+      const int kicks = j == 0 ? first_kicks : 2;
+      if (!settings.langevin) {
+        gated_kick_drift_kernel<<<blocks, threads, 0, stream_>>>(positions_.data(), velocities_.data(),
+                                                                gpu_.device_forces(), masses_.data(), 0.5 * dt, kicks,
+                                                                dt, box, n_, flags_.data(), built, view);
+        CF_CUDA_CHECK_LAUNCH();
+      } else {
+        gated_langevin_kick_drift_kernel<<<blocks, threads, 0, stream_>>>(
+            positions_.data(), velocities_.data(), gpu_.device_forces(), masses_.data(), 0.5 * dt, kicks, box, n_,
+            flags_.data(), view);
+        CF_CUDA_CHECK_LAUNCH();
+        gated_thermostat_kernel<<<blocks_for(n_ * box_.dim), kBlock, 0, stream_>>>(
+            velocities_.data(), masses_.data(), c1, c2, settings.kT, settings.seed, n_, box_.dim, view);
+        CF_CUDA_CHECK_LAUNCH();
+        gated_langevin_drift_kernel<<<blocks, threads, 0, stream_>>>(positions_.data(), velocities_.data(), 0.5 * dt,
+                                                                    box, n_, flags_.data(), built, view);
+        CF_CUDA_CHECK_LAUNCH();
+      }
       std::size_t slot = timed + std::size_t(j);  // events only: counted below for the steps served
       timed_evaluation(slot, [&] { gpu_.evaluate_gated(box_, n_, positions_.data(), types, ff_, view); });
     }
@@ -647,10 +751,10 @@ class CudaMdEngine final : public MdEngine {
     return served + 1;
   }
 
-  void kick(double h) {
+  void kick(double h, int kicks) {
     if (n_ == 0) return;
     kick_kernel<<<blocks_for(n_ * box_.dim), kBlock, 0, stream_>>>(velocities_.data(), gpu_.device_forces(),
-                                                                     masses_.data(), h, n_, box_.dim);
+                                                                     masses_.data(), h, kicks, n_, box_.dim);
     CF_CUDA_CHECK_LAUNCH();
   }
 

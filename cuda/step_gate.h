@@ -1,12 +1,13 @@
-// The step gate: a Verlet run with pair lists queues many steps without a host wait per step for
-// the skin's rebuild decision (core/reuse.h), and still rebuilds on exactly the steps that decision
-// names.
+// The step gate: an MD run with pair lists (velocity Verlet or Langevin) queues many steps without a
+// host wait per step for the skin's rebuild decision (core/reuse.h), and still rebuilds on exactly
+// the steps that decision names.
 //
-// Each gated step's kick-drift kernel measures the largest squared displacement since the build
-// (the arithmetic of the engines' own check, so the same number) into the gate. The step's list
-// kernels run only while it is within (skin / 2)^2; the next kick-drift finds a step past it and
-// closes the gate at that step, and from then on every queued kernel of the chunk returns at once:
-// positions, velocities and forces stay as they were after the closed step's drift. The host reads
+// Each gated step's last drift kernel (Verlet's kick-drift, Langevin's second half drift) measures
+// the largest squared displacement since the build (the arithmetic of the engines' own check, so
+// the same number) into the gate. The step's list kernels run only while it is within (skin / 2)^2;
+// the next step's first kernel finds a step past it and closes the gate at that step, and from then
+// on every queued kernel of the chunk returns at once: positions, velocities and forces stay as they
+// were after the closed step's drifts. The host reads
 // the gate once per chunk of steps and resumes at the closed step with an ordinary evaluation,
 // which rebuilds. Plain C++: engine.h includes it.
 #pragma once

@@ -237,24 +237,34 @@ TEST_P(MdApi, OpenBoxFollowsTheCpuRun) {
   }
 }
 
-// The step gate (cuda/step_gate.h): with pair lists a step() call queues its Verlet steps in chunks
-// and the device decides the rebuilds. One call of 300 steps against 300 calls of one step (the
-// last step of a call is never gated, so those decide every rebuild on the host): the same builds
-// and, bit for bit, the same positions, velocities and forces; and the gate served most steps.
-// Also with neighbor-every, which bounds each chunk, and in double precision.
+// The step gate (cuda/step_gate.h): with pair lists a step() call queues its steps in chunks and
+// the device decides the rebuilds. One call of 300 steps against 300 calls of one step (the last
+// step of a call is never gated, so those decide every rebuild on the host): the same builds and,
+// bit for bit, the same positions, velocities and forces; and the gate served most steps. Verlet
+// and Langevin (BAOAB: the gated kick and half drift, thermostat, half drift); also with
+// neighbor-every, which bounds each chunk, and in double precision.
 TEST_P(MdApi, GatedStepsEqualStepByStep) {
   if (GetParam() == cf::Backend::kCpu) GTEST_SKIP() << "the step gate is the CUDA engine's";
   struct Case {
     cf::Precision precision;
     const char* every;
+    bool langevin;
   };
-  for (const Case c : {Case{cf::Precision::kMixed, "0"}, Case{cf::Precision::kMixed, "7"},
-                       Case{cf::Precision::kDouble, "0"}}) {
-    SCOPED_TRACE(std::string(cf::to_string(c.precision)) + ", neighbor-every " + c.every);
+  for (const Case c : {Case{cf::Precision::kMixed, "0", false}, Case{cf::Precision::kMixed, "7", false},
+                       Case{cf::Precision::kDouble, "0", false}, Case{cf::Precision::kMixed, "0", true},
+                       Case{cf::Precision::kDouble, "7", true}}) {
+    SCOPED_TRACE(std::string(cf::to_string(c.precision)) + ", neighbor-every " + c.every +
+                 (c.langevin ? ", Langevin" : ", Verlet"));
     auto run = [&](bool one_call, cf::RunStatistics* st) {
       RunSetup s;
       s.backend = GetParam();
       s.precision = c.precision;
+      if (c.langevin) {
+        s.integrator.kind = cf::Integrator::kLangevin;
+        s.integrator.temperature = 1.44;
+        s.integrator.friction = 1.0;
+        s.integrator.seed = 99;
+      }
       s.cells = 8;  // 2,048 particles, edge 13.4 > 2 (rc + skin)
       s.options = {{"skin", "0.3"}, {"neighbor-list", "true"}, {"neighbor-every", c.every}};
       std::size_t n = 0;

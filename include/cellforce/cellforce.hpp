@@ -244,8 +244,9 @@ class CELLFORCE_API Context {
                  const double* masses, int64_t step = 0);
   // Advances `count` steps. With the cuda backend the host queues them and waits only for the
   // counts that size the neighbour search's buffers and for the skin's displacement check: once
-  // per step, or, with neighbor-list and Verlet, once per chunk of steps (the step gate decides the
-  // rebuilds on the device, on the same steps); the device's flags are read once at the end,
+  // per step, or, with pair lists (skin auto's choice on CUDA), once per chunk of steps (the step
+  // gate decides the rebuilds on the device, on the same steps); the device's flags are read once
+  // at the end,
   // and a diverged integration or a force that is not finite throws naming the particle and the
   // steps of this call. `observe`: the last step also computes energy and virial (for thermo()).
   void step(int64_t count, bool observe = true);
