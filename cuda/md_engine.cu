@@ -3,8 +3,8 @@
 // as kernels on the force engine's stream, with the forces from its resident evaluations. The
 // host queues a call's steps without waiting (the search keeps its counts on the device), except
 // with an open axis (the particles' bounds, on steps that build the structure) and with a skin
-// (the largest displacement: per step, or, with pair lists and Verlet, per chunk of steps queued
-// behind the step gate, step_gate.h); the flags (a drift that diverged, a force that is not finite) are
+// (the largest displacement: per step, or, with pair lists (Verlet or Langevin), per chunk of
+// steps queued behind the step gate, step_gate.h); the flags (a drift that diverged, a force that is not finite) are
 // read once per advance() call. Nothing of the particles crosses PCIe except in set_state,
 // get_state and the error path; observables() reads 8 numbers.
 //
