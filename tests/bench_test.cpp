@@ -60,6 +60,29 @@ TEST_F(Bench, RowsCarryTheReportsNumbers) {
   }
 }
 
+// --langevin: the same fluid under BAOAB at kT 1.44 (friction 1): the lattice start gives half its
+// kinetic energy to the potential (NVE settles near T 0.7), and the thermostat brings it back
+// within 1/friction = 200 steps; the row says so and carries no NVE drift.
+TEST_F(Bench, LangevinRowsHoldTheirTemperature) {
+  cellforce::BenchArgs a = small_bench(path("bench.json"));
+  a.cells = {4};
+  a.langevin = true;
+  a.reference = false;
+  a.steps = 800;
+  a.warmup = 200;
+  ASSERT_EQ(cellforce::run_bench(a), 0);
+  const nlohmann::json r = nlohmann::json::parse(read(path("bench.json")))["rows"][0];
+  EXPECT_EQ(r["integrator"], "langevin");
+  EXPECT_TRUE(r["nve_drift"].is_null());
+  EXPECT_GT(r["temperature_end"].get<double>(), 1.0);
+  EXPECT_LT(r["temperature_end"].get<double>(), 2.0);
+  a.langevin = false;
+  ASSERT_EQ(cellforce::run_bench(a), 0);
+  const nlohmann::json nve = nlohmann::json::parse(read(path("bench.json")))["rows"][0];
+  EXPECT_EQ(nve["integrator"], "nve");
+  EXPECT_LT(nve["temperature_end"].get<double>(), 1.0) << "NVE from the lattice settles near T 0.7";
+}
+
 TEST_F(Bench, ASizeThatCannotRunIsAnErrorRowAndTheOthersRun) {
   cellforce::BenchArgs a = small_bench(path("bench.json"));
   a.cells = {1, 3};  // one fcc cell: a box of 1.68, less than twice the cutoff 2.5

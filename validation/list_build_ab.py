@@ -9,6 +9,7 @@ of the captured launches.
 
   python3 validation/list_build_ab.py --base old/cellforce --new build-gpu-bin/cellforce \
       --sizes 32000 256000 1048576 --repeats 2 --ncu --out $OUT
+  (--bench-args=--langevin: the same A/B of Langevin steps, the step gate's change 16)
 
 Writes list_build_ab.md (the table) and list_build_ab.json (every run) to --out. Exits 1 when a
 run failed (its row says why).
@@ -19,6 +20,7 @@ import argparse
 import csv
 import io
 import json
+import shlex
 import statistics
 import subprocess
 import sys
@@ -26,11 +28,11 @@ import tempfile
 from pathlib import Path
 
 
-def bench(binary: str, n: int, seconds: float, work: Path) -> dict:
+def bench(binary: str, n: int, seconds: float, work: Path, extra: list[str]) -> dict:
     out = work / "row.json"
     out.unlink(missing_ok=True)
     command = [binary, "bench", "--sizes", str(n), "--precision", "mixed", "--backend", "cuda", "--skin", "0.6",
-               "--neighbor-list", "--seconds", f"{seconds:g}", "--no-reference", "--json", str(out)]
+               "--neighbor-list", "--seconds", f"{seconds:g}", "--no-reference", "--json", str(out)] + extra
     p = subprocess.run(command, capture_output=True, text=True)
     try:
         row = json.loads(out.read_text())["rows"][0]
@@ -41,12 +43,12 @@ def bench(binary: str, n: int, seconds: float, work: Path) -> dict:
     return row
 
 
-def ncu_list_rows(binary: str, n: int) -> dict:
+def ncu_list_rows(binary: str, n: int, extra: list[str]) -> dict:
     """Median duration (us) of the captured list_rows launches, and how many were captured."""
     command = ["ncu", "--kernel-name", "regex:list_rows", "--launch-count", "6", "--metrics",
                "gpu__time_duration.sum", "--csv", binary, "bench", "--sizes", str(n), "--precision", "mixed",
                "--backend", "cuda", "--skin", "0.6", "--neighbor-list", "--steps", "40", "--warmup", "5",
-               "--samples", "2", "--no-reference"]
+               "--samples", "2", "--no-reference"] + extra
     p = subprocess.run(command, capture_output=True, text=True, timeout=300)
     text = p.stdout[p.stdout.find('"ID"'):] if '"ID"' in p.stdout else ""
     times = []
@@ -67,8 +69,11 @@ def main() -> int:
     ap.add_argument("--repeats", type=int, default=2)
     ap.add_argument("--seconds", type=float, default=1.5)
     ap.add_argument("--ncu", action="store_true", help="also time list_rows with Nsight Compute")
+    ap.add_argument("--bench-args", default="",
+                    help="more `cellforce bench` arguments for both, written --bench-args=--langevin")
     ap.add_argument("--out", type=Path, required=True)
     args = ap.parse_args()
+    extra = shlex.split(args.bench_args)
     args.out.mkdir(parents=True, exist_ok=True)
     runs, failed = [], False
     lines = ["| N | base steps/s | new steps/s | new / base | base list_rows us | new list_rows us |",
@@ -79,7 +84,7 @@ def main() -> int:
             rates = {"base": [], "new": []}
             for _ in range(args.repeats):
                 for label in ("base", "new"):  # interleaved: drifts of the machine fall on both
-                    row = bench(getattr(args, label), n, args.seconds, work)
+                    row = bench(getattr(args, label), n, args.seconds, work, extra)
                     runs.append({"n": n, "binary": label, **row})
                     if "error" in row:
                         failed = True
@@ -91,7 +96,7 @@ def main() -> int:
             kern = {"base": {}, "new": {}}
             if args.ncu:
                 for label in ("base", "new"):
-                    kern[label] = ncu_list_rows(getattr(args, label), n)
+                    kern[label] = ncu_list_rows(getattr(args, label), n, extra)
                     runs.append({"n": n, "binary": label, "ncu": kern[label]})
             us = {k: f"{v['list_rows_us_median']:.1f}" if "list_rows_us_median" in v else "-" for k, v in kern.items()}
             lines.append(f"| {n:,} | {med['base']:,.0f} | {med['new']:,.0f} | {med['new'] / med['base']:.3f} | "

@@ -24,6 +24,8 @@ struct BenchArgs {
   bool chapter = false;           // the chapter's configuration: thread per cell, its radix sort,
                                   // cells >= 1.5 x 2h, rebuild every step
   CutoffMode mode = CutoffMode::kTruncate;
+  bool langevin = false;          // Langevin (BAOAB, kT 1.44, friction 1) instead of in.lj's NVE: the
+                                  // rows then have no NVE drift
   double seconds = 2.0;           // timed seconds per size (sets the steps after the warm-up)
   int64_t steps = 0;              // > 0: exactly these timed steps instead
   int64_t warmup = 50;            // steps before the timing

@@ -319,6 +319,9 @@ int main(int argc, char** argv) {
   bench_cmd->add_option("--samples", ba.samples, "Energy samples over the timed steps, for the NVE drift")
       ->check(CLI::Range(2, 100000))->capture_default_str();
   bench_cmd->add_flag("!--no-reference", ba.reference, "Skip the force error against double precision");
+  bench_cmd->add_flag("--langevin", ba.langevin,
+                      "Langevin dynamics (BAOAB, kT 1.44, friction 1) instead of NVE: the same fluid at its "
+                      "temperature (no NVE drift)");
   bench_cmd->add_option("--label", ba.label, "The rows' configuration name (default: default, or chapter)");
   bench_cmd->add_option("--save-final", ba.save_final,
                         "Write PREFIX-<n>.positions.f64 and PREFIX-<n>.forces.f64: the last step's positions and "
