@@ -593,6 +593,8 @@ class CudaMdEngine final : public MdEngine {
   void release() {
     for (cudaEvent_t e : force_events_) cudaEventDestroy(e);
     force_events_.clear();
+    for (cudaEvent_t e : wait_events_) cudaEventDestroy(e);
+    wait_events_.clear();
     if (chunk_start_) cudaEventDestroy(chunk_start_);
     if (chunk_end_) cudaEventDestroy(chunk_end_);
     chunk_start_ = chunk_end_ = nullptr;
@@ -609,6 +611,9 @@ class CudaMdEngine final : public MdEngine {
     const int64_t first = step_ + 1;
     CF_CUDA_CHECK(cudaEventRecord(chunk_start_, stream_));
     std::size_t timed = 0;
+    waits_ = 0;
+    paused_ = false;
+    shut_ms_ = 0;
     try {
       for (int64_t k = 0; k < steps;) {
         const bool last = k + 1 == steps;
@@ -619,6 +624,7 @@ class CudaMdEngine final : public MdEngine {
             continue;
           }
         }
+        resume();
         if (!settings.langevin) {
           // The previous step's closing half kick (deferred) with this step's opening one, and the drift.
           kick_drift(0.5 * dt, k == 0 ? 1 : 2, dt);
@@ -646,18 +652,42 @@ class CudaMdEngine final : public MdEngine {
                                    : "steps " + std::to_string(first) + "-" + std::to_string(step_)) + ": ",
                    e);
     }
+    resume();
     CF_CUDA_CHECK(cudaEventRecord(chunk_end_, stream_));
     check(first, step_);  // synchronises: the one host wait beyond the search's counts
     float ms = 0;
-    double forces_ms = 0;
+    double forces_ms = shut_ms_;  // the evaluations the gate shut: force kernels that returned at once
     for (std::size_t t = 0; t < timed; ++t) {
       CF_CUDA_CHECK(cudaEventElapsedTime(&ms, force_events_[2 * t], force_events_[2 * t + 1]));
       forces_ms += ms;
     }
+    double wait_ms = 0;  // the device idle while the host read a gate and queued on: no stage's time
+    for (std::size_t w = 0; w < waits_; ++w) {
+      CF_CUDA_CHECK(cudaEventElapsedTime(&ms, wait_events_[2 * w], wait_events_[2 * w + 1]));
+      wait_ms += ms;
+    }
     CF_CUDA_CHECK(cudaEventElapsedTime(&ms, chunk_start_, chunk_end_));
     counters_.steps += steps;
     counters_.force_seconds += 1e-3 * forces_ms;
-    counters_.integration_seconds += 1e-3 * (double(ms) - forces_ms);
+    counters_.integration_seconds += 1e-3 * std::max(double(ms) - forces_ms - wait_ms, 0.0);
+  }
+
+  // A gated chunk's end: the device idles from here (the gate's read) until the host queues more
+  // work, which first records the matching resume(). The gap is booked to no stage.
+  void pause() {
+    while (wait_events_.size() < 2 * (waits_ + 1)) {
+      cudaEvent_t ev;
+      CF_CUDA_CHECK(cudaEventCreate(&ev));
+      wait_events_.push_back(ev);
+    }
+    CF_CUDA_CHECK(cudaEventRecord(wait_events_[2 * waits_], stream_));
+    ++waits_;
+    paused_ = true;
+  }
+  void resume() {
+    if (!paused_) return;
+    CF_CUDA_CHECK(cudaEventRecord(wait_events_[2 * waits_ - 1], stream_));
+    paused_ = false;
   }
 
   // Runs `queue` between the timing events of evaluation number `timed` (then counted).
@@ -690,6 +720,7 @@ class CudaMdEngine final : public MdEngine {
   // gated kick-drift a step; Langevin: the gated kick and half drift, thermostat, half drift.
   int64_t run_gated(int64_t count, int first_kicks, const IntegratorSettings& settings, std::size_t& timed) {
     const double dt = settings.dt;
+    resume();
     observed_ = false;  // the state moves on: thermo() must evaluate again unless a later step observes
     gate_.reserve(1);
     CF_CUDA_CHECK(cudaMemsetAsync(gate_.data(), 0, sizeof(cuda::StepGate), stream_));
@@ -726,12 +757,19 @@ class CudaMdEngine final : public MdEngine {
       timed_evaluation(slot, [&] { gpu_.evaluate_gated(box_, n_, positions_.data(), types, ff_, view); });
     }
     cuda::StepGate g{};
+    pause();
     CF_CUDA_CHECK(cudaMemcpyAsync(&g, gate_.data(), sizeof g, cudaMemcpyDeviceToHost, stream_));
     CF_CUDA_CHECK(cudaStreamSynchronize(stream_));  // control data, like the displacement: not counted
     const uint64_t last = first + uint64_t(count) - 1;
     uint64_t closed = g.closed;
     if (closed == cuda::kGateOpen && g.d2[last % 3] > view.limit) closed = last;  // no later drift closed it
     const int64_t served = closed == cuda::kGateOpen ? count : int64_t(closed - first);
+    for (int64_t j = served; j < count; ++j) {  // shut: their slots are reused below, so read them now
+      float ms = 0;
+      const std::size_t slot = timed + std::size_t(j);
+      CF_CUDA_CHECK(cudaEventElapsedTime(&ms, force_events_[2 * slot], force_events_[2 * slot + 1]));
+      shut_ms_ += ms;
+    }
     double served_d2 = 0;
     std::memcpy(&served_d2, &g.served, sizeof served_d2);
     gpu_.settle_gate(served, served_d2);
@@ -747,6 +785,7 @@ class CudaMdEngine final : public MdEngine {
     if (served == count) return count;
     step_ += 1;  // the closed step: drifted, to be evaluated
     time_ = double(step_) * dt;
+    resume();
     timed_evaluation(timed, [&] { evaluate(false); });
     return served + 1;
   }
@@ -948,6 +987,10 @@ class CudaMdEngine final : public MdEngine {
   int64_t since_build_ = 0;  // evaluations served since the last build
   MdCounters counters_;
   std::vector<cudaEvent_t> force_events_;
+  std::vector<cudaEvent_t> wait_events_;  // per host turnaround of a run() call's gated chunks: pause, resume
+  std::size_t waits_ = 0;                 // turnarounds in the run() call
+  bool paused_ = false;                   // a turnaround's resume is still to be recorded
+  double shut_ms_ = 0;                    // force-kernel time of the evaluations the gate shut, this call
   cudaEvent_t chunk_start_ = nullptr, chunk_end_ = nullptr;
 };
 

@@ -105,8 +105,10 @@ struct MinimizeResult {
 // set or reset_run_statistics() ran.
 struct RunStatistics {
   int64_t steps = 0, evaluations = 0;
-  double force_seconds = 0;        // force evaluations (CUDA: device time)
-  double integration_seconds = 0;  // kicks, drifts, thermostat (CUDA: device time)
+  double force_seconds = 0;        // force evaluations (CUDA: device time, with the step gate's
+                                   // shut evaluations, whose kernels return at once)
+  double integration_seconds = 0;  // kicks, drifts, thermostat (CUDA: device time; the device's
+                                   // idle while the host reads the step gate is in neither)
   double step_call_seconds = 0;    // wall time inside step()
   std::size_t bytes_to_host = 0, bytes_to_device = 0;  // particle data and results (CUDA)
   // Per evaluation, averaged over `stage_samples` evaluations (CUDA: the last of each step() call):

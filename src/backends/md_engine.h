@@ -30,7 +30,8 @@ struct MdCounters {
   int64_t steps = 0;
   int64_t evaluations = 0;
   double force_seconds = 0;        // force evaluations (CUDA: device time; CPU: wall time)
-  double integration_seconds = 0;  // kicks, drifts, thermostat (CUDA: device time; CPU: wall time)
+  double integration_seconds = 0;  // kicks, drifts, thermostat (CUDA: device time, less the idle
+                                   // while the host reads the step gate; CPU: wall time)
   double host_wait_seconds = 0;    // wall time of advance() calls, host included
   std::size_t bytes_to_host = 0;   // particle data and results copied device -> host (CUDA)
   std::size_t bytes_to_device = 0; // host -> device
