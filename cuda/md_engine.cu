@@ -56,16 +56,23 @@ struct MdFlags {
 // v += (h / m) F, per coordinate (rounded product, then sum: the same bits in every kernel that kicks).
 __device__ __forceinline__ double kicked(double v, double hm, double f) { return v + mul_rn(hm, f); }
 
-// `kicks` half kicks (two: a step's closing one, deferred, and the next step's opening one, rounded
-// one after the other as two launches of one would).
+// Coordinate k of `kicks` half kicks v += (h / m) F (two: a step's closing one, deferred, and the
+// next step's opening one, rounded one after the other as two launches of one would).
+__device__ __forceinline__ void kick_coordinate(double* __restrict__ v, const double* __restrict__ f,
+                                                const double* __restrict__ mass, double h, int kicks, int dim,
+                                                std::size_t k) {
+  const double hm = h / mass[k / std::size_t(dim)];
+  double va = v[k];
+  const double fa = f[k];
+  for (int s = 0; s < kicks; ++s) va = kicked(va, hm, fa);
+  v[k] = va;
+}
+
 __global__ void kick_kernel(double* __restrict__ v, const double* __restrict__ f,
                             const double* __restrict__ mass, double h, int kicks, std::size_t n, int dim) {
   const std::size_t k = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
   if (k >= n * std::size_t(dim)) return;
-  const double hm = h / mass[k / std::size_t(dim)];
-  double va = v[k];
-  for (int s = 0; s < kicks; ++s) va = kicked(va, hm, f[k]);
-  v[k] = va;
+  kick_coordinate(v, f, mass, h, kicks, dim, k);
 }
 
 struct DriftBox {
@@ -76,25 +83,31 @@ struct DriftBox {
   bool periodic[kMaxDim];
 };
 
-// x += h v per particle, the displacement checked as the host's drift() checks it; with `wrap`
-// (a step's last drift) the new position is wrapped into [0, L) on periodic axes.
+// Coordinate k of a drift x += h v, the displacement checked as the host's drift() checks it (a
+// particle that fails raises its index); with `wrap` (a step's last drift) the new position is
+// wrapped into [0, L) on periodic axes. Returns the new coordinate.
+__device__ __forceinline__ double drift_coordinate(double* __restrict__ x, const double* __restrict__ v, double h,
+                                                   const DriftBox& box, bool wrap, std::size_t k, MdFlags* flags) {
+  const std::size_t i = k / std::size_t(box.dim);
+  const int a = int(k - i * std::size_t(box.dim));
+  const double dx = mul_rn(h, v[k]);
+  bool bad = !(fabs(dx) <= box.most[a]);  // also catches NaN
+  double xa = x[k] + dx;
+  if (wrap) {
+    if (!isfinite(xa)) bad = true;
+    else if (box.periodic[a]) xa = wrap_coordinate(xa, box.length[a]);
+  }
+  x[k] = xa;
+  if (bad) atomicMin(&flags->diverged, static_cast<unsigned long long>(i));
+  return xa;
+}
+
+// A drift per particle (drift_coordinate on each axis).
 __global__ void drift_kernel(double* __restrict__ x, const double* __restrict__ v, double h, DriftBox box,
                              bool wrap, std::size_t n, MdFlags* flags) {
   const std::size_t i = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
   if (i >= n) return;
-  bool bad = false;
-  for (int a = 0; a < box.dim; ++a) {
-    const std::size_t k = i * box.dim + a;
-    const double dx = mul_rn(h, v[k]);
-    if (!(fabs(dx) <= box.most[a])) bad = true;  // also catches NaN
-    double xa = x[k] + dx;
-    if (wrap) {
-      if (!isfinite(xa)) bad = true;
-      else if (box.periodic[a]) xa = wrap_coordinate(xa, box.length[a]);
-    }
-    x[k] = xa;
-  }
-  if (bad) atomicMin(&flags->diverged, static_cast<unsigned long long>(i));
+  for (int a = 0; a < box.dim; ++a) drift_coordinate(x, v, h, box, wrap, i * box.dim + a, flags);
 }
 
 // One coordinate k of velocity Verlet's kicks and drift: `kicks` half kicks v += (h / m) F (two:
@@ -106,21 +119,8 @@ __device__ __forceinline__ double kick_drift_coordinate(double* __restrict__ x, 
                                                         const double* __restrict__ mass, double h, int kicks,
                                                         double dt, const DriftBox& box, std::size_t k,
                                                         MdFlags* flags) {
-  const std::size_t i = k / std::size_t(box.dim);
-  const int a = int(k - i * std::size_t(box.dim));
-  const double hm = h / mass[i];
-  double va = v[k];
-  const double fa = f[k];
-  for (int s = 0; s < kicks; ++s) va = kicked(va, hm, fa);
-  v[k] = va;
-  const double dx = mul_rn(dt, va);
-  bool bad = !(fabs(dx) <= box.most[a]);  // also catches NaN
-  double xa = x[k] + dx;
-  if (!isfinite(xa)) bad = true;
-  else if (box.periodic[a]) xa = wrap_coordinate(xa, box.length[a]);
-  x[k] = xa;
-  if (bad) atomicMin(&flags->diverged, static_cast<unsigned long long>(i));
-  return xa;
+  kick_coordinate(v, f, mass, h, kicks, box.dim, k);
+  return drift_coordinate(x, v, dt, box, true, k, flags);
 }
 
 // The kicks and the drift in one pass, a thread per coordinate (coalesced): one read and write of
@@ -211,24 +211,6 @@ __global__ void __launch_bounds__(kGateParticles * 3)
   raise_displacement(sq, box.dim, n, gate);
 }
 
-// One coordinate of a drift x += h v with drift_kernel's check (and, with `wrap`, its wrap):
-// the same bits as drift_kernel. Returns the new coordinate.
-__device__ __forceinline__ double drift_coordinate(double* __restrict__ x, const double* __restrict__ v, double h,
-                                                   const DriftBox& box, bool wrap, std::size_t k, MdFlags* flags) {
-  const std::size_t i = k / std::size_t(box.dim);
-  const int a = int(k - i * std::size_t(box.dim));
-  const double dx = mul_rn(h, v[k]);
-  bool bad = !(fabs(dx) <= box.most[a]);  // also catches NaN
-  double xa = x[k] + dx;
-  if (wrap) {
-    if (!isfinite(xa)) bad = true;
-    else if (box.periodic[a]) xa = wrap_coordinate(xa, box.length[a]);
-  }
-  x[k] = xa;
-  if (bad) atomicMin(&flags->diverged, static_cast<unsigned long long>(i));
-  return xa;
-}
-
 // A Langevin (BAOAB) step behind the step gate, in three kernels around the thermostat: (1) the gate
 // (step_gate_shut), `kicks` half kicks (the previous step's closing one, deferred, and this step's
 // opening one, rounded one after the other as kick_kernel would) and the first half drift; (2) the
@@ -241,10 +223,7 @@ __global__ void __launch_bounds__(kGateParticles * 3)
   if (step_gate_shut(gate)) return;
   const std::size_t k = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
   if (k >= n * std::size_t(box.dim)) return;
-  const double hm = h / mass[k / std::size_t(box.dim)];
-  double va = v[k];
-  for (int s = 0; s < kicks; ++s) va = kicked(va, hm, f[k]);
-  v[k] = va;
+  kick_coordinate(v, f, mass, h, kicks, box.dim, k);
   drift_coordinate(x, v, h, box, false, k, flags);
 }
 

@@ -103,6 +103,22 @@ struct Context::Impl {
     return a.skin == b.skin && a.list == b.list && a.check == b.check && a.every == b.every && a.audit == b.audit;
   }
 
+  // The neighbour structure in use: the MD state's as set_state resolved it, else force calls' on
+  // the current box.
+  struct Neighbor {
+    EngineChoice choice;  // backend resolved, reuse as the engine runs it
+    Box box;
+    double cutoff;
+    bool md;
+  };
+  Neighbor neighbor() const {
+    const bool has_md = md != nullptr;
+    Neighbor nb{resolved(has_md ? md_box : box, has_md), has_md ? md_box : box, has_md ? md_ff.cutoff : ff.cutoff,
+                has_md};
+    if (has_md) nb.choice.reuse = md_reuse;
+    return nb;
+  }
+
   // The force engine (force calls: an automatic skin resolves to none whatever the box).
   ForceEngine& get_engine() {
     if (!engine) engine = make_force_engine(resolved(box, false));
@@ -524,25 +540,18 @@ int Context::dim() const { return impl_->dim; }
 std::size_t Context::num_types() const { return impl_->ff.types.size(); }
 // The neighbour structure of the MD state when there is one, else of force calls (resolved here:
 // no engine is made for it).
-double Context::skin() {
-  Impl& s = *impl_;
-  return s.md ? s.md_reuse.skin : s.resolved(s.box, false).reuse.skin;
-}
+double Context::skin() { return impl_->neighbor().choice.reuse.skin; }
 
 bool Context::neighbor_lists() {
-  Impl& s = *impl_;
-  const bool md = s.md != nullptr;
-  const EngineChoice c = s.resolved(md ? s.md_box : s.box, md);
-  return c.backend == Backend::kCuda && pair_lists_serve(md ? s.md_reuse : c.reuse, c.accumulation,
-                                                         md ? s.md_box : s.box, md ? s.md_ff.cutoff : s.ff.cutoff);
+  const Impl::Neighbor nb = impl_->neighbor();
+  return nb.choice.backend == Backend::kCuda &&
+         pair_lists_serve(nb.choice.reuse, nb.choice.accumulation, nb.box, nb.cutoff);
 }
 
 std::string Context::neighbor() {
-  Impl& s = *impl_;
-  const bool md = s.md != nullptr;
-  const EngineChoice c = s.resolved(md ? s.md_box : s.box, md);
-  return describe_reuse(s.choice.reuse, md ? s.md_reuse : c.reuse, c.backend, c.accumulation, md,
-                        md ? s.md_box : s.box, md ? s.md_ff.cutoff : s.ff.cutoff);
+  const Impl::Neighbor nb = impl_->neighbor();
+  return describe_reuse(impl_->choice.reuse, nb.choice.reuse, nb.choice.backend, nb.choice.accumulation, nb.md,
+                        nb.box, nb.cutoff);
 }
 
 // The MD engine's force engine when there is one (no second engine is built just to be named).
