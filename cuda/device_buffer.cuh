@@ -18,6 +18,7 @@ namespace cellforce::cuda {
 template <class T>
 class DeviceBuffer {
  public:
+  using value_type = T;
   DeviceBuffer() = default;
   explicit DeviceBuffer(std::size_t n) { reserve(n); }
   ~DeviceBuffer() {

@@ -1,5 +1,6 @@
 // The pair-list build's arithmetic that needs no device (cuda/pair_list.cu): the column range of a
-// row tile's split walk, the rule for the number of splits, and the hi-part prefilter's bound.
+// row tile's split walk, the rule for the number of splits, and the fixed-point coordinates the
+// force kernel gathers (FixedParticle).
 // Plain C++ (CF_HD): the kernels and the tests use the same functions.
 #pragma once
 
@@ -43,23 +44,18 @@ inline int build_splits(std::size_t max_tiles, int multiprocessors) {
   return splits;
 }
 
-// The hi-part prefilter's bound (list_rows, float coordinates): with staged coordinates at most
-// X = max(c/2 + h) from their cell's centre, hi and lo parts of float coordinates (|lo| <= ulp(X)
-// / 2), a component of the hi-part difference is within 2 ulp(X) of the compensated one (the lo
-// difference, and the rounding of adding it); so the separations differ by at most sqrt(3) x 2
-// ulp(X), and with the rounding of both r^2 sums (a few float ulps, FMA or not), hi-part r^2 >=
-// (sqrt(out2) + sqrt(3) x 3 ulp(X))^2 (1 + 1e-6) implies the compensated r^2 >= out2. Rounded up to
-// float. It assumes what a planned grid gives: every particle within its cells (a grid_override,
-// tests only, or particles clamped into an open axis's fallback cell when a coordinate is not
-// finite, an evaluation that raises an error anyway, may not); the margin covers coordinates up to
-// the next power of two above X.
-inline float prefilter_bound(const Grid& g, double out2) {
-  double x = 0;
-  for (int a = 0; a < g.dim; ++a) x = std::max(x, 0.5 * g.cell[a] + g.half_width);
-  const float xf = std::nextafter(float(x), INFINITY);
-  const double ulp = double(std::nextafter(xf, INFINITY)) - double(xf);
-  const double r = std::sqrt(out2) + std::sqrt(3.0) * 3.0 * ulp;
-  return std::nextafter(float(r * r * (1 + 1e-6)), INFINITY);
+// Fixed-point coordinates (FixedParticle: float pairs, every axis periodic). A coordinate wrapped
+// into [0, L) is stored as the integer nearest x / L * 2^32, modulo 2^32 (x rounding up to 2^32
+// gives 0, the same point).
+CF_HD uint32_t fixed_coordinate(double x, double inv_length) {
+  return uint32_t(static_cast<unsigned long long>(rint(x * (inv_length * 0x1p32))));
 }
+// L / 2^32, rounded once to float: a fixed-point difference times it is a separation.
+CF_HD float fixed_scale(double length) { return float(length * 0x1p-32); }
+// The minimum-image separation a - b along an axis: the difference modulo 2^32 read as a signed
+// integer (the image nearest zero, for |a - b| < L / 2), rounded to float and scaled. Its error
+// against the double minimum image of the wrapped coordinates: at most L / 2^32 from the two
+// quantisations, and about 3 float roundings of |d| (the conversion, the scale, the product).
+CF_HD float fixed_separation(uint32_t a, uint32_t b, float scale) { return float(int32_t(a - b)) * scale; }
 
 }  // namespace cellforce::cuda

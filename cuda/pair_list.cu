@@ -62,6 +62,41 @@ __device__ __forceinline__ double distance2(const Grid& g, const RankedParticle&
   return d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
 }
 
+// The squared minimum-image distance of particles i and j from their user-order positions, in
+// double (separation: each coordinate wrapped exactly, then the minimum image): the build's
+// decision for pairs within the staged coordinates' rounding of the list cutoff, the same number
+// distance2 forms from their gathered RankedParticles.
+template <int D>
+__device__ __forceinline__ double distance2(const Grid& g, const double* __restrict__ positions, uint32_t i,
+                                            uint32_t j) {
+  double r2 = 0;
+  for (int a = 0; a < D; ++a) {
+    const double d = separation(positions[std::size_t(i) * D + a], positions[std::size_t(j) * D + a], g.length[a],
+                                g.inv_length[a]);
+    r2 += d * d;
+  }
+  return r2;
+}
+
+// The separation P - Q of two gathered particles in the pair precision: formed in double and
+// rounded once (RankedParticle), or as the fixed-point difference (FixedParticle, float), scaled
+// by L_a / 2^32 (`scale`: fixed_separation in list_build.h).
+template <int D, class Real>
+__device__ __forceinline__ void pair_separation(const Grid& g, const RankedParticle& a, const RankedParticle& b,
+                                                const float (&)[3], Real d[3]) {
+  double dd[3];
+  distance2<D>(g, a, b, dd);
+  for (int c = 0; c < 3; ++c) d[c] = Real(dd[c]);
+}
+template <int D, class Real>
+__device__ __forceinline__ void pair_separation(const Grid&, const FixedParticle& a, const FixedParticle& b,
+                                                const float (&scale)[3], Real d[3]) {
+  static_assert(std::is_same_v<Real, float>, "fixed-point positions serve float pairs");
+  d[0] = fixed_separation(a.x, b.x, scale[0]);
+  d[1] = fixed_separation(a.y, b.y, scale[1]);
+  d[2] = D == 3 ? fixed_separation(a.z, b.z, scale[2]) : 0.0f;
+}
+
 // Where entry k of rank p's list is: its group's rows start at group_rows[p / kGroup], row k holds
 // entry k of the group's kGroup ranks side by side (consecutive ranks read consecutive words).
 __device__ __forceinline__ std::size_t list_slot(const unsigned long long* __restrict__ group_rows, std::size_t p,
@@ -70,9 +105,28 @@ __device__ __forceinline__ std::size_t list_slot(const unsigned long long* __res
 }
 
 template <int D>
+__device__ __forceinline__ void store_ranked(RankedParticle* __restrict__ ranked, std::size_t p, const Grid&,
+                                             const double x[3], uint32_t type, std::size_t, DeviceFlags*) {
+  ranked[p] = RankedParticle{x[0], x[1], x[2], type, 0u};
+}
+// Every axis periodic (the layout's condition). A non-finite coordinate has no fixed-point value:
+// it is flagged as the device input check does (the particle and axis named at the next check of
+// the flags), where the double layout would carry it into a non-finite force.
+template <int D>
+__device__ __forceinline__ void store_ranked(FixedParticle* __restrict__ ranked, std::size_t p, const Grid& g,
+                                             const double x[3], uint32_t type, std::size_t i, DeviceFlags* flags) {
+  uint32_t u[3] = {0, 0, 0};
+  for (int a = 0; a < D; ++a) {
+    if (!isfinite(x[a])) atomicMin(&flags->bad_coordinate, static_cast<unsigned long long>(i) << 32 | unsigned(a));
+    u[a] = fixed_coordinate(x[a], g.inv_length[a]);
+  }
+  ranked[p] = FixedParticle{u[0], u[1], u[2], type};
+}
+
+template <int D, class Particle>
 __global__ void gather_ranked(Grid g, const double* __restrict__ positions, const uint32_t* __restrict__ types,
                               const uint32_t* __restrict__ order, std::size_t n, uint32_t num_types,
-                              RankedParticle* __restrict__ ranked, GateView gate) {
+                              Particle* __restrict__ ranked, DeviceFlags* flags, GateView gate) {
   if (gate_shut(gate)) return;
   const std::size_t p = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
   if (gate.gate && p == 0) atomicMax(&gate.gate->served, gate.gate->d2[gate.step % 3]);
@@ -84,7 +138,7 @@ __global__ void gather_ranked(Grid g, const double* __restrict__ positions, cons
     x[a] = g.inv_length[a] != 0.0 ? wrap_coordinate(v, g.length[a]) : v;
   }
   const uint32_t t = types ? types[i] : 0u;
-  ranked[p] = RankedParticle{x[0], x[1], x[2], t < num_types ? t : 0u, 0u};
+  store_ranked<D>(ranked, p, g, x, t < num_types ? t : 0u, i, flags);
 }
 
 // One warp per work unit: a row tile of a collision cell (the tile form's work units and candidate
@@ -99,15 +153,12 @@ __global__ void gather_ranked(Grid g, const double* __restrict__ positions, cons
 // staged coordinates (relative to the cell centre, in the pair precision): below the cutoff by more
 // than their rounding (1e-5 relative in r^2) a pair is in, above it by as much it is out, and
 // between, the double positions decide, so that the list is exactly the pairs closer than the
-// cutoff in double. With compensated coordinates (float) and no wrap inside a cell, a prefilter on
-// the hi parts alone drops what cannot pass: hi-part r^2 >= pre2 (prefilter_bound) implies the
-// compensated r^2 >= out2, so it rejects only pairs the full test rejects (the same list) at half
-// the instructions of a test, and ~93% of the candidates are rejected.
+// cutoff in double.
 template <class T, bool Fill, class Real, class Accum>
 __global__ void __launch_bounds__(kBlock)
     list_rows(const TraversalArgs<Real, Accum> args, const ListStaging staging,
-              const RankedParticle* __restrict__ ranked, const uint32_t* __restrict__ rank, Real in2, Real out2,
-              Real pre2, double cutoff2, uint32_t splits, uint32_t* __restrict__ slot_counts,
+              const uint32_t* __restrict__ rank, Real in2, Real out2,
+              double cutoff2, uint32_t splits, uint32_t* __restrict__ slot_counts,
               uint32_t* __restrict__ split_counts, const unsigned long long* __restrict__ group_rows,
               uint32_t* __restrict__ neighbors) {
   constexpr int D = T::kDim;
@@ -165,11 +216,6 @@ __global__ void __launch_bounds__(kBlock)
     const uint32_t cnt = min(c1 - col, 32u);
     for (uint32_t k = 0; k < cnt; ++k) {
       // The distance first (most candidates fail it), the candidate rule only for the few within.
-      if constexpr (StagedCoordinate<Real>::kCompensated && !T::kWrap) {
-        const Column& H = column[k];  // the hi parts only (the first 16 bytes)
-        const Real hx = A.x - H.x, hy = A.y - H.y, hz = D == 3 ? A.z - H.z : Real(0);
-        if (!(hx * hx + hy * hy + hz * hz < pre2)) continue;
-      }
       const Column B = column[k];
       Real d[3];
       const Real r2 = detail::separation<T>(A, B, args.length, args.inv_length, d);
@@ -179,8 +225,7 @@ __global__ void __launch_bounds__(kBlock)
       // H x H; H x P (either way round) unless the control-bit rule gives it to another cell.
       if (!(a_home && b < h) && skip_pair(type, ca, detail::control_of(B.meta))) continue;
       if (!(r2 < in2)) {  // within the staged coordinates' rounding of the cutoff: decide in double
-        double dd[3];
-        if (!(distance2<D>(args.grid, ranked[pa], ranked[column_ranks[k]], dd) < cutoff2)) continue;
+        if (!(distance2<D>(args.grid, staging.positions, ids[a], ids[b]) < cutoff2)) continue;
       }
       if constexpr (Fill) neighbors[list_slot(group_rows, pa, written + count)] = column_ranks[k];
       ++count;
@@ -210,11 +255,15 @@ __global__ void sum_slot_counts(const uint32_t* __restrict__ slot_counts, std::s
 // S threads per rank (S = 1, 2, 4 or 8, adjacent lanes of one warp): thread j of a particle takes
 // list entries j, j + S, ..., and the S partial sums are added by a butterfly over the S lanes, so
 // that the whole force on the particle is summed in an order fixed by its list. Small systems take
-// S > 1 to fill the GPU.
-template <class T, int S, class Real, class Accum>
+// S > 1 to fill the GPU. Each thread loads its next kBatch entries and their partners before it
+// evaluates them (kBatch gathers in flight, not one: the loop waits on the gathers' latency
+// otherwise), and adds the pairs in list order as before.
+constexpr int kBatch = 4;
+
+template <class T, int S, class Particle, class Real, class Accum>
 __global__ void __launch_bounds__(kBlock)
     list_force_kernel(const ListArgs<Real, Accum> args, const uint32_t* __restrict__ order,
-                      const RankedParticle* __restrict__ ranked, const uint32_t* __restrict__ length,
+                      const Particle* __restrict__ ranked, const uint32_t* __restrict__ length,
                       const unsigned long long* __restrict__ group_rows, const uint32_t* __restrict__ neighbors,
                       Accum* __restrict__ block_sums, GateView gate) {
   if (gate_shut(gate)) return;  // the whole block: before any shuffle or barrier
@@ -227,28 +276,41 @@ __global__ void __launch_bounds__(kBlock)
   Accum f[D] = {};
   Accum ea = 0;
   if (p < n) {
-    const RankedParticle P = ranked[p];
+    float scale[3];  // FixedParticle: L_a / 2^32
+    for (int c = 0; c < 3; ++c) scale[c] = fixed_scale(args.grid.length[c]);
+    const Particle P = ranked[p];
     const uint32_t len = length[p];
     const LJParams<Real> single = args.table[0];
-    for (uint32_t k = part; k < len; k += S) {
-      const uint32_t q = neighbors[list_slot(group_rows, p, k)];
-      const RankedParticle Q = ranked[q];
-      double dd[3];
-      distance2<D>(args.grid, P, Q, dd);
-      Real d[3] = {Real(dd[0]), Real(dd[1]), Real(dd[2])};
-      Real r2 = d[0] * d[0] + d[1] * d[1];
-      if constexpr (D == 3) r2 += d[2] * d[2];
-      LJParams<Real> prm;
-      if constexpr (T::kMultiType) prm = args.table[P.type * args.num_types + Q.type];
-      else prm = single;
-      Real fr, e = 0;
-      if (!lj_pair<T::kMode, T::kObservables>(r2, args.rc2, prm, fr, e)) continue;
-      if (!isfinite(fr)) detail::flag_bad_pair(args.flags, order[p], order[q]);
-      for (int c = 0; c < D; ++c) f[c] += Accum(mul_rn(fr, d[c]));  // no FMA, as the traversals
-      if constexpr (T::kObservables) {
-        const Real half_e = Real(0.5) * e;
-        ea += Accum(half_e);
-        totals.template add<D>(half_e, Real(0.5) * fr, d);
+    const uint32_t* entries = neighbors + list_slot(group_rows, p, 0);  // entry k at entries[k * kGroup]
+    for (uint32_t k0 = part; k0 < len; k0 += uint32_t(S * kBatch)) {
+      uint32_t q[kBatch];
+#pragma unroll
+      for (int b = 0; b < kBatch; ++b) {
+        const uint32_t k = k0 + uint32_t(b * S);
+        q[b] = k < len ? entries[std::size_t(k) * kGroup] : uint32_t(p);
+      }
+      Particle Q[kBatch];
+#pragma unroll
+      for (int b = 0; b < kBatch; ++b) Q[b] = ranked[q[b]];
+#pragma unroll
+      for (int b = 0; b < kBatch; ++b) {
+        if (k0 + uint32_t(b * S) >= len) break;  // past the list: the batch's rest is too
+        Real d[3];
+        pair_separation<D>(args.grid, P, Q[b], scale, d);
+        Real r2 = d[0] * d[0] + d[1] * d[1];
+        if constexpr (D == 3) r2 += d[2] * d[2];
+        LJParams<Real> prm;
+        if constexpr (T::kMultiType) prm = args.table[P.type * args.num_types + Q[b].type];
+        else prm = single;
+        Real fr, e = 0;
+        if (!lj_pair<T::kMode, T::kObservables>(r2, args.rc2, prm, fr, e)) continue;
+        if (!isfinite(fr)) detail::flag_bad_pair(args.flags, order[p], order[q[b]]);
+        for (int c = 0; c < D; ++c) f[c] += Accum(mul_rn(fr, d[c]));  // no FMA, as the traversals
+        if constexpr (T::kObservables) {
+          const Real half_e = Real(0.5) * e;
+          ea += Accum(half_e);
+          totals.template add<D>(half_e, Real(0.5) * fr, d);
+        }
       }
     }
   }
@@ -288,13 +350,21 @@ void with_dim(int dim, F&& f) {
   else f(std::integral_constant<int, 3>{});
 }
 
-template <class Real, class Accum>
-void gather(const ListArgs<Real, Accum>& args, PairList& list, cudaStream_t stream, const GateView& gate = {}) {
-  list.ranked.reserve(std::max<std::size_t>(args.n, 1));
-  if (args.n == 0) return;
+// Whether every axis is periodic: float pairs then gather FixedParticle.
+bool all_periodic(const Grid& g) {
+  for (int a = 0; a < g.dim; ++a)
+    if (g.inv_length[a] == 0.0) return false;
+  return true;
+}
+
+template <class Particle, class Real, class Accum>
+void gather(const ListArgs<Real, Accum>& args, PairList& list, DeviceBuffer<Particle>& ranked, cudaStream_t stream,
+            const GateView& gate) {
+  ranked.reserve(std::max<std::size_t>(args.n, 1));
   with_dim(args.grid.dim, [&](auto d) {
     gather_ranked<decltype(d)::value><<<blocks_for(args.n), kBlock, 0, stream>>>(
-        args.grid, args.positions, args.types, list.order.data(), args.n, args.num_types, list.ranked.data(), gate);
+        args.grid, args.positions, args.types, list.order.data(), args.n, args.num_types, ranked.data(), args.flags,
+        gate);
   });
   CF_CUDA_CHECK_LAUNCH();
 }
@@ -327,13 +397,11 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
                                            list.selected.data(), int(entries), stream));
   invert_order<<<blocks_for(n), kBlock, 0, stream>>>(list.order.data(), n, list.rank.data());
   CF_CUDA_CHECK_LAUNCH();
-  gather(args, list, stream);
 
   // Count, size, fill.
   CF_CUDA_CHECK(cudaMemsetAsync(list.slot_counts.data(), 0, n * slots * sizeof(uint32_t), stream));
   const double cutoff2 = list_cutoff * list_cutoff;
   const Real in2 = Real(cutoff2 * (1 - 1e-5)), out2 = Real(cutoff2 * (1 + 1e-5));
-  const Real pre2 = Real(prefilter_bound(cells.grid, double(out2)));  // used with float coordinates
   list.splits = list.forced_splits > 0 ? std::min(list.forced_splits, 8)
                                        : build_splits(cells.max_tiles, cells.multiprocessors);
   const std::size_t units = std::size_t(cells.max_tiles) * std::size_t(list.splits);
@@ -350,7 +418,7 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
       using T = decltype(traits);
       if constexpr (!T::kMultiType && T::kMode == CutoffMode::kTruncate && !T::kObservables)
         list_rows<T, kFill><<<row_blocks, kBlock, 0, stream>>>(
-            cells, staging, list.ranked.data(), list.rank.data(), in2, out2, pre2, cutoff2, uint32_t(list.splits),
+            cells, staging, list.rank.data(), in2, out2, cutoff2, uint32_t(list.splits),
             list.slot_counts.data(), list.splits > 1 ? list.split_counts.data() : nullptr, list.group_rows.data(),
             kFill ? list.neighbors.data() : nullptr);
     });
@@ -435,29 +503,40 @@ template <class Real, class Accum>
 void list_forces(const Switches& sw, const ListArgs<Real, Accum>& args, PairList& list, cudaStream_t stream,
                  const GateView& gate) {
   if (args.n == 0) return;
-  gather(args, list, stream, gate);
   const unsigned blocks = blocks_for(args.n * std::size_t(list.threads_per_particle));
   list.block_sums.reserve(std::size_t(blocks) * kCellSums * sizeof(Accum));
   Switches s = sw;
   s.wrap = false;  // positions are absolute: the minimum image is on every periodic axis
-  detail::dispatch(s, [&](auto traits) {
-    using T = decltype(traits);
-    if constexpr (!T::kWrap) {
-      auto go = [&](auto split) {
-        list_force_kernel<T, decltype(split)::value, Real, Accum><<<blocks, kBlock, 0, stream>>>(
-            args, list.order.data(), list.ranked.data(), list.length.data(), list.group_rows.data(),
-            list.neighbors.data(),
-            reinterpret_cast<Accum*>(list.block_sums.data()), gate);
-      };
-      switch (list.threads_per_particle) {
-        case 1: go(std::integral_constant<int, 1>{}); break;
-        case 2: go(std::integral_constant<int, 2>{}); break;
-        case 4: go(std::integral_constant<int, 4>{}); break;
-        default: go(std::integral_constant<int, 8>{}); break;
+  auto evaluate = [&](auto& ranked) {
+    using Particle = typename std::remove_reference_t<decltype(ranked)>::value_type;
+    gather(args, list, ranked, stream, gate);
+    detail::dispatch(s, [&](auto traits) {
+      using T = decltype(traits);
+      if constexpr (!T::kWrap) {
+        auto go = [&](auto split) {
+          list_force_kernel<T, decltype(split)::value, Particle, Real, Accum><<<blocks, kBlock, 0, stream>>>(
+              args, list.order.data(), ranked.data(), list.length.data(), list.group_rows.data(),
+              list.neighbors.data(), reinterpret_cast<Accum*>(list.block_sums.data()), gate);
+        };
+        switch (list.threads_per_particle) {
+          case 1: go(std::integral_constant<int, 1>{}); break;
+          case 2: go(std::integral_constant<int, 2>{}); break;
+          case 4: go(std::integral_constant<int, 4>{}); break;
+          default: go(std::integral_constant<int, 8>{}); break;
+        }
       }
+    });
+    CF_CUDA_CHECK_LAUNCH();
+  };
+  if constexpr (std::is_same_v<Real, float>) {
+    if (all_periodic(args.grid)) {
+      list.ranked.release();
+      evaluate(list.fixed);
+      return;
     }
-  });
-  CF_CUDA_CHECK_LAUNCH();
+  }
+  list.fixed.release();
+  evaluate(list.ranked);
 }
 
 #define CF_PAIR_LIST(Real, Accum)                                                                              \

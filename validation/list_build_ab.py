@@ -3,9 +3,9 @@ r"""A/B of the pair-list build between two `cellforce` binaries, in one call on 
 
 For each size, the two binaries run `cellforce bench` of the in.lj fluid with pair lists (skin 0.6,
 mixed precision, no reference), interleaved, --repeats times each; the table gives the median
-steps/s per binary and their ratio. With --ncu, Nsight Compute then times the list build's
-kernels (`list_rows`: its count and fill passes) of each binary at each size: the median duration
-of the captured launches.
+steps/s per binary and their ratio. With --ncu, Nsight Compute then times --kernel (by default
+the list build's `list_rows`, its count and fill passes; `list_force_kernel` for the evaluations)
+of each binary at each size: the median duration of the 6 captured launches.
 
   python3 validation/list_build_ab.py --base old/cellforce --new build-gpu-bin/cellforce \
       --sizes 32000 256000 1048576 --repeats 2 --ncu --out $OUT
@@ -43,9 +43,9 @@ def bench(binary: str, n: int, seconds: float, work: Path, extra: list[str]) -> 
     return row
 
 
-def ncu_list_rows(binary: str, n: int, extra: list[str]) -> dict:
-    """Median duration (us) of the captured list_rows launches, and how many were captured."""
-    command = ["ncu", "--kernel-name", "regex:list_rows", "--launch-count", "6", "--metrics",
+def ncu_kernel(binary: str, n: int, extra: list[str], kernel: str) -> dict:
+    """Median duration (us) of the captured launches of `kernel` (a regex), and how many were captured."""
+    command = ["ncu", "--kernel-name", f"regex:{kernel}", "--launch-count", "6", "--metrics",
                "gpu__time_duration.sum", "--csv", binary, "bench", "--sizes", str(n), "--precision", "mixed",
                "--backend", "cuda", "--skin", "0.6", "--neighbor-list", "--steps", "40", "--warmup", "5",
                "--samples", "2", "--no-reference"] + extra
@@ -58,7 +58,7 @@ def ncu_list_rows(binary: str, n: int, extra: list[str]) -> dict:
             times.append(value / 1e3 if rec.get("Metric Unit") == "ns" else value)
     if not times:
         return {"error": f"ncu exit {p.returncode}: {(p.stderr or p.stdout).strip()[-300:]}"}
-    return {"list_rows_us_median": statistics.median(times), "launches": len(times)}
+    return {"kernel": kernel, "us_median": statistics.median(times), "launches": len(times)}
 
 
 def main() -> int:
@@ -68,7 +68,10 @@ def main() -> int:
     ap.add_argument("--sizes", type=int, nargs="+", default=[32000, 256000, 1048576])
     ap.add_argument("--repeats", type=int, default=2)
     ap.add_argument("--seconds", type=float, default=1.5)
-    ap.add_argument("--ncu", action="store_true", help="also time list_rows with Nsight Compute")
+    ap.add_argument("--ncu", action="store_true", help="also time --kernel with Nsight Compute")
+    ap.add_argument("--kernel", default="list_rows",
+                    help="the kernels --ncu times (a regex): list_rows (the build's passes, the default) or "
+                         "list_force_kernel (the force evaluations the lists serve)")
     ap.add_argument("--bench-args", default="",
                     help="more `cellforce bench` arguments for both, written --bench-args=--langevin")
     ap.add_argument("--out", type=Path, required=True)
@@ -76,7 +79,7 @@ def main() -> int:
     extra = shlex.split(args.bench_args)
     args.out.mkdir(parents=True, exist_ok=True)
     runs, failed = [], False
-    lines = ["| N | base steps/s | new steps/s | new / base | base list_rows us | new list_rows us |",
+    lines = [f"| N | base steps/s | new steps/s | new / base | base {args.kernel} us | new {args.kernel} us |",
              "|---|---|---|---|---|---|"]
     with tempfile.TemporaryDirectory(prefix="cellforce-ab-") as tmp:
         work = Path(tmp)
@@ -96,9 +99,9 @@ def main() -> int:
             kern = {"base": {}, "new": {}}
             if args.ncu:
                 for label in ("base", "new"):
-                    kern[label] = ncu_list_rows(getattr(args, label), n, extra)
+                    kern[label] = ncu_kernel(getattr(args, label), n, extra, args.kernel)
                     runs.append({"n": n, "binary": label, "ncu": kern[label]})
-            us = {k: f"{v['list_rows_us_median']:.1f}" if "list_rows_us_median" in v else "-" for k, v in kern.items()}
+            us = {k: f"{v['us_median']:.1f}" if "us_median" in v else "-" for k, v in kern.items()}
             lines.append(f"| {n:,} | {med['base']:,.0f} | {med['new']:,.0f} | {med['new'] / med['base']:.3f} | "
                          f"{us['base']} | {us['new']} |")
             (args.out / "list_build_ab.json").write_text(json.dumps(runs, indent=1))
