@@ -50,12 +50,24 @@ inline int build_splits(std::size_t max_tiles, int multiprocessors) {
 CF_HD uint32_t fixed_coordinate(double x, double inv_length) {
   return uint32_t(static_cast<unsigned long long>(rint(x * (inv_length * 0x1p32))));
 }
-// L / 2^32, rounded once to float: a fixed-point difference times it is a separation.
-CF_HD float fixed_scale(double length) { return float(length * 0x1p-32); }
+// L / 2^32 as a float pair hi + lo (hi = float(L / 2^32), lo = the rest), so that a separation
+// carries no systematic scale error (hi alone would stretch every separation along the axis by up
+// to 2^-24 relative: a strained box).
+struct FixedScale {
+  float hi = 0, lo = 0;
+};
+CF_HD FixedScale fixed_scale(double length) {
+  const double s = length * 0x1p-32;
+  const float hi = float(s);
+  return {hi, float(s - double(hi))};
+}
 // The minimum-image separation a - b along an axis: the difference modulo 2^32 read as a signed
 // integer (the image nearest zero, for |a - b| < L / 2), rounded to float and scaled. Its error
 // against the double minimum image of the wrapped coordinates: at most L / 2^32 from the two
-// quantisations, and about 3 float roundings of |d| (the conversion, the scale, the product).
-CF_HD float fixed_separation(uint32_t a, uint32_t b, float scale) { return float(int32_t(a - b)) * scale; }
+// quantisations, and two float roundings of |d| (the conversion, the fused scaling).
+CF_HD float fixed_separation(uint32_t a, uint32_t b, FixedScale scale) {
+  const float f = float(int32_t(a - b));
+  return fmaf(f, scale.hi, f * scale.lo);
+}
 
 }  // namespace cellforce::cuda

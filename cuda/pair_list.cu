@@ -83,14 +83,14 @@ __device__ __forceinline__ double distance2(const Grid& g, const double* __restr
 // by L_a / 2^32 (`scale`: fixed_separation in list_build.h).
 template <int D, class Real>
 __device__ __forceinline__ void pair_separation(const Grid& g, const RankedParticle& a, const RankedParticle& b,
-                                                const float (&)[3], Real d[3]) {
+                                                const FixedScale (&)[3], Real d[3]) {
   double dd[3];
   distance2<D>(g, a, b, dd);
   for (int c = 0; c < 3; ++c) d[c] = Real(dd[c]);
 }
 template <int D, class Real>
 __device__ __forceinline__ void pair_separation(const Grid&, const FixedParticle& a, const FixedParticle& b,
-                                                const float (&scale)[3], Real d[3]) {
+                                                const FixedScale (&scale)[3], Real d[3]) {
   static_assert(std::is_same_v<Real, float>, "fixed-point positions serve float pairs");
   d[0] = fixed_separation(a.x, b.x, scale[0]);
   d[1] = fixed_separation(a.y, b.y, scale[1]);
@@ -276,7 +276,7 @@ __global__ void __launch_bounds__(kBlock)
   Accum f[D] = {};
   Accum ea = 0;
   if (p < n) {
-    float scale[3];  // FixedParticle: L_a / 2^32
+    FixedScale scale[3];  // FixedParticle: L_a / 2^32
     for (int c = 0; c < 3; ++c) scale[c] = fixed_scale(args.grid.length[c]);
     const Particle P = ranked[p];
     const uint32_t len = length[p];
