@@ -149,7 +149,8 @@ __global__ void gather_ranked(Grid g, const double* __restrict__ positions, cons
 // slot_counts[rank * 2^d + cell type] (a store with one split; with several, each range's count is
 // added there, an integer sum, and kept per unit and lane in split_counts). Fill: the same walk
 // writes them, after the partners the row's particle found in cells of lower type and in the
-// ranges before this one (so the list does not depend on the splits). The test reads the
+// ranges before this one (so the list does not depend on the splits). Per tile of 32 columns, the
+// distance test of every column comes first, as a bit mask, then the rule for those within. The test reads the
 // staged coordinates (relative to the cell centre, in the pair precision): below the cutoff by more
 // than their rounding (1e-5 relative in r^2) a pair is in, above it by as much it is out, and
 // between, the double positions decide, so that the list is exactly the pairs closer than the
@@ -214,19 +215,34 @@ __global__ void __launch_bounds__(kBlock)
     }
     __syncwarp();
     const uint32_t cnt = min(c1 - col, 32u);
-    for (uint32_t k = 0; k < cnt; ++k) {
-      // The distance first (most candidates fail it), the candidate rule only for the few within.
-      const Column B = column[k];
+    // The distance test of every column first, without a branch: bit k of `near` marks column k
+    // within out2 of this lane's row. ~93% fail it; a branch per column would run the rule below
+    // in the one or two lanes that pass on almost every column, with the warp's other lanes idle.
+    uint32_t near = 0;
+    auto within = [&](uint32_t k) {
       Real d[3];
-      const Real r2 = detail::separation<T>(A, B, args.length, args.inv_length, d);
-      if (!(r2 < out2)) continue;
+      return detail::separation<T>(A, column[k], args.length, args.inv_length, d) < out2;
+    };
+    if (cnt == 32u) {
+#pragma unroll
+      for (uint32_t k = 0; k < 32u; ++k) near |= uint32_t(within(k)) << k;
+    } else {
+      for (uint32_t k = 0; k < cnt; ++k) near |= uint32_t(within(k)) << k;
+    }
+    // Then the columns that passed, in column order: the candidate rule, and the double decision
+    // for the few within the staged coordinates' rounding of the cutoff.
+    while (near) {
+      const uint32_t k = uint32_t(__ffs(int(near)) - 1);
+      near &= near - 1u;
       const uint32_t b = col + k;
       if (b >= row_cols || b == a) continue;
+      const Column& B = column[k];
       // H x H; H x P (either way round) unless the control-bit rule gives it to another cell.
       if (!(a_home && b < h) && skip_pair(type, ca, detail::control_of(B.meta))) continue;
-      if (!(r2 < in2)) {  // within the staged coordinates' rounding of the cutoff: decide in double
-        if (!(distance2<D>(args.grid, staging.positions, ids[a], ids[b]) < cutoff2)) continue;
-      }
+      Real d[3];
+      if (!(detail::separation<T>(A, B, args.length, args.inv_length, d) < in2) &&
+          !(distance2<D>(args.grid, staging.positions, ids[a], ids[b]) < cutoff2))
+        continue;
       if constexpr (Fill) neighbors[list_slot(group_rows, pa, written + count)] = column_ranks[k];
       ++count;
     }
