@@ -44,6 +44,25 @@ inline int build_splits(std::size_t max_tiles, int multiprocessors) {
   return splits;
 }
 
+// The hi-part prefilter's bound (list_rows, float coordinates): with staged coordinates at most
+// X = max(c/2 + h) from their cell's centre, hi and lo parts of float coordinates (|lo| <= ulp(X)
+// / 2), a component of the hi-part difference is within 2 ulp(X) of the compensated one (the lo
+// difference, and the rounding of adding it); so the separations differ by at most sqrt(3) x 2
+// ulp(X), and with the rounding of both r^2 sums (a few float ulps, FMA or not), hi-part r^2 >=
+// (sqrt(out2) + sqrt(3) x 3 ulp(X))^2 (1 + 1e-6) implies the compensated r^2 >= out2. Rounded up to
+// float. It assumes what a planned grid gives: every particle within its cells (a grid_override,
+// tests only, or particles clamped into an open axis's fallback cell when a coordinate is not
+// finite, an evaluation that raises an error anyway, may not); the margin covers coordinates up to
+// the next power of two above X.
+inline float prefilter_bound(const Grid& g, double out2) {
+  double x = 0;
+  for (int a = 0; a < g.dim; ++a) x = std::max(x, 0.5 * g.cell[a] + g.half_width);
+  const float xf = std::nextafter(float(x), INFINITY);
+  const double ulp = double(std::nextafter(xf, INFINITY)) - double(xf);
+  const double r = std::sqrt(out2) + std::sqrt(3.0) * 3.0 * ulp;
+  return std::nextafter(float(r * r * (1 + 1e-6)), INFINITY);
+}
+
 // Fixed-point coordinates (FixedParticle: float pairs, every axis periodic). A coordinate wrapped
 // into [0, L) is stored as the integer nearest x / L * 2^32, modulo 2^32 (x rounding up to 2^32
 // gives 0, the same point).

@@ -65,14 +65,16 @@ __device__ __forceinline__ double distance2(const Grid& g, const RankedParticle&
 // The squared minimum-image distance of particles i and j from their user-order positions, in
 // double (separation: each coordinate wrapped exactly, then the minimum image): the build's
 // decision for pairs within the staged coordinates' rounding of the list cutoff, the same number
-// distance2 forms from their gathered RankedParticles.
+// distance2 forms from their gathered RankedParticles. Rare (pairs within 1e-5 of the cutoff in
+// r^2), and not inlined: its exact wrap (fmod) would weigh on the registers of the build's loop.
 template <int D>
-__device__ __forceinline__ double distance2(const Grid& g, const double* __restrict__ positions, uint32_t i,
-                                            uint32_t j) {
+__device__ __noinline__ double distance2(const double* __restrict__ positions, uint32_t i, uint32_t j, double l0,
+                                         double l1, double l2, double il0, double il1, double il2) {
+  const double length[3] = {l0, l1, l2}, inv_length[3] = {il0, il1, il2};
   double r2 = 0;
   for (int a = 0; a < D; ++a) {
-    const double d = separation(positions[std::size_t(i) * D + a], positions[std::size_t(j) * D + a], g.length[a],
-                                g.inv_length[a]);
+    const double d = separation(positions[std::size_t(i) * D + a], positions[std::size_t(j) * D + a], length[a],
+                                inv_length[a]);
     r2 += d * d;
   }
   return r2;
@@ -150,7 +152,10 @@ __global__ void gather_ranked(Grid g, const double* __restrict__ positions, cons
 // added there, an integer sum, and kept per unit and lane in split_counts). Fill: the same walk
 // writes them, after the partners the row's particle found in cells of lower type and in the
 // ranges before this one (so the list does not depend on the splits). Per tile of 32 columns, the
-// distance test of every column comes first, as a bit mask, then the rule for those within. The test reads the
+// distance test of every column comes first, as a bit mask, then the rule for those within. With
+// compensated coordinates (float) and no wrap inside a cell, that first test reads the hi parts
+// alone: hi-part r^2 >= pre2 (prefilter_bound) implies the compensated r^2 >= out2, so it drops
+// only what the full test drops, and the few survivors take the full test. The test reads the
 // staged coordinates (relative to the cell centre, in the pair precision): below the cutoff by more
 // than their rounding (1e-5 relative in r^2) a pair is in, above it by as much it is out, and
 // between, the double positions decide, so that the list is exactly the pairs closer than the
@@ -159,7 +164,7 @@ template <class T, bool Fill, class Real, class Accum>
 __global__ void __launch_bounds__(kBlock)
     list_rows(const TraversalArgs<Real, Accum> args, const ListStaging staging,
               const uint32_t* __restrict__ rank, Real in2, Real out2,
-              double cutoff2, uint32_t splits, uint32_t* __restrict__ slot_counts,
+              Real pre2, double cutoff2, uint32_t splits, uint32_t* __restrict__ slot_counts,
               uint32_t* __restrict__ split_counts, const unsigned long long* __restrict__ group_rows,
               uint32_t* __restrict__ neighbors) {
   constexpr int D = T::kDim;
@@ -220,8 +225,14 @@ __global__ void __launch_bounds__(kBlock)
     // in the one or two lanes that pass on almost every column, with the warp's other lanes idle.
     uint32_t near = 0;
     auto within = [&](uint32_t k) {
-      Real d[3];
-      return detail::separation<T>(A, column[k], args.length, args.inv_length, d) < out2;
+      if constexpr (StagedCoordinate<Real>::kCompensated && !T::kWrap) {
+        const Column& H = column[k];  // the hi parts only: hi-part r^2 >= pre2 implies r^2 >= out2
+        const Real hx = A.x - H.x, hy = A.y - H.y, hz = D == 3 ? A.z - H.z : Real(0);
+        return hx * hx + hy * hy + hz * hz < pre2;
+      } else {
+        Real d[3];
+        return detail::separation<T>(A, column[k], args.length, args.inv_length, d) < out2;
+      }
     };
     if (cnt == 32u) {
 #pragma unroll
@@ -240,8 +251,12 @@ __global__ void __launch_bounds__(kBlock)
       // H x H; H x P (either way round) unless the control-bit rule gives it to another cell.
       if (!(a_home && b < h) && skip_pair(type, ca, detail::control_of(B.meta))) continue;
       Real d[3];
-      if (!(detail::separation<T>(A, B, args.length, args.inv_length, d) < in2) &&
-          !(distance2<D>(args.grid, staging.positions, ids[a], ids[b]) < cutoff2))
+      const Real r2 = detail::separation<T>(A, B, args.length, args.inv_length, d);
+      if (!(r2 < out2)) continue;  // the prefilter's survivors: the compensated test
+      if (!(r2 < in2) &&
+          !(distance2<D>(staging.positions, ids[a], ids[b], args.grid.length[0], args.grid.length[1],
+                            args.grid.length[2], args.grid.inv_length[0], args.grid.inv_length[1],
+                            args.grid.inv_length[2]) < cutoff2))
         continue;
       if constexpr (Fill) neighbors[list_slot(group_rows, pa, written + count)] = column_ranks[k];
       ++count;
@@ -418,6 +433,7 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
   CF_CUDA_CHECK(cudaMemsetAsync(list.slot_counts.data(), 0, n * slots * sizeof(uint32_t), stream));
   const double cutoff2 = list_cutoff * list_cutoff;
   const Real in2 = Real(cutoff2 * (1 - 1e-5)), out2 = Real(cutoff2 * (1 + 1e-5));
+  const Real pre2 = Real(prefilter_bound(cells.grid, double(out2)));  // used with float coordinates
   list.splits = list.forced_splits > 0 ? std::min(list.forced_splits, 8)
                                        : build_splits(cells.max_tiles, cells.multiprocessors);
   const std::size_t units = std::size_t(cells.max_tiles) * std::size_t(list.splits);
@@ -434,7 +450,7 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
       using T = decltype(traits);
       if constexpr (!T::kMultiType && T::kMode == CutoffMode::kTruncate && !T::kObservables)
         list_rows<T, kFill><<<row_blocks, kBlock, 0, stream>>>(
-            cells, staging, list.rank.data(), in2, out2, cutoff2, uint32_t(list.splits),
+            cells, staging, list.rank.data(), in2, out2, pre2, cutoff2, uint32_t(list.splits),
             list.slot_counts.data(), list.splits > 1 ? list.split_counts.data() : nullptr, list.group_rows.data(),
             kFill ? list.neighbors.data() : nullptr);
     });

@@ -139,8 +139,8 @@ INSTANTIATE_TEST_SUITE_P(Scenes, PairList,
 
 // The list holds every pair within rc + skin exactly once from each side: its entries are twice
 // the pairs the test counts by brute force (random positions: no pair sits at rc + skin to the
-// last bit), in every precision (float coordinates take the compensated test, with the double positions
-// deciding near the cutoff).
+// last bit), in every precision (float coordinates pass the hi-part prefilter and the compensated
+// test, with the double positions deciding near the cutoff).
 TEST(PairListBuild, EntriesAreTwiceThePairsWithinTheListCutoff) {
   CF_SKIP_WITHOUT_DEVICE();
   for (const char* name : {"random3d_periodic", "random2d_periodic", "random3d_open", "slab3d", "multitype3d_lb",
@@ -158,8 +158,8 @@ TEST(PairListBuild, EntriesAreTwiceThePairsWithinTheListCutoff) {
 }
 
 // Pairs placed at the list cutoff to within 3e-8..3e-6 relative, either side, in 27 directions (each
-// pair far from the others, straddling cell faces and corners): the compensated test of float
-// coordinates and the double band between in2 and out2 keep exactly the pairs closer than
+// pair far from the others, straddling cell faces and corners): the float coordinates' prefilter,
+// the compensated test and the double band between in2 and out2 keep exactly the pairs closer than
 // rc + skin in double, in every precision (the brute force's count; 0 relative offset excluded).
 TEST(PairListBuild, PairsAtTheListCutoffAreDecidedInDouble) {
   const Scene base = make_scene("random3d_periodic");
@@ -307,6 +307,58 @@ TEST(PairListRules, SplitRule) {
   EXPECT_EQ(build_splits(17000, 132), 1);   // ~67,000 on
   EXPECT_EQ(build_splits(1, 132), 8);
   EXPECT_EQ(build_splits(8217, 0), 1);      // no multiprocessor count: no splits wanted
+}
+
+// The hi-part prefilter drops only pairs the compensated test drops: pairs of coordinates staged
+// relative to a cell's centre (within c/2 + h of it), their double separation within 1e-5 of the
+// list cutoff, staged as StagedCoordinate<float> (hi and lo); whenever the hi-part r^2 reaches the
+// bound, the compensated r^2 (as the kernel forms it, with and without fused multiply-adds) is at
+// least out2. A bound without the hi parts' rounding (out2 itself) fails this check: it has teeth.
+TEST(PairListRules, PrefilterDropsOnlyWhatTheCompensatedTestDrops) {
+  struct Case {
+    double cell, half_width, cutoff;
+  };
+  for (const Case c : {Case{5.29, 2.19, 3.1}, Case{5.6, 2.19, 3.1}, Case{40.0, 2.19, 3.1}, Case{3.0, 1.0, 1.4}}) {
+    cellforce::Grid g;
+    g.dim = 3;
+    for (int a = 0; a < 3; ++a) g.cell[a] = c.cell;
+    g.half_width = c.half_width;
+    const double cutoff2 = c.cutoff * c.cutoff;
+    const float out2 = float(cutoff2 * (1 + 1e-5));
+    const float pre2 = cellforce::cuda::prefilter_bound(g, double(out2));
+    const double x = 0.5 * c.cell + c.half_width;
+    cftest::Rng rng(uint64_t(c.cell * 1000));
+    std::size_t violations = 0, loose = 0, near = 0;
+    for (int k = 0; k < 400000; ++k) {
+      double a[3], b[3], u[3], norm = 0;
+      for (int i = 0; i < 3; ++i) a[i] = rng.uniform(-x, x), u[i] = rng.uniform(-1, 1), norm += u[i] * u[i];
+      const double r = std::sqrt(double(out2)) * (1 + rng.uniform(-1e-5, 1e-5));
+      bool inside = true;
+      for (int i = 0; i < 3; ++i) b[i] = a[i] + r * u[i] / std::sqrt(norm), inside = inside && std::abs(b[i]) <= x;
+      if (!inside) continue;
+      ++near;
+      float hd[3], fd[3];
+      for (int i = 0; i < 3; ++i) {
+        const auto sa = cellforce::StagedCoordinate<float>::from(a[i]), sb = cellforce::StagedCoordinate<float>::from(b[i]);
+        hd[i] = sa.hi - sb.hi;
+        fd[i] = hd[i] + (sa.lo - sb.lo);
+      }
+      const float hi2 = hd[0] * hd[0] + hd[1] * hd[1] + hd[2] * hd[2];
+      const float full2 = fd[0] * fd[0] + fd[1] * fd[1] + fd[2] * fd[2];
+      const float full2_fma = std::fma(fd[2], fd[2], std::fma(fd[1], fd[1], fd[0] * fd[0]));
+      const float hi2_fma = std::fma(hd[2], hd[2], std::fma(hd[1], hd[1], hd[0] * hd[0]));
+      for (const float h : {hi2, hi2_fma})
+        for (const float f : {full2, full2_fma}) {
+          if (!(h < pre2) && f < out2) ++violations;
+          if (!(h < out2) && f < out2) ++loose;
+        }
+    }
+    SCOPED_TRACE("cell " + std::to_string(c.cell));
+    EXPECT_GT(near, 100000u);
+    EXPECT_EQ(violations, 0u);
+    EXPECT_GT(loose, 0u) << "out2 as the bound never failed: the sample does not reach the rounding";
+    EXPECT_LT(double(pre2), double(out2) * (1 + 1e-4)) << "the bound is far looser than the rounding needs";
+  }
 }
 
 // The force kernel's fixed-point separations (FixedParticle, float pairs in a periodic box)
