@@ -1,6 +1,6 @@
 // The pair-list build's arithmetic that needs no device (cuda/pair_list.cu): the column range of a
-// row tile's split walk, the rule for the number of splits, and the fixed-point coordinates the
-// force kernel gathers (FixedParticle).
+// row tile's split walk, the rule for the number of splits, the hi-part prefilter's bound, and the
+// fixed-point coordinates the force kernel gathers (FixedParticle) with the rule for when it does.
 // Plain C++ (CF_HD): the kernels and the tests use the same functions.
 #pragma once
 
@@ -87,6 +87,17 @@ CF_HD FixedScale fixed_scale(double length) {
 CF_HD float fixed_separation(uint32_t a, uint32_t b, FixedScale scale) {
   const float f = float(int32_t(a - b));
   return fmaf(f, scale.hi, f * scale.lo);
+}
+
+// Whether the force kernel gathers fixed-point positions (float pairs): every axis periodic, and
+// every edge at most 2^8 cutoffs, so that the quantisation (at most L / 2^32) is no larger than
+// a float rounding of a separation at the cutoff (2^-24 rc): the separation's error stays within
+// about two float roundings whatever the box. Larger boxes (and open axes) gather doubles. The
+// 100M-particle in.lj box (L = 490, rc = 2.5) is within.
+inline bool fixed_point_serves(const Grid& g, double cutoff) {
+  for (int a = 0; a < g.dim; ++a)
+    if (g.inv_length[a] == 0.0 || !(g.length[a] <= 256.0 * cutoff)) return false;
+  return true;
 }
 
 }  // namespace cellforce::cuda

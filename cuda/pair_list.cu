@@ -65,8 +65,8 @@ __device__ __forceinline__ double distance2(const Grid& g, const RankedParticle&
 // The squared minimum-image distance of particles i and j from their user-order positions, in
 // double (separation: each coordinate wrapped exactly, then the minimum image): the build's
 // decision for pairs within the staged coordinates' rounding of the list cutoff, the same number
-// distance2 forms from their gathered RankedParticles. (Not inlining it, measured: 2.5% slower
-// passes.)
+// distance2 forms from gathered RankedParticles but for the order of the rounded sum. Inlined:
+// __noinline__ measured 2.5% slower passes (change 18c).
 template <int D>
 __device__ __forceinline__ double distance2(const Grid& g, const double* __restrict__ positions, uint32_t i,
                                             uint32_t j) {
@@ -105,22 +105,27 @@ __device__ __forceinline__ std::size_t list_slot(const unsigned long long* __res
   return std::size_t(group_rows[p / kGroup] + k) * kGroup + p % kGroup;
 }
 
+// A non-finite coordinate is flagged as the device input check does (the particle and axis named
+// at the next check of the flags): a pair with it has a NaN r^2, which fails every cutoff test,
+// so the force kernel would drop its pairs without a word, and it has no fixed-point value.
+template <int D>
+__device__ __forceinline__ void flag_non_finite(const double x[3], std::size_t i, DeviceFlags* flags) {
+  for (int a = 0; a < D; ++a)
+    if (!isfinite(x[a])) atomicMin(&flags->bad_coordinate, static_cast<unsigned long long>(i) << 32 | unsigned(a));
+}
 template <int D>
 __device__ __forceinline__ void store_ranked(RankedParticle* __restrict__ ranked, std::size_t p, const Grid&,
-                                             const double x[3], uint32_t type, std::size_t, DeviceFlags*) {
+                                             const double x[3], uint32_t type, std::size_t i, DeviceFlags* flags) {
+  flag_non_finite<D>(x, i, flags);
   ranked[p] = RankedParticle{x[0], x[1], x[2], type, 0u};
 }
-// Every axis periodic (the layout's condition). A non-finite coordinate has no fixed-point value:
-// it is flagged as the device input check does (the particle and axis named at the next check of
-// the flags), where the double layout would carry it into a non-finite force.
+// Every axis periodic (fixed_point_serves).
 template <int D>
 __device__ __forceinline__ void store_ranked(FixedParticle* __restrict__ ranked, std::size_t p, const Grid& g,
                                              const double x[3], uint32_t type, std::size_t i, DeviceFlags* flags) {
+  flag_non_finite<D>(x, i, flags);
   uint32_t u[3] = {0, 0, 0};
-  for (int a = 0; a < D; ++a) {
-    if (!isfinite(x[a])) atomicMin(&flags->bad_coordinate, static_cast<unsigned long long>(i) << 32 | unsigned(a));
-    u[a] = fixed_coordinate(x[a], g.inv_length[a]);
-  }
+  for (int a = 0; a < D; ++a) u[a] = fixed_coordinate(x[a], g.inv_length[a]);
   ranked[p] = FixedParticle{u[0], u[1], u[2], type};
 }
 
@@ -378,13 +383,6 @@ void with_dim(int dim, F&& f) {
   else f(std::integral_constant<int, 3>{});
 }
 
-// Whether every axis is periodic: float pairs then gather FixedParticle.
-bool all_periodic(const Grid& g) {
-  for (int a = 0; a < g.dim; ++a)
-    if (g.inv_length[a] == 0.0) return false;
-  return true;
-}
-
 template <class Particle, class Real, class Accum>
 void gather(const ListArgs<Real, Accum>& args, PairList& list, DeviceBuffer<Particle>& ranked, cudaStream_t stream,
             const GateView& gate) {
@@ -558,7 +556,7 @@ void list_forces(const Switches& sw, const ListArgs<Real, Accum>& args, PairList
     CF_CUDA_CHECK_LAUNCH();
   };
   if constexpr (std::is_same_v<Real, float>) {
-    if (all_periodic(args.grid)) {
+    if (fixed_point_serves(args.grid, std::sqrt(double(args.rc2)))) {
       list.ranked.release();
       evaluate(list.fixed);
       return;

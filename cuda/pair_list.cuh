@@ -26,7 +26,7 @@
 #include <cstddef>
 #include <cstdint>
 
-#include "list_build.h"  // split_columns, build_splits
+#include "list_build.h"  // split_columns, build_splits, prefilter_bound, fixed-point coordinates
 #include "step_gate.h"
 #include "traversal.cuh"
 
@@ -40,13 +40,13 @@ struct alignas(32) RankedParticle {
   uint32_t unused;
 };
 
-// The same in fixed point, for float pairs in a box periodic on every axis (the single and mixed
-// precisions' usual case): coordinate a as the integer nearest x_a / L_a * 2^32, modulo 2^32 (a
+// The same in fixed point, for float pairs in a box periodic on every axis with edges up to 2^8
+// cutoffs (fixed_point_serves: the single and mixed precisions' usual case): coordinate a as the integer nearest x_a / L_a * 2^32, modulo 2^32 (a
 // wrapped x_a that rounds to 2^32 is 0, the same point). The difference of two such integers,
 // read as a signed 32-bit integer, is the minimum-image separation in units of L_a / 2^32 (for
 // |d| < L_a / 2, which lists guarantee: rc + skin <= L / 2): exact but for the two quantisations,
-// each at most L_a / 2^33 (1.2e-8 at L = 107, 5.7e-8 at L = 490, the 100M in.lj box), and one
-// rounding to float, the minimum image costing nothing. Half the bytes of RankedParticle and no
+// each at most L_a / 2^33 (1.2e-8 at L = 107, 5.7e-8 at L = 490, the 100M in.lj box), and two
+// float roundings (fixed_separation), the minimum image costing nothing. Half the bytes of RankedParticle and no
 // double arithmetic per pair.
 struct alignas(16) FixedParticle {
   uint32_t x, y, z;
@@ -125,8 +125,8 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
                      std::size_t entries, double list_cutoff,
                      const ListArgs<Real, Accum>& list_args, PairList& list, cudaStream_t stream);
 
-// Gathers the positions into rank order (FixedParticle for float pairs in a box periodic on every
-// axis, else RankedParticle) and evaluates every listed pair with r < rc: forces (and
+// Gathers the positions into rank order (FixedParticle for float pairs where fixed_point_serves,
+// else RankedParticle) and evaluates every listed pair with r < rc: forces (and
 // energies) to the user-order outputs, energy and virial per block into list.block_sums, whose
 // count list.blocks holds (for sum_cells). With a gate (step_gate.h) both kernels return at once
 // when it is shut for gate.step.

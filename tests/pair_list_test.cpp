@@ -86,9 +86,10 @@ class PairList : public ::testing::TestWithParam<ListParam> {
 
 // The build evaluation and one at positions moved by up to 0.1499 < skin / 2 (no rebuild: the
 // list serves it). Double: per particle |dF_i| <= 1e-12 max(|F_i|, F_rms), energies, total and
-// virial to 1e-12. Single and mixed: r_ij is formed in double and rounded once to float, so the
-// median per-particle relative error stays below the cells' 1e-6 bound; total energy and virial
-// to 1e-5.
+// virial to 1e-12. Single and mixed: r_ij is formed in double and rounded once to float (an open
+// axis), or from fixed-point positions with two roundings (periodic boxes: fixed_point_serves), so
+// the median per-particle relative error stays below the cells' 1e-6 bound; total energy and
+// virial to 1e-5.
 TEST_P(PairList, ReusedEvaluationMatchesTheBruteForce) {
   const auto& [precision, name] = GetParam();
   const Scene s = make_scene(name);
@@ -392,6 +393,30 @@ TEST(PairListRules, FixedPointSeparationIsTheMinimumImage) {
     EXPECT_EQ(bad, 0u) << "worst error / bound " << worst;
     EXPECT_GT(across, 500u) << "too few pairs across the boundary to test the image";
   }
+}
+
+// Fixed-point gathers serve periodic boxes whose edges are at most 2^8 cutoffs (the quantisation
+// then no larger than a float rounding at the cutoff); an open axis or a longer edge gathers
+// doubles. The 100M in.lj box (490, rc 2.5) is within; 2D boxes look at their two axes only.
+TEST(PairListRules, FixedPointServesPeriodicBoxesUpTo256Cutoffs) {
+  auto grid = [](int dim, double lx, double ly, double lz) {
+    cellforce::Grid g;
+    g.dim = dim;
+    const double l[3] = {lx, ly, lz};
+    for (int a = 0; a < 3; ++a) {
+      g.length[a] = l[a];
+      g.inv_length[a] = l[a] > 0 ? 1.0 / l[a] : 0.0;
+    }
+    return g;
+  };
+  using cellforce::cuda::fixed_point_serves;
+  EXPECT_TRUE(fixed_point_serves(grid(3, 490.3, 490.3, 490.3), 2.5));
+  EXPECT_TRUE(fixed_point_serves(grid(3, 640.0, 33.6, 33.6), 2.5));
+  EXPECT_FALSE(fixed_point_serves(grid(3, 640.1, 33.6, 33.6), 2.5));
+  EXPECT_FALSE(fixed_point_serves(grid(3, 1290.0, 1290.0, 1290.0), 2.5));
+  EXPECT_FALSE(fixed_point_serves(grid(3, 33.6, 0.0, 33.6), 2.5));  // an open axis
+  EXPECT_TRUE(fixed_point_serves(grid(2, 100.0, 100.0, 0.0), 2.5));
+  EXPECT_FALSE(fixed_point_serves(grid(2, 100.0, 0.0, 0.0), 2.5));
 }
 
 // The build's column splits (build_splits: each row tile's columns cut into 2, 4 or 8 ranges, one
