@@ -75,6 +75,10 @@ CF_HD uint32_t fixed_coordinate(double x, double inv_length) {
 struct FixedScale {
   float hi = 0, lo = 0;
 };
+// One per axis, as the force kernel takes them (computed once per evaluation on the host).
+struct FixedScales {
+  FixedScale axis[3];
+};
 CF_HD FixedScale fixed_scale(double length) {
   const double s = length * 0x1p-32;
   const float hi = float(s);

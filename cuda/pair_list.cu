@@ -81,21 +81,21 @@ __device__ __forceinline__ double distance2(const Grid& g, const double* __restr
 
 // The separation P - Q of two gathered particles in the pair precision: formed in double and
 // rounded once (RankedParticle), or as the fixed-point difference (FixedParticle, float), scaled
-// by L_a / 2^32 (`scale`: fixed_separation in list_build.h).
+// by L_a / 2^32 (`scale`, from the host: fixed_separation in list_build.h).
 template <int D, class Real>
 __device__ __forceinline__ void pair_separation(const Grid& g, const RankedParticle& a, const RankedParticle& b,
-                                                const FixedScale (&)[3], Real d[3]) {
+                                                const FixedScales&, Real d[3]) {
   double dd[3];
   distance2<D>(g, a, b, dd);
   for (int c = 0; c < 3; ++c) d[c] = Real(dd[c]);
 }
 template <int D, class Real>
 __device__ __forceinline__ void pair_separation(const Grid&, const FixedParticle& a, const FixedParticle& b,
-                                                const FixedScale (&scale)[3], Real d[3]) {
+                                                const FixedScales& scale, Real d[3]) {
   static_assert(std::is_same_v<Real, float>, "fixed-point positions serve float pairs");
-  d[0] = fixed_separation(a.x, b.x, scale[0]);
-  d[1] = fixed_separation(a.y, b.y, scale[1]);
-  d[2] = D == 3 ? fixed_separation(a.z, b.z, scale[2]) : 0.0f;
+  d[0] = fixed_separation(a.x, b.x, scale.axis[0]);
+  d[1] = fixed_separation(a.y, b.y, scale.axis[1]);
+  d[2] = D == 3 ? fixed_separation(a.z, b.z, scale.axis[2]) : 0.0f;
 }
 
 // Where entry k of rank p's list is: its group's rows start at group_rows[p / kGroup], row k holds
@@ -298,7 +298,7 @@ __global__ void __launch_bounds__(kBlock)
     list_force_kernel(const ListArgs<Real, Accum> args, const uint32_t* __restrict__ order,
                       const Particle* __restrict__ ranked, const uint32_t* __restrict__ length,
                       const unsigned long long* __restrict__ group_rows, const uint32_t* __restrict__ neighbors,
-                      Accum* __restrict__ block_sums, GateView gate) {
+                      const FixedScales scale, Accum* __restrict__ block_sums, GateView gate) {
   if (gate_shut(gate)) return;  // the whole block: before any shuffle or barrier
   constexpr int D = T::kDim;
   const std::size_t n = args.n;
@@ -309,8 +309,6 @@ __global__ void __launch_bounds__(kBlock)
   Accum f[D] = {};
   Accum ea = 0;
   if (p < n) {
-    FixedScale scale[3];  // FixedParticle: L_a / 2^32
-    for (int c = 0; c < 3; ++c) scale[c] = fixed_scale(args.grid.length[c]);
     const Particle P = ranked[p];
     const uint32_t len = length[p];
     const LJParams<Real> single = args.table[0];
@@ -534,6 +532,8 @@ void list_forces(const Switches& sw, const ListArgs<Real, Accum>& args, PairList
   list.block_sums.reserve(std::size_t(blocks) * kCellSums * sizeof(Accum));
   Switches s = sw;
   s.wrap = false;  // positions are absolute: the minimum image is on every periodic axis
+  FixedScales scale;  // FixedParticle: L_a / 2^32 per axis, once per evaluation
+  for (int a = 0; a < 3; ++a) scale.axis[a] = fixed_scale(args.grid.length[a]);
   auto evaluate = [&](auto& ranked) {
     using Particle = typename std::remove_reference_t<decltype(ranked)>::value_type;
     gather(args, list, ranked, stream, gate);
@@ -543,7 +543,7 @@ void list_forces(const Switches& sw, const ListArgs<Real, Accum>& args, PairList
         auto go = [&](auto split) {
           list_force_kernel<T, decltype(split)::value, Particle, Real, Accum><<<blocks, kBlock, 0, stream>>>(
               args, list.order.data(), ranked.data(), list.length.data(), list.group_rows.data(),
-              list.neighbors.data(), reinterpret_cast<Accum*>(list.block_sums.data()), gate);
+              list.neighbors.data(), scale, reinterpret_cast<Accum*>(list.block_sums.data()), gate);
         };
         switch (list.threads_per_particle) {
           case 1: go(std::integral_constant<int, 1>{}); break;

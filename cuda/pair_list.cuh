@@ -41,13 +41,13 @@ struct alignas(32) RankedParticle {
 };
 
 // The same in fixed point, for float pairs in a box periodic on every axis with edges up to 2^8
-// cutoffs (fixed_point_serves: the single and mixed precisions' usual case): coordinate a as the integer nearest x_a / L_a * 2^32, modulo 2^32 (a
-// wrapped x_a that rounds to 2^32 is 0, the same point). The difference of two such integers,
-// read as a signed 32-bit integer, is the minimum-image separation in units of L_a / 2^32 (for
-// |d| < L_a / 2, which lists guarantee: rc + skin <= L / 2): exact but for the two quantisations,
-// each at most L_a / 2^33 (1.2e-8 at L = 107, 5.7e-8 at L = 490, the 100M in.lj box), and two
-// float roundings (fixed_separation), the minimum image costing nothing. Half the bytes of RankedParticle and no
-// double arithmetic per pair.
+// cutoffs (fixed_point_serves: the single and mixed precisions' usual case): coordinate a as the
+// integer nearest x_a / L_a * 2^32, modulo 2^32 (a wrapped x_a that rounds to 2^32 is 0, the same
+// point). The difference of two such integers, read as a signed 32-bit integer, is the
+// minimum-image separation in units of L_a / 2^32 (for |d| < L_a / 2, which lists guarantee:
+// rc + skin <= L / 2): exact but for the two quantisations, each at most L_a / 2^33 (1.2e-8 at
+// L = 107, 5.7e-8 at L = 490, the 100M in.lj box), and two float roundings (fixed_separation), the
+// minimum image costing nothing. Half the bytes of RankedParticle and no double arithmetic per pair.
 struct alignas(16) FixedParticle {
   uint32_t x, y, z;
   uint32_t type;
@@ -81,7 +81,8 @@ struct PairList {
 
   template <class F>
   void for_each_buffer(F&& f) {
-    f(order), f(rank), f(slot_counts), f(length), f(group_rows), f(neighbors), f(ranked), f(fixed), f(sizes), f(selected);
+    f(order), f(rank), f(slot_counts), f(length), f(group_rows), f(neighbors), f(ranked), f(fixed);
+    f(sizes), f(selected);
     f(split_counts), f(blocks);
     f(block_sums), f(scratch);
   }
