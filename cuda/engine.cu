@@ -406,6 +406,7 @@ struct GpuEngine::Impl {
     const cuda::TraversalArgs<Real, Accum> cell_args =
         lean ? traversal_args<Real, Accum>(g, sys, ff, ff.mode) : prepare<Real, Accum>(g, sys, ff, ff.mode);
     list.forced_splits = o.list_splits.value_or(0);
+    list.use_masks = o.list_masks.value_or(true);
     list_usable = cuda::build_pair_list<Real, Accum>(cell_args, sorted_keys.data(), control.data(), entries,
                                                      ff.cutoff + o.reuse.skin, la, list, stream);
     if (lean) collision.flags.release();
@@ -829,6 +830,7 @@ std::size_t GpuEngine::listed_pairs() const {
   const Impl& s = *impl_;
   return s.list_usable && s.list_built_for == s.builds ? s.list.pairs : 0;
 }
+std::size_t GpuEngine::list_masked_fills() const { return impl_->list.masked_fills; }
 const double* GpuEngine::device_totals() const { return impl_->totals.data(); }
 void* GpuEngine::stream() const { return impl_->stream; }
 void GpuEngine::collect_timing() {

@@ -31,6 +31,8 @@ struct GpuOptions {
   std::optional<bool> lean_lists;     // tests only: force the pair lists' lean memory mode on or off
   std::optional<int> list_splits;     // tests only: the list build's column splits per row tile
                                       // (cuda/pair_list.cuh build_splits) instead of the rule
+  std::optional<bool> list_masks;     // tests only (false): the list build's fill tests every pair
+                                      // again instead of reading the count pass's masks (BuildMasks)
   int device = 0;                     // CUDA device ordinal
 };
 
@@ -134,6 +136,9 @@ class GpuEngine {
   // Pair lists (ReuseOptions::list): the entries of the lists built from the structure in use (every
   // pair within rc + skin, once from each side); 0 when its evaluations traverse the cells.
   std::size_t listed_pairs() const;
+  // Builds whose list fill read the count pass's decisions for every pair (cuda/pair_list.cuh
+  // BuildMasks: the fast memory mode, once the room they ask for is there).
+  std::size_t list_masked_fills() const;
   const GpuOptions& options() const { return options_; }
   // The traversal form in use: options().traversal, or what kAuto chose at the last build (kAuto
   // before the first).

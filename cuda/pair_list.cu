@@ -170,7 +170,7 @@ __global__ void __launch_bounds__(kBlock)
               const uint32_t* __restrict__ rank, Real in2, Real out2,
               Real pre2, double cutoff2, uint32_t splits, uint32_t* __restrict__ slot_counts,
               uint32_t* __restrict__ split_counts, const unsigned long long* __restrict__ group_rows,
-              uint32_t* __restrict__ neighbors) {
+              uint32_t* __restrict__ neighbors, const BuildMasks masks) {
   constexpr int D = T::kDim;
   constexpr uint32_t kSlots = 1u << D;
   // A column occupant as staged (with the lo parts of compensated coordinates: r_ij then keeps the
@@ -199,8 +199,6 @@ __global__ void __launch_bounds__(kBlock)
   const uint32_t h = cell.h, m = cell.h + cell.p;
   const uint32_t a = row + uint32_t(lane);
   const bool row_ok = a < m, a_home = a < h;
-  const StagedEntry<Real> A = row_ok ? stage(a) : StagedEntry<Real>{};
-  const Control ca = detail::control_of(A.meta);
   const uint32_t pa = row_ok ? rank[ids[a]] : 0u;
   // A tile of P rows pairs with H columns only; rows beyond the cell (row_ok false) test nothing.
   // This unit's columns: range `split` of the tile's, in whole column tiles of 32.
@@ -215,12 +213,65 @@ __global__ void __launch_bounds__(kBlock)
       for (uint32_t s = 0; s < split; ++s) written += split_counts[std::size_t(unit - split + s) * 32u + lane];
     }
   }
+  // The unit's masks (BuildMasks): the count pass takes room for a word per column tile and lane,
+  // where the buffer has it; the fill reads its words instead of testing again.
+  unsigned long long mask_at = kNoMasks;
+  if (masks.used) {
+    if constexpr (Fill) {
+      mask_at = masks.base[unit];
+    } else {
+      const unsigned long long want = (unsigned long long)((c1 - c0 + 31u) / 32u) * 32u;
+      if (lane == 0) {
+        const unsigned long long at = want ? atomicAdd(masks.used, want) : 0ull;
+        mask_at = masks.words && at + want <= masks.capacity ? at : kNoMasks;
+        masks.base[unit] = mask_at;
+      }
+      mask_at = __shfl_sync(0xffffffffu, mask_at, 0);
+    }
+  }
   uint32_t count = 0;
+  if constexpr (Fill) {
+    if (mask_at != kNoMasks) {
+      // The whole warp: the count pass's decisions, kFillBatch column tiles at a time (their words,
+      // IDs and ranks loaded together: one tile at a time, the walk waited on three dependent
+      // loads per tile), the columns' ranks shared through `batch_ranks`.
+      constexpr uint32_t kFillBatch = 4;
+      __shared__ uint32_t batch_ranks[kBlock / 32][32 * kFillBatch];
+      uint32_t* ranks = batch_ranks[warp];
+      uint32_t* out = row_ok ? neighbors + list_slot(group_rows, pa, written) : nullptr;
+      for (uint32_t col = c0; col < c1; col += 32u * kFillBatch) {
+        uint32_t keep[kFillBatch], id[kFillBatch];
+#pragma unroll
+        for (uint32_t b = 0; b < kFillBatch; ++b) {
+          const uint32_t tile = col + 32u * b, own = tile + uint32_t(lane);
+          keep[b] = tile < c1 ? masks.words[mask_at + (tile - c0) + uint32_t(lane)] : 0u;
+          id[b] = own < c1 ? ids[own] : ~0u;
+        }
+#pragma unroll
+        for (uint32_t b = 0; b < kFillBatch; ++b)
+          if (id[b] != ~0u) ranks[32u * b + uint32_t(lane)] = rank[id[b]];
+        __syncwarp();
+#pragma unroll
+        for (uint32_t b = 0; b < kFillBatch; ++b) {
+          while (keep[b]) {
+            const uint32_t k = uint32_t(__ffs(int(keep[b])) - 1);
+            keep[b] &= keep[b] - 1u;
+            out[std::size_t(count) * kGroup] = ranks[32u * b + k];
+            ++count;
+          }
+        }
+        __syncwarp();
+      }
+      return;
+    }
+  }
+  const StagedEntry<Real> A = row_ok ? stage(a) : StagedEntry<Real>{};
+  const Control ca = detail::control_of(A.meta);
   for (uint32_t col = c0; col < c1; col += 32u) {
     const uint32_t own = col + uint32_t(lane);
     if (own < c1) {
       column[lane] = stage(own);
-      column_ranks[lane] = rank[ids[own]];
+      if constexpr (Fill) column_ranks[lane] = rank[ids[own]];
     }
     __syncwarp();
     const uint32_t cnt = min(c1 - col, 32u);
@@ -245,7 +296,8 @@ __global__ void __launch_bounds__(kBlock)
       for (uint32_t k = 0; k < cnt; ++k) near |= uint32_t(within(k)) << k;
     }
     // Then the columns that passed, in column order: the candidate rule, and the double decision
-    // for the few within the staged coordinates' rounding of the cutoff.
+    // for the few within the staged coordinates' rounding of the cutoff. `keep`: the partners.
+    uint32_t keep = 0;
     while (near) {
       const uint32_t k = uint32_t(__ffs(int(near)) - 1);
       near &= near - 1u;
@@ -261,7 +313,11 @@ __global__ void __launch_bounds__(kBlock)
           !(distance2<D>(args.grid, staging.positions, ids[a], ids[b]) < cutoff2))
         continue;
       if constexpr (Fill) neighbors[list_slot(group_rows, pa, written + count)] = column_ranks[k];
+      else keep |= 1u << k;
       ++count;
+    }
+    if constexpr (!Fill) {
+      if (mask_at != kNoMasks) masks.words[mask_at + (col - c0) + uint32_t(lane)] = keep;
     }
     __syncwarp();
   }
@@ -393,6 +449,26 @@ void gather(const ListArgs<Real, Accum>& args, PairList& list, DeviceBuffer<Part
   CF_CUDA_CHECK_LAUNCH();
 }
 
+// Room for the next builds' masks (BuildMasks): `words` and 1/8 more, where the device's free
+// memory keeps 1/16 of it (at least 512 MiB) to spare after it; otherwise none (their fills walk
+// the columns again). After the fill that read the old masks (freed in stream order, the pool
+// trimmed so that the free memory counts them); growing is rare: the first build, and a system
+// that grew denser.
+void grow_masks(PairList& list, std::size_t words, cudaStream_t stream) {
+  list.masks.release();
+  CF_CUDA_CHECK(cudaStreamSynchronize(stream));
+  int device = 0;
+  cudaMemPool_t pool = nullptr;
+  CF_CUDA_CHECK(cudaGetDevice(&device));
+  CF_CUDA_CHECK(cudaDeviceGetMemPool(&pool, device));
+  CF_CUDA_CHECK(cudaMemPoolTrimTo(pool, 0));
+  std::size_t free_bytes = 0, total_bytes = 0;
+  CF_CUDA_CHECK(cudaMemGetInfo(&free_bytes, &total_bytes));
+  const std::size_t spare = std::max<std::size_t>(free_bytes / 16, std::size_t(512) << 20);
+  const std::size_t want = words + words / 8;
+  if (want * sizeof(uint32_t) + spare <= free_bytes) list.masks.reserve(want);
+}
+
 }  // namespace
 
 template <class Real, class Accum>
@@ -406,7 +482,7 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
   list.rank.reserve(std::max<std::size_t>(n, 1));
   list.slot_counts.reserve(std::max<std::size_t>(n * slots, 1));
   list.length.reserve(std::max<std::size_t>(n, 1));
-  list.sizes.reserve(2);
+  list.sizes.reserve(3);
   list.selected.reserve(1);
   list.width = list.pairs = list.slots = 0;
   if (n == 0) return true;
@@ -432,6 +508,17 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
   const std::size_t units = std::size_t(cells.max_tiles) * std::size_t(list.splits);
   const unsigned row_blocks = unsigned((units + kBlock / 32 - 1) / (kBlock / 32));
   if (list.splits > 1) list.split_counts.reserve(std::size_t(row_blocks) * kBlock);  // a word per warp lane
+  // The count pass's masks for the fill: with a staged build (fast memory mode), in the room the
+  // previous builds asked for (none at the first: it walks twice). Lean mode walks twice.
+  BuildMasks masks;
+  if (cells.staged && list.use_masks) {
+    list.mask_base.reserve(std::max<std::size_t>(std::size_t(row_blocks) * (kBlock / 32), 1));
+    CF_CUDA_CHECK(cudaMemsetAsync(list.sizes.data() + 2, 0, sizeof(unsigned long long), stream));
+    masks = BuildMasks{list.masks.data(), list.masks.capacity(), list.mask_base.data(), list.sizes.data() + 2};
+  } else {
+    list.masks.release();
+    list.mask_base.release();
+  }
   const ListStaging staging{sorted_keys, args.positions, args.types, args.num_types, control};
   // The rows' walk, counting or filling, in the geometry's instantiation (2D/3D, wrap in a cell).
   auto walk_rows = [&](auto fill_constant) {
@@ -445,7 +532,7 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
         list_rows<T, kFill><<<row_blocks, kBlock, 0, stream>>>(
             cells, staging, list.rank.data(), in2, out2, pre2, cutoff2, uint32_t(list.splits),
             list.slot_counts.data(), list.splits > 1 ? list.split_counts.data() : nullptr, list.group_rows.data(),
-            kFill ? list.neighbors.data() : nullptr);
+            kFill ? list.neighbors.data() : nullptr, masks);
     });
     CF_CUDA_CHECK_LAUNCH();
   };
@@ -482,13 +569,14 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
   list.scratch.reserve(std::max<std::size_t>(scan_bytes, 1));
   CF_CUDA_CHECK(cub::DeviceScan::ExclusiveSum(list.scratch.data(), scan_bytes, widths, list.group_rows.data(),
                                               int(groups + 1), stream));
-  unsigned long long sizes[3] = {0, 0, 0};
-  CF_CUDA_CHECK(cudaMemcpyAsync(sizes, list.sizes.data(), 2 * sizeof(sizes[0]), cudaMemcpyDeviceToHost, stream));
-  CF_CUDA_CHECK(cudaMemcpyAsync(sizes + 2, list.group_rows.data() + groups, sizeof(sizes[0]),
+  unsigned long long sizes[4] = {0, 0, 0, 0};
+  CF_CUDA_CHECK(cudaMemcpyAsync(sizes, list.sizes.data(), 3 * sizeof(sizes[0]), cudaMemcpyDeviceToHost, stream));
+  CF_CUDA_CHECK(cudaMemcpyAsync(sizes + 3, list.group_rows.data() + groups, sizeof(sizes[0]),
                                 cudaMemcpyDeviceToHost, stream));
   CF_CUDA_CHECK(cudaStreamSynchronize(stream));
   const std::size_t width = std::size_t(sizes[0]), pairs = std::size_t(sizes[1]);
-  const std::size_t entries_total = std::size_t(sizes[2]) * kGroup;  // the list's entries, padding included
+  const std::size_t mask_words = masks.used ? std::size_t(sizes[2]) : 0;  // what the count pass asked for
+  const std::size_t entries_total = std::size_t(sizes[3]) * kGroup;  // the list's entries, padding included
   // A few crowded particles (the cells are cheaper), or a list that would not fit in the device's
   // free memory with 1/16 of it (at least 512 MiB) to spare (a dense cluster: n^2 partners): the
   // cells serve this structure. The list in use counts as free: it is replaced.
@@ -499,6 +587,7 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
   const std::size_t need = entries_total * sizeof(uint32_t);
   if (entries_total > 2 * pairs + 64 * n || need + spare > free_bytes) {
     list.neighbors.release();  // dead: the cells serve, and need the room
+    list.masks.release();
     return false;
   }
   if (entries_total > list.neighbors.capacity()) {
@@ -518,9 +607,11 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
     list.neighbors.reserve(roomy ? entries_total + headroom : entries_total);
   }
   if (row_blocks && width) walk_rows(std::true_type{});
+  if (masks.words && mask_words <= masks.capacity) ++list.masked_fills;
   list.width = width;
   list.pairs = pairs;
   list.slots = entries_total;
+  if (masks.used && mask_words > list.masks.capacity()) grow_masks(list, mask_words, stream);
   return true;
 }
 

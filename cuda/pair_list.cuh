@@ -55,6 +55,22 @@ struct alignas(16) FixedParticle {
 
 constexpr std::size_t kGroup = 32;  // ranks that share a width in the list's layout
 
+// The count pass's decisions, kept for the fill (fast memory mode): per work unit of the build (a
+// row tile and column range), a 32-bit word per column tile and row lane whose bit k marks column k
+// of the tile as a partner of the lane's row, so that the fill writes the list from the words
+// without testing a pair again (its cost is then the list's writes). A unit takes its words with one
+// atomicAdd on `used` (their place varies from run to run, their contents do not, nor the list); a
+// unit for which the buffer has no room gets kNoMasks and its fill walks the columns again, so the
+// list is the same whatever the buffer holds. `used` ends as the words the build asked for: the
+// buffer's size for the next build.
+inline constexpr unsigned long long kNoMasks = ~0ull;
+struct BuildMasks {
+  uint32_t* words = nullptr;            // capacity words, or null: no room (every unit walks again)
+  unsigned long long capacity = 0;
+  unsigned long long* base = nullptr;   // per unit: its first word, or kNoMasks
+  unsigned long long* used = nullptr;   // device counter (zeroed before the count pass), or null: no masks
+};
+
 struct PairList {
   DeviceBuffer<uint32_t> order;        // n: the particle of rank p
   DeviceBuffer<uint32_t> rank;         // n: the rank of particle i
@@ -66,10 +82,13 @@ struct PairList {
                                        // (group_rows[p / kGroup] + k) * kGroup + p % kGroup
   DeviceBuffer<RankedParticle> ranked; // n: gathered at every evaluation (double pairs, an open axis)
   DeviceBuffer<FixedParticle> fixed;   // n: gathered at every evaluation (float pairs, all periodic)
-  DeviceBuffer<unsigned long long> sizes;  // 2: the longest list and the sum of the lengths
+  DeviceBuffer<unsigned long long> sizes;  // 3: the longest list, the sum of the lengths, and the
+                                           // mask words the count pass asked for (BuildMasks::used)
   DeviceBuffer<uint32_t> selected;     // 1: CUB's count of H entries (n)
   DeviceBuffer<uint32_t> split_counts; // splits > 1: the count pass's partners per work unit (row
                                        // tile x column split) and lane, for the fill's offsets
+  DeviceBuffer<uint32_t> masks;        // BuildMasks::words (fast memory mode), sized by the build before
+  DeviceBuffer<unsigned long long> mask_base;  // BuildMasks::base, a word per work unit
   DeviceBuffer<uint32_t> blocks;       // 1: the force kernel's blocks (their sums' count)
   DeviceBuffer<std::byte> block_sums;  // kCellSums per block of the force kernel
   DeviceBuffer<std::byte> scratch;     // CUB
@@ -78,12 +97,14 @@ struct PairList {
   int threads_per_particle = 1;        // the force kernel's: 1, 2, 4 or 8 (from n and the device)
   int splits = 1;                      // the build's column splits per row tile (build_splits)
   int forced_splits = 0;               // tests only: this many splits (at most 8) instead of the rule
+  bool use_masks = true;               // tests only (false): every fill walks the columns again
+  std::size_t masked_fills = 0;        // builds whose fill read every unit's masks
 
   template <class F>
   void for_each_buffer(F&& f) {
     f(order), f(rank), f(slot_counts), f(length), f(group_rows), f(neighbors), f(ranked), f(fixed);
     f(sizes), f(selected);
-    f(split_counts), f(blocks);
+    f(split_counts), f(masks), f(mask_base), f(blocks);
     f(block_sums), f(scratch);
   }
 };

@@ -441,6 +441,33 @@ TEST(PairListSplits, SplitWalksListWhatOneWalkLists) {
     }
 }
 
+// The fill from the count pass's masks (BuildMasks, fast memory mode: every build after the first,
+// once the room its count pass asks for is there) lists what a fill that tests every pair again
+// lists: the same pairs and bitwise the same results on every scene of the sequence (the rebuild
+// for the denser, larger u finds the room a and b asked for too small for its later units, which
+// walk again), with one and with 4 splits, in every precision; and the masks were read (the test
+// would pass without them otherwise).
+TEST(PairListMasks, FillFromMasksIsTheWalkedFill) {
+  CF_SKIP_WITHOUT_DEVICE();
+  const Scene a = make_scene("multitype3d_lb"), b = make_scene("random3d_periodic"),
+              u = make_scene("random3d_uniform");
+  const Configuration am = moved(a.config, 0.14, 5), bm = moved(b.config, 0.14, 7);
+  const std::pair<const Configuration*, const Scene*> sequence[] = {
+      {&a.config, &a}, {&am, &a}, {&b.config, &b}, {&bm, &b}, {&u.config, &u}, {&a.config, &a}, {&b.config, &b}};
+  for (Precision p : {Precision::kSingle, Precision::kMixed, Precision::kDouble})
+    for (const int splits : {1, 4}) {
+      SCOPED_TRACE(cellforce::to_string(p) + std::string(", ") + std::to_string(splits) + " splits");
+      GpuOptions masked = list_options(p), walked = list_options(p);
+      masked.lean_lists = walked.lean_lists = false;
+      masked.list_splits = walked.list_splits = splits;
+      walked.list_masks = false;
+      GpuEngine x(masked), y(walked);
+      for (const auto& [c, scene] : sequence) expect_same_lists(x, y, *c, *scene);
+      EXPECT_GE(x.list_masked_fills(), 2u);  // the rebuilds of a, at least
+      EXPECT_EQ(y.list_masked_fills(), 0u);
+    }
+}
+
 // The audit of a structure the lists serve audits the lists: with the check off, after moves below
 // and well beyond skin / 2, the missed pairs are those within rc now that were not within rc + skin
 // at the build (counted here pair by pair), and none repeat.
