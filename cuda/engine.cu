@@ -449,17 +449,16 @@ struct GpuEngine::Impl {
   std::vector<std::vector<uint32_t>> list_partners(std::size_t n) {
     std::vector<uint32_t> rank_order, lengths, entries_of;
     std::vector<unsigned long long> rows;
-    const std::size_t groups = (n + cuda::kGroup - 1) / cuda::kGroup;
     download(rank_order, list.order.data(), n, stream);
     download(lengths, list.length.data(), n, stream);
-    download(rows, list.group_rows.data(), groups + 1, stream);
+    download(rows, list.group_chunks.data(), (n + cuda::kGroup - 1) / cuda::kGroup + 1, stream);
     download(entries_of, list.neighbors.data(), list.slots, stream);
     CF_CUDA_CHECK(cudaStreamSynchronize(stream));
     std::vector<std::vector<uint32_t>> partners(n);
     for (std::size_t p = 0; p < n; ++p) {
       std::vector<uint32_t>& mine = partners[rank_order[p]];
       for (uint32_t k = 0; k < lengths[p]; ++k)
-        mine.push_back(rank_order[entries_of[std::size_t(rows[p / cuda::kGroup] + k) * cuda::kGroup + p % cuda::kGroup]]);
+        mine.push_back(rank_order[entries_of[cuda::list_entry(rows[p / cuda::kGroup], p, k)]]);
     }
     return partners;
   }

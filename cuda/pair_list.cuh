@@ -10,10 +10,13 @@
 // so that ranks run cell by cell and a particle's partners have nearby ranks. The list of rank p
 // is the concatenation, in cell-type order, of the partners found from its row in its cell of
 // each type (the Jacobi slots' structure: one writer per particle and type, condition 1), each in
-// the cell's occupant order. Stored by groups of kGroup consecutive ranks, each as wide as its
-// longest list (not the longest of all: ~20% less memory in a liquid), column-major within the
-// group, so that a warp's threads read consecutive words. Every pair is in both partners' lists: each thread sums the whole force
-// on its own particle, in its list's fixed order, with no atomics (bitwise reproducible).
+// the cell's occupant order. Stored by groups of kGroup consecutive ranks, each as long as its
+// longest list (not the longest of all: ~20% less memory in a liquid) in whole chunks of kChunk
+// entries (16 bytes), chunk-major within the group (list_entry): a warp's threads read consecutive
+// chunks, one 16-byte load each, and the build's fill writes a chunk it fills whole with one store
+// (cuda/pair_list.cu ChunkWriter). Every pair is in both partners' lists: each thread sums the
+// whole force on its own particle, in its list's fixed order, with no atomics (bitwise
+// reproducible).
 //
 // Exactness: the build keeps exactly the pairs with r < rc + skin in double (positions by minimum
 // image; the staged coordinates decide wherever their rounding cannot matter), so a pair
@@ -53,7 +56,15 @@ struct alignas(16) FixedParticle {
   uint32_t type;
 };
 
-constexpr std::size_t kGroup = 32;  // ranks that share a width in the list's layout
+constexpr uint32_t kGroup = 32;  // ranks that share a length in the list's layout
+constexpr uint32_t kChunk = 4;   // list entries per 16-byte chunk: a group's length is whole chunks
+
+// Where entry k of rank p's list is: chunk k / kChunk of its group (whose chunks start at
+// `group_chunk0`, group_chunks[p / kGroup]) holds that chunk of the group's kGroup ranks side by
+// side, kChunk entries each.
+CF_HD std::size_t list_entry(unsigned long long group_chunk0, std::size_t p, uint32_t k) {
+  return (std::size_t(group_chunk0 + k / kChunk) * kGroup + p % kGroup) * kChunk + k % kChunk;
+}
 
 // The count pass's decisions, kept for the fill (fast memory mode): per work unit of the build (a
 // row tile and column range), a 32-bit word per column tile and row lane whose bit k marks column k
@@ -76,10 +87,10 @@ struct PairList {
   DeviceBuffer<uint32_t> rank;         // n: the rank of particle i
   DeviceBuffer<uint32_t> slot_counts;  // n x 2^d: partners of rank p found in its cell of type t
   DeviceBuffer<uint32_t> length;       // n: partners of rank p
-  DeviceBuffer<unsigned long long> group_rows;  // groups + 1: the first row of each group of kGroup
-                                               // ranks (an exclusive sum of the groups' longest lists)
-  DeviceBuffer<uint32_t> neighbors;    // slots: the rank of p's k-th partner at
-                                       // (group_rows[p / kGroup] + k) * kGroup + p % kGroup
+  DeviceBuffer<unsigned long long> group_chunks;  // groups + 1: the first chunk of each group of
+                                                 // kGroup ranks (an exclusive sum of their lengths)
+  DeviceBuffer<uint32_t> neighbors;    // slots: the rank of p's k-th partner at list_entry (a list's
+                                       // padding up to its group's length is never written)
   DeviceBuffer<RankedParticle> ranked; // n: gathered at every evaluation (double pairs, an open axis)
   DeviceBuffer<FixedParticle> fixed;   // n: gathered at every evaluation (float pairs, all periodic)
   DeviceBuffer<unsigned long long> sizes;  // 3: the longest list, the sum of the lengths, and the
@@ -102,7 +113,7 @@ struct PairList {
 
   template <class F>
   void for_each_buffer(F&& f) {
-    f(order), f(rank), f(slot_counts), f(length), f(group_rows), f(neighbors), f(ranked), f(fixed);
+    f(order), f(rank), f(slot_counts), f(length), f(group_chunks), f(neighbors), f(ranked), f(fixed);
     f(sizes), f(selected);
     f(split_counts), f(masks), f(mask_base), f(blocks);
     f(block_sums), f(scratch);
