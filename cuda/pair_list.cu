@@ -180,6 +180,43 @@ __global__ void gather_ranked(Grid g, const double* __restrict__ positions, cons
   store_ranked<D>(ranked, p, g, x, t < num_types ? t : 0u, i, flags);
 }
 
+// The 32 x 32 bit matrix a warp holds (lane l: row l, bit k: column k) transposed (lane k gets
+// column k, its bit l from row l): five butterfly stages, each swapping the off-diagonal blocks of
+// half the size with the partner lane.
+__device__ __forceinline__ uint32_t transpose_bits(uint32_t x, int lane) {
+  constexpr uint32_t kLow[5] = {0x0000ffffu, 0x00ff00ffu, 0x0f0f0f0fu, 0x33333333u, 0x55555555u};
+#pragma unroll
+  for (int i = 0, j = 16; i < 5; ++i, j >>= 1) {
+    const uint32_t y = __shfl_xor_sync(0xffffffffu, x, j);
+    x = (lane & j) ? (x & ~kLow[i]) | ((y & ~kLow[i]) >> j) : (x & kLow[i]) | ((y & kLow[i]) << j);
+  }
+  return x;
+}
+
+// The build's passes over the work units (list_rows): count (every unit but the P tiles whose
+// masks are kept, which their H rows write), mirrored (those P tiles' counts, from their masks),
+// fill.
+enum class ListPass { kCount, kMirrored, kFill };
+
+// The mask words of each work unit (BuildMasks): a word per column tile of its range and lane; 0
+// past the tiles there are (and at `units`, so that an exclusive scan over units + 1 ends with the
+// total).
+template <class Real, class Accum>
+__global__ void unit_mask_words(const TraversalArgs<Real, Accum> args, uint32_t splits, uint32_t units,
+                                unsigned long long* __restrict__ words) {
+  const uint32_t unit = blockIdx.x * blockDim.x + threadIdx.x;
+  if (unit > units) return;
+  const uint32_t w = args.tile_start[args.cell_range[0]] + unit / splits;
+  unsigned long long n = 0;
+  if (unit < units && w < args.tile_start[args.cell_range[1]]) {
+    uint32_t row = 0;
+    const CollisionCell cell = args.cells[detail::tile_cell(args, w, row)];
+    const ColumnRange range = split_columns(row >= cell.h ? cell.h : cell.h + cell.p, splits, unit % splits);
+    n = (unsigned long long)((range.end - range.begin + 31u) / 32u) * 32u;
+  }
+  words[unit] = n;
+}
+
 // One warp per work unit: a row tile of a collision cell (the tile form's work units and candidate
 // rule) and one of `splits` contiguous ranges of its columns (build_splits): lane l holds row
 // occupant a, and every lane walks the same columns. The occupants come from the staged array, or,
@@ -197,7 +234,7 @@ __global__ void gather_ranked(Grid g, const double* __restrict__ positions, cons
 // than their rounding (1e-5 relative in r^2) a pair is in, above it by as much it is out, and
 // between, the double positions decide, so that the list is exactly the pairs closer than the
 // cutoff in double.
-template <class T, bool Fill, class Real, class Accum>
+template <class T, ListPass Pass, class Real, class Accum>
 __global__ void __launch_bounds__(kBlock)
     list_rows(const TraversalArgs<Real, Accum> args, const ListStaging staging,
               const uint32_t* __restrict__ rank, Real in2, Real out2,
@@ -206,6 +243,7 @@ __global__ void __launch_bounds__(kBlock)
               uint32_t* __restrict__ neighbors, const BuildMasks masks) {
   constexpr int D = T::kDim;
   constexpr uint32_t kSlots = 1u << D;
+  constexpr bool Fill = Pass == ListPass::kFill, Mirrored = Pass == ListPass::kMirrored;
   // A column occupant as staged (with the lo parts of compensated coordinates: r_ij then keeps the
   // digits check_staging guarantees, well within the margin between in2 and out2), and its rank.
   using Column = StagedEntry<Real>;
@@ -219,7 +257,8 @@ __global__ void __launch_bounds__(kBlock)
   const uint32_t w = args.tile_start[first_cell] + unit / splits, split = unit % splits;
   if (w >= args.tile_start[end_cell]) return;  // the whole warp
   uint32_t row = 0;
-  const CollisionCell cell = args.cells[detail::tile_cell(args, w, row)];
+  const uint32_t cell_index = detail::tile_cell(args, w, row);
+  const CollisionCell cell = args.cells[cell_index];
   const unsigned type = cell_type_of_id(args.grid, cell.cell);
   const uint32_t* keys = staging.sorted_keys + cell.start;
   const uint32_t* ids = args.sorted_ids + cell.start;
@@ -251,25 +290,24 @@ __global__ void __launch_bounds__(kBlock)
     }
   }
   ChunkWriter out(chunk0, written);
-  // The unit's masks (BuildMasks): the count pass takes room for a word per column tile and lane,
-  // where the buffer has it; the fill reads its words instead of testing again.
-  unsigned long long mask_at = kNoMasks;
-  if (masks.used) {
-    if constexpr (Fill) {
-      mask_at = masks.base[unit];
-    } else {
-      const unsigned long long want = (unsigned long long)((c1 - c0 + 31u) / 32u) * 32u;
-      if (lane == 0) {
-        const unsigned long long at = want ? atomicAdd(masks.used, want) : 0ull;
-        mask_at = masks.words && at + want <= masks.capacity ? at : kNoMasks;
-        masks.base[unit] = mask_at;
-      }
-      mask_at = __shfl_sync(0xffffffffu, mask_at, 0);
-    }
-  }
+  // The unit's masks (BuildMasks), when it keeps them: the count pass writes them (a tile of P rows
+  // only gets them from the H rows it pairs with: mirrored), the fill reads them.
+  const bool kept = masks.base && masks.kept(unit);
+  const uint32_t* my_words = kept ? masks.words + masks.base[unit] : nullptr;
+  const bool p_tile = row >= h;  // P rows only (a multiple of 32: no H row in it)
   uint32_t count = 0;
+  if constexpr (Mirrored) {
+    // A P tile whose words its H rows wrote: its counts, from the words. Every other unit counted
+    // in the count pass.
+    if (!(p_tile && kept)) return;
+    for (uint32_t col = c0; col < c1; col += 32u)
+      if (row_ok) count += __popc(my_words[(col - c0) + uint32_t(lane)]);
+  }
+  if constexpr (Pass == ListPass::kCount) {
+    if (p_tile && kept) return;  // mirrored: counted in the next pass
+  }
   if constexpr (Fill) {
-    if (mask_at != kNoMasks) {
+    if (kept) {
       // The whole warp: the count pass's decisions, kFillBatch column tiles at a time (their words,
       // IDs and ranks loaded together: one tile at a time, the walk waited on three dependent
       // loads per tile), the columns' ranks shared through `batch_ranks`.
@@ -281,7 +319,7 @@ __global__ void __launch_bounds__(kBlock)
 #pragma unroll
         for (uint32_t b = 0; b < kFillBatch; ++b) {
           const uint32_t tile = col + 32u * b, own = tile + uint32_t(lane);
-          keep[b] = tile < c1 ? masks.words[mask_at + (tile - c0) + uint32_t(lane)] : 0u;
+          keep[b] = tile < c1 && row_ok ? my_words[(tile - c0) + uint32_t(lane)] : 0u;
           id[b] = own < c1 ? ids[own] : ~0u;
         }
 #pragma unroll
@@ -302,9 +340,15 @@ __global__ void __launch_bounds__(kBlock)
       return;
     }
   }
-  const StagedEntry<Real> A = row_ok ? stage(a) : StagedEntry<Real>{};
+  // A P tile's mirror: for a column tile of P-only tiles (past p_end), the words of those P rows
+  // for this tile's columns (its H rows), in the P tile's unit for the range that holds them.
+  const uint32_t p_end = (h + 31u) & ~31u;  // the first row of the cell's P-only tiles
+  const uint32_t h_chunk = split_columns(h, splits, 0).end;  // a P tile's range length (whole tiles)
+  const uint32_t h_split = h_chunk ? row / h_chunk : 0u, h_begin = h_split * h_chunk;
+  const uint32_t tile0 = args.tile_start[cell_index] - args.tile_start[first_cell];  // the cell's first unit / splits
+  const StagedEntry<Real> A = Mirrored || !row_ok ? StagedEntry<Real>{} : stage(a);
   const Control ca = detail::control_of(A.meta);
-  for (uint32_t col = c0; col < c1; col += 32u) {
+  for (uint32_t col = c0; col < (Mirrored ? c0 : c1); col += 32u) {
     const uint32_t own = col + uint32_t(lane);
     if (own < c1) {
       column[lane] = stage(own);
@@ -354,7 +398,13 @@ __global__ void __launch_bounds__(kBlock)
       ++count;
     }
     if constexpr (!Fill) {
-      if (mask_at != kNoMasks) masks.words[mask_at + (col - c0) + uint32_t(lane)] = keep;
+      if (kept) masks.words[masks.base[unit] + (col - c0) + uint32_t(lane)] = keep;
+      if (masks.words && !p_tile && col >= p_end) {  // the whole warp (uniform)
+        const uint32_t mirror = transpose_bits(keep, lane);  // column col + lane's bits, row by row
+        const uint32_t p_unit = (tile0 + col / 32u) * splits + h_split;
+        if (masks.kept(p_unit) && col + uint32_t(lane) < c1)
+          masks.words[masks.base[p_unit] + (row - h_begin) + uint32_t(lane)] = mirror;
+      }
     }
     __syncwarp();
   }
@@ -533,7 +583,7 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
   list.rank.reserve(std::max<std::size_t>(n, 1));
   list.slot_counts.reserve(std::max<std::size_t>(n * slots, 1));
   list.length.reserve(std::max<std::size_t>(n, 1));
-  list.sizes.reserve(3);
+  list.sizes.reserve(2);
   list.selected.reserve(1);
   list.width = list.pairs = list.slots = 0;
   if (n == 0) return true;
@@ -561,33 +611,44 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
   if (list.splits > 1) list.split_counts.reserve(std::size_t(row_blocks) * kBlock);  // a word per warp lane
   // The count pass's masks for the fill: with a staged build (fast memory mode), in the room the
   // previous builds asked for (none at the first: it walks twice). Lean mode walks twice.
+  const uint32_t launched_units = row_blocks * (kBlock / 32);
   BuildMasks masks;
-  if (cells.staged && list.use_masks) {
-    list.mask_base.reserve(std::max<std::size_t>(std::size_t(row_blocks) * (kBlock / 32), 1));
-    CF_CUDA_CHECK(cudaMemsetAsync(list.sizes.data() + 2, 0, sizeof(unsigned long long), stream));
-    masks = BuildMasks{list.masks.data(), list.masks.capacity(), list.mask_base.data(), list.sizes.data() + 2};
+  if (cells.staged && list.use_masks && row_blocks) {
+    list.mask_base.reserve(std::size_t(launched_units) + 1);
+    unit_mask_words<<<blocks_for(std::size_t(launched_units) + 1), kBlock, 0, stream>>>(
+        cells, uint32_t(list.splits), launched_units, list.mask_base.data());
+    CF_CUDA_CHECK_LAUNCH();
+    std::size_t base_bytes = 0;
+    CF_CUDA_CHECK(cub::DeviceScan::ExclusiveSum(nullptr, base_bytes, list.mask_base.data(), list.mask_base.data(),
+                                                int(launched_units + 1), stream));
+    list.scratch.reserve(std::max<std::size_t>(base_bytes, 1));
+    CF_CUDA_CHECK(cub::DeviceScan::ExclusiveSum(list.scratch.data(), base_bytes, list.mask_base.data(),
+                                                list.mask_base.data(), int(launched_units + 1), stream));
+    masks = BuildMasks{list.masks.data(), list.masks.capacity(), list.mask_base.data()};
   } else {
     list.masks.release();
     list.mask_base.release();
   }
   const ListStaging staging{sorted_keys, args.positions, args.types, args.num_types, control};
   // The rows' walk, counting or filling, in the geometry's instantiation (2D/3D, wrap in a cell).
-  auto walk_rows = [&](auto fill_constant) {
-    constexpr bool kFill = decltype(fill_constant)::value;
+  auto walk_rows = [&](auto pass_constant) {
+    constexpr ListPass kPass = decltype(pass_constant)::value;
+    constexpr bool kFill = kPass == ListPass::kFill;
     Switches sw;
     sw.dim = dim;
     sw.wrap = cells.grid.any_wrap_inside_cell();
     detail::dispatch(sw, [&](auto traits) {
       using T = decltype(traits);
       if constexpr (!T::kMultiType && T::kMode == CutoffMode::kTruncate && !T::kObservables)
-        list_rows<T, kFill><<<row_blocks, kBlock, 0, stream>>>(
+        list_rows<T, kPass><<<row_blocks, kBlock, 0, stream>>>(
             cells, staging, list.rank.data(), in2, out2, pre2, cutoff2, uint32_t(list.splits),
             list.slot_counts.data(), list.splits > 1 ? list.split_counts.data() : nullptr, list.group_chunks.data(),
             kFill ? list.neighbors.data() : nullptr, masks);
     });
     CF_CUDA_CHECK_LAUNCH();
   };
-  if (row_blocks) walk_rows(std::false_type{});
+  if (row_blocks) walk_rows(std::integral_constant<ListPass, ListPass::kCount>{});
+  if (masks.words) walk_rows(std::integral_constant<ListPass, ListPass::kMirrored>{});
   with_dim(dim, [&](auto d) {
     sum_slot_counts<decltype(d)::value><<<blocks_for(n), kBlock, 0, stream>>>(list.slot_counts.data(), n,
                                                                             list.length.data());
@@ -621,12 +682,15 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
   CF_CUDA_CHECK(cub::DeviceScan::ExclusiveSum(list.scratch.data(), scan_bytes, widths, list.group_chunks.data(),
                                               int(groups + 1), stream));
   unsigned long long sizes[4] = {0, 0, 0, 0};
-  CF_CUDA_CHECK(cudaMemcpyAsync(sizes, list.sizes.data(), 3 * sizeof(sizes[0]), cudaMemcpyDeviceToHost, stream));
+  CF_CUDA_CHECK(cudaMemcpyAsync(sizes, list.sizes.data(), 2 * sizeof(sizes[0]), cudaMemcpyDeviceToHost, stream));
+  if (masks.base)
+    CF_CUDA_CHECK(cudaMemcpyAsync(sizes + 2, masks.base + launched_units, sizeof(sizes[0]), cudaMemcpyDeviceToHost,
+                                  stream));
   CF_CUDA_CHECK(cudaMemcpyAsync(sizes + 3, list.group_chunks.data() + groups, sizeof(sizes[0]),
                                 cudaMemcpyDeviceToHost, stream));
   CF_CUDA_CHECK(cudaStreamSynchronize(stream));
   const std::size_t width = std::size_t(sizes[0]), pairs = std::size_t(sizes[1]);
-  const std::size_t mask_words = masks.used ? std::size_t(sizes[2]) : 0;  // what the count pass asked for
+  const std::size_t mask_words = std::size_t(sizes[2]);  // what every unit's masks would take
   const std::size_t entries_total = std::size_t(sizes[3]) * kGroup * kChunk;  // the list's slots, padding included
   // A few crowded particles (the cells are cheaper), or a list that would not fit in the device's
   // free memory with 1/16 of it (at least 512 MiB) to spare (a dense cluster: n^2 partners): the
@@ -657,12 +721,12 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
     const bool roomy = cells.staged && need + headroom * sizeof(uint32_t) + 2 * spare <= free_bytes;
     list.neighbors.reserve(roomy ? entries_total + headroom : entries_total);
   }
-  if (row_blocks && width) walk_rows(std::true_type{});
+  if (row_blocks && width) walk_rows(std::integral_constant<ListPass, ListPass::kFill>{});
   if (masks.words && mask_words <= masks.capacity) ++list.masked_fills;
   list.width = width;
   list.pairs = pairs;
   list.slots = entries_total;
-  if (masks.used && mask_words > list.masks.capacity()) grow_masks(list, mask_words, stream);
+  if (masks.base && mask_words > list.masks.capacity()) grow_masks(list, mask_words, stream);
   return true;
 }
 

@@ -69,17 +69,18 @@ CF_HD std::size_t list_entry(unsigned long long group_chunk0, std::size_t p, uin
 // The count pass's decisions, kept for the fill (fast memory mode): per work unit of the build (a
 // row tile and column range), a 32-bit word per column tile and row lane whose bit k marks column k
 // of the tile as a partner of the lane's row, so that the fill writes the list from the words
-// without testing a pair again (its cost is then the list's writes). A unit takes its words with one
-// atomicAdd on `used` (their place varies from run to run, their contents do not, nor the list); a
-// unit for which the buffer has no room gets kNoMasks and its fill walks the columns again, so the
-// list is the same whatever the buffer holds. `used` ends as the words the build asked for: the
-// buffer's size for the next build.
-inline constexpr unsigned long long kNoMasks = ~0ull;
+// without testing a pair again. Unit u's words are [base[u], base[u + 1]) (an exclusive sum over the
+// units, the same in every run); a unit keeps them when they end within the buffer (a prefix of
+// the units), and one that does not walks its columns again in the fill, so the list is the same
+// whatever the buffer holds. base[units], the words all units would take, sizes the buffer for the
+// next build. A tile of P rows only whose words are kept is not tested at all: the H rows that
+// pair with it write its words (build_pair_list's mirrored pass), since a pair's decision is the
+// same from either side.
 struct BuildMasks {
-  uint32_t* words = nullptr;            // capacity words, or null: no room (every unit walks again)
+  uint32_t* words = nullptr;                  // capacity words, or null: no room (every unit walks again)
   unsigned long long capacity = 0;
-  unsigned long long* base = nullptr;   // per unit: its first word, or kNoMasks
-  unsigned long long* used = nullptr;   // device counter (zeroed before the count pass), or null: no masks
+  const unsigned long long* base = nullptr;   // units + 1, or null: no masks (lean memory)
+  __device__ bool kept(uint32_t unit) const { return words && base[unit + 1] <= capacity; }
 };
 
 struct PairList {
@@ -93,13 +94,12 @@ struct PairList {
                                        // padding up to its group's length is never written)
   DeviceBuffer<RankedParticle> ranked; // n: gathered at every evaluation (double pairs, an open axis)
   DeviceBuffer<FixedParticle> fixed;   // n: gathered at every evaluation (float pairs, all periodic)
-  DeviceBuffer<unsigned long long> sizes;  // 3: the longest list, the sum of the lengths, and the
-                                           // mask words the count pass asked for (BuildMasks::used)
+  DeviceBuffer<unsigned long long> sizes;  // 2: the longest list and the sum of the lengths
   DeviceBuffer<uint32_t> selected;     // 1: CUB's count of H entries (n)
   DeviceBuffer<uint32_t> split_counts; // splits > 1: the count pass's partners per work unit (row
                                        // tile x column split) and lane, for the fill's offsets
   DeviceBuffer<uint32_t> masks;        // BuildMasks::words (fast memory mode), sized by the build before
-  DeviceBuffer<unsigned long long> mask_base;  // BuildMasks::base, a word per work unit
+  DeviceBuffer<unsigned long long> mask_base;  // BuildMasks::base, units + 1
   DeviceBuffer<uint32_t> blocks;       // 1: the force kernel's blocks (their sums' count)
   DeviceBuffer<std::byte> block_sums;  // kCellSums per block of the force kernel
   DeviceBuffer<std::byte> scratch;     // CUB

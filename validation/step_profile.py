@@ -38,7 +38,7 @@ def short_name(name: str) -> str:
         if ch == "<":
             depth += 1
         elif ch == ">":
-            depth -= 1
+            depth = max(depth - 1, 0)  # `unnamed>::` in ncu's short form
         elif depth == 0:
             out.append(ch)
     base = "".join(out).split()[-1].split("::")[-1]
@@ -58,8 +58,8 @@ def short_name(name: str) -> str:
             else:
                 cur += ch
         args.append(cur.strip())
-        if len(args) > 1:
-            base += " (fill)" if args[1] in ("true", "1") else " (count)"
+        if len(args) > 1:  # its ListPass, as Nsight Compute prints it: 0, 1, 2
+            base += {"0": " (count)", "1": " (mirrored)", "2": " (fill)"}.get(args[1][-1:], f" ({args[1]})")
     return base
 
 
