@@ -316,6 +316,8 @@ struct GpuEngine::Impl {
       lean = o.lean_lists ? *o.lean_lists : double(n) * 1300.0 > 0.9 * double(total_bytes);
       if (lean) {
         list.neighbors.release();  // the new build makes a new list: the old one is dead
+        list.masks.release();      // lean builds keep no masks
+        list.mask_base.release();
         staged.release();
       }
     }
@@ -407,6 +409,7 @@ struct GpuEngine::Impl {
         lean ? traversal_args<Real, Accum>(g, sys, ff, ff.mode) : prepare<Real, Accum>(g, sys, ff, ff.mode);
     list.forced_splits = o.list_splits.value_or(0);
     list.use_masks = o.list_masks.value_or(true);
+    list.forced_threads = o.list_threads.value_or(0);
     list_usable = cuda::build_pair_list<Real, Accum>(cell_args, sorted_keys.data(), control.data(), entries,
                                                      ff.cutoff + o.reuse.skin, la, list, stream);
     if (lean) collision.flags.release();

@@ -554,7 +554,7 @@ void gather(const ListArgs<Real, Accum>& args, PairList& list, DeviceBuffer<Part
 // memory keeps 1/16 of it (at least 512 MiB) to spare after it; otherwise none (their fills walk
 // the columns again). After the fill that read the old masks (freed in stream order, the pool
 // trimmed so that the free memory counts them); growing is rare: the first build, and a system
-// that grew denser.
+// that grew denser; a demand refused is not asked again (masks_refused).
 void grow_masks(PairList& list, std::size_t words, cudaStream_t stream) {
   list.masks.release();
   CF_CUDA_CHECK(cudaStreamSynchronize(stream));
@@ -567,7 +567,11 @@ void grow_masks(PairList& list, std::size_t words, cudaStream_t stream) {
   CF_CUDA_CHECK(cudaMemGetInfo(&free_bytes, &total_bytes));
   const std::size_t spare = std::max<std::size_t>(free_bytes / 16, std::size_t(512) << 20);
   const std::size_t want = words + words / 8;
-  if (want * sizeof(uint32_t) + spare <= free_bytes) list.masks.reserve(want);
+  if (want * sizeof(uint32_t) + spare <= free_bytes) {
+    list.masks.reserve(want);
+  } else {
+    list.masks_refused = words;  // not asked again for as many or more: each ask waits for the device
+  }
 }
 
 }  // namespace
@@ -666,6 +670,7 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
   list.threads_per_particle = 1;
   while (list.threads_per_particle < 8 && n * std::size_t(list.threads_per_particle) < wanted)
     list.threads_per_particle *= 2;
+  if (list.forced_threads > 0) list.threads_per_particle = list.forced_threads;
   // The force kernel's block count, for sum_cells (a pageable source is staged before the call returns).
   const uint32_t blocks = blocks_for(n * std::size_t(list.threads_per_particle));
   list.blocks.reserve(1);
@@ -697,12 +702,13 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
   // cells serve this structure. The list in use counts as free: it is replaced.
   std::size_t free_bytes = 0, total_bytes = 0;
   CF_CUDA_CHECK(cudaMemGetInfo(&free_bytes, &total_bytes));
-  free_bytes += list.neighbors.bytes();
+  free_bytes += list.neighbors.bytes() + list.masks.bytes();  // the masks give way to a growing list
   const std::size_t spare = std::max<std::size_t>(free_bytes / 16, std::size_t(512) << 20);
   const std::size_t need = entries_total * sizeof(uint32_t);
   if (entries_total > 2 * pairs + 64 * n || need + spare > free_bytes) {
     list.neighbors.release();  // dead: the cells serve, and need the room
     list.masks.release();
+    list.mask_base.release();
     return false;
   }
   if (entries_total > list.neighbors.capacity()) {
@@ -711,6 +717,8 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
     // the pool could hold both). With a staged build (fast mode), 1/16 to spare for the next
     // builds where that still leaves the spare free; lean mode takes the exact size.
     list.neighbors.release();
+    list.masks.release();  // counted as free above: this fill walks every unit again (the same list)
+    masks.words = nullptr;
     CF_CUDA_CHECK(cudaStreamSynchronize(stream));
     int device = 0;
     cudaMemPool_t pool = nullptr;
@@ -722,11 +730,12 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
     list.neighbors.reserve(roomy ? entries_total + headroom : entries_total);
   }
   if (row_blocks && width) walk_rows(std::integral_constant<ListPass, ListPass::kFill>{});
-  if (masks.words && mask_words <= masks.capacity) ++list.masked_fills;
+  if (row_blocks && width && masks.words && mask_words <= masks.capacity) ++list.masked_fills;
   list.width = width;
   list.pairs = pairs;
   list.slots = entries_total;
-  if (masks.base && mask_words > list.masks.capacity()) grow_masks(list, mask_words, stream);
+  if (masks.base && mask_words > list.masks.capacity() && (!list.masks_refused || mask_words < list.masks_refused))
+    grow_masks(list, mask_words, stream);
   return true;
 }
 

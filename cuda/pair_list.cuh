@@ -108,8 +108,10 @@ struct PairList {
   int threads_per_particle = 1;        // the force kernel's: 1, 2, 4 or 8 (from n and the device)
   int splits = 1;                      // the build's column splits per row tile (build_splits)
   int forced_splits = 0;               // tests only: this many splits (at most 8) instead of the rule
+  int forced_threads = 0;              // tests only: this many threads per particle (1, 2, 4 or 8)
   bool use_masks = true;               // tests only (false): every fill walks the columns again
   std::size_t masked_fills = 0;        // builds whose fill read every unit's masks
+  std::size_t masks_refused = 0;       // the smallest mask demand the device had no room for (0: none)
 
   template <class F>
   void for_each_buffer(F&& f) {

@@ -468,6 +468,57 @@ TEST(PairListMasks, FillFromMasksIsTheWalkedFill) {
     }
 }
 
+// The same in two dimensions (4 cell types): a build, a reused step, and a rebuild that reads the
+// masks.
+TEST(PairListMasks, FillFromMasksIsTheWalkedFillIn2D) {
+  CF_SKIP_WITHOUT_DEVICE();
+  const Scene s = make_scene("random2d_periodic");
+  const Configuration m = moved(s.config, 0.14, 9), far = moved(s.config, 0.2, 13);
+  for (Precision p : {Precision::kSingle, Precision::kMixed, Precision::kDouble})
+    for (const int splits : {1, 2}) {
+      SCOPED_TRACE(cellforce::to_string(p) + std::string(", ") + std::to_string(splits) + " splits");
+      GpuOptions masked = list_options(p), walked = list_options(p);
+      masked.lean_lists = walked.lean_lists = false;
+      masked.list_splits = walked.list_splits = splits;
+      walked.list_masks = false;
+      GpuEngine x(masked), y(walked);
+      for (const Configuration* c : {&s.config, &m, &far, &s.config}) expect_same_lists(x, y, *c, s);
+      EXPECT_GE(x.list_masked_fills(), 1u);
+    }
+}
+
+// The force kernel's threads per particle (1 from ~270,000 particles on an H100, which reads its
+// list a 16-byte chunk at a time; 2, 4 or 8 below, entry by entry): each against the double
+// brute force at the build and at a reused step, as the PairList scenes are checked.
+TEST(PairListThreads, EveryThreadCountMatchesTheBruteForce) {
+  CF_SKIP_WITHOUT_DEVICE();
+  const Scene s = make_scene("multitype3d_lb");
+  const Configuration m = moved(s.config, 0.1499, 11);
+  const Request all{true, true};
+  for (Precision p : {Precision::kSingle, Precision::kMixed, Precision::kDouble})
+    for (const int threads : {1, 2, 4, 8}) {
+      SCOPED_TRACE(cellforce::to_string(p) + std::string(", ") + std::to_string(threads) + " threads");
+      GpuOptions o = list_options(p);
+      o.list_threads = threads;
+      GpuEngine e(o);
+      for (const Configuration* c : {&s.config, &m}) {
+        ForceResult got, ref;
+        e.evaluate(c->view(), s.ff, all, got);
+        cellforce::brute_force(c->view(), s.ff, all, ref);
+        ASSERT_GT(e.listed_pairs(), 0u);
+        if (p == Precision::kDouble) {
+          EXPECT_TRUE(forces_match(ref, got, 1e-12));
+          EXPECT_TRUE(total_energy_matches(ref, got, 1e-12));
+          EXPECT_TRUE(virial_matches(ref, got, 1e-12));
+        } else {
+          EXPECT_LT(median_relative_force_error(ref, got), 1e-6);
+          EXPECT_TRUE(total_energy_matches(ref, got, 1e-5));
+          EXPECT_TRUE(virial_matches(ref, got, 1e-5));
+        }
+      }
+    }
+}
+
 // The audit of a structure the lists serve audits the lists: with the check off, after moves below
 // and well beyond skin / 2, the missed pairs are those within rc now that were not within rc + skin
 // at the build (counted here pair by pair), and none repeat.

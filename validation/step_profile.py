@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 r"""Where an MD step's device time goes: every kernel of a window of `cellforce bench` steps, timed
 by Nsight Compute (at its base clocks, kernels serialised), summed per kernel and divided by the
-steps in the window (the launches of the step's kick-drift kernel, one per Verlet step).
+steps in the window (the launches of the kick-drift kernels, gated or not: one per Verlet step).
 
   python3 validation/step_profile.py --cellforce build-gpu-bin/cellforce --sizes 32000 1048576 --out $OUT
   (--bench-args="--skin 0.6 --neighbor-list": the configuration, as `cellforce bench` takes it)
@@ -82,8 +82,10 @@ def profile(binary: str, n: int, steps: int, skip: int, count: int, extra: list[
     per: dict[str, list[dict]] = defaultdict(list)
     for entry in launches.values():
         per[entry["kernel"]].append(entry)
-    step_kernel = next((k for k in per if "kick_drift" in k), None)
-    window_steps = len(per[step_kernel]) if step_kernel else 0
+    # A Verlet step launches one kick-drift kernel: the gated one, or the plain one on the steps the
+    # host runs itself (after a closed gate). A gated launch that finds the gate shut returns at
+    # once and is counted too (a few per window: the steps are slightly overcounted).
+    window_steps = sum(len(per[k]) for k in per if "kick_drift" in k)
     rows = []
     for kernel, items in per.items():
         us = [e.get("gpu__time_duration.sum", 0.0) for e in items]
