@@ -665,8 +665,9 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
   list.scratch.reserve(std::max<std::size_t>({max_bytes, sum_bytes, 1}));
   CF_CUDA_CHECK(cub::DeviceReduce::Max(list.scratch.data(), max_bytes, wide, list.sizes.data(), int(n), stream));
   CF_CUDA_CHECK(cub::DeviceReduce::Sum(list.scratch.data(), sum_bytes, wide, list.sizes.data() + 1, int(n), stream));
-  // Threads per particle: enough threads to fill the device (2,048 per multiprocessor), at most 8.
-  const std::size_t wanted = std::size_t(std::max(cells.multiprocessors, 1)) * 2048;
+  // Threads per particle: enough threads to fill half the device (1,024 per multiprocessor), at
+  // most 8.
+  const std::size_t wanted = std::size_t(std::max(cells.multiprocessors, 1)) * 1024;
   list.threads_per_particle = 1;
   while (list.threads_per_particle < 8 && n * std::size_t(list.threads_per_particle) < wanted)
     list.threads_per_particle *= 2;
