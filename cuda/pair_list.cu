@@ -550,6 +550,18 @@ void gather(const ListArgs<Real, Accum>& args, PairList& list, DeviceBuffer<Part
   CF_CUDA_CHECK_LAUNCH();
 }
 
+// Waits for the stream and trims the device's current pool (which cudaMallocAsync uses) to nothing,
+// so that what was freed in stream order is free again: cudaMemGetInfo counts it, and a buffer
+// taken next cannot stand beside the one it replaces.
+void trim_pool(cudaStream_t stream) {
+  CF_CUDA_CHECK(cudaStreamSynchronize(stream));
+  int device = 0;
+  cudaMemPool_t pool = nullptr;
+  CF_CUDA_CHECK(cudaGetDevice(&device));
+  CF_CUDA_CHECK(cudaDeviceGetMemPool(&pool, device));
+  CF_CUDA_CHECK(cudaMemPoolTrimTo(pool, 0));
+}
+
 // Room for the next builds' masks (BuildMasks): `words` and 1/8 more, where the device's free
 // memory keeps 1/16 of it (at least 512 MiB) to spare after it; otherwise none (their fills walk
 // the columns again). After the fill that read the old masks (freed in stream order, the pool
@@ -557,12 +569,7 @@ void gather(const ListArgs<Real, Accum>& args, PairList& list, DeviceBuffer<Part
 // that grew denser; a demand refused is not asked again (masks_refused).
 void grow_masks(PairList& list, std::size_t words, cudaStream_t stream) {
   list.masks.release();
-  CF_CUDA_CHECK(cudaStreamSynchronize(stream));
-  int device = 0;
-  cudaMemPool_t pool = nullptr;
-  CF_CUDA_CHECK(cudaGetDevice(&device));
-  CF_CUDA_CHECK(cudaDeviceGetMemPool(&pool, device));
-  CF_CUDA_CHECK(cudaMemPoolTrimTo(pool, 0));
+  trim_pool(stream);
   std::size_t free_bytes = 0, total_bytes = 0;
   CF_CUDA_CHECK(cudaMemGetInfo(&free_bytes, &total_bytes));
   const std::size_t spare = std::max<std::size_t>(free_bytes / 16, std::size_t(512) << 20);
@@ -720,12 +727,7 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
     list.neighbors.release();
     list.masks.release();  // counted as free above: this fill walks every unit again (the same list)
     masks.words = nullptr;
-    CF_CUDA_CHECK(cudaStreamSynchronize(stream));
-    int device = 0;
-    cudaMemPool_t pool = nullptr;
-    CF_CUDA_CHECK(cudaGetDevice(&device));
-    CF_CUDA_CHECK(cudaDeviceGetMemPool(&pool, device));
-    CF_CUDA_CHECK(cudaMemPoolTrimTo(pool, 0));
+    trim_pool(stream);
     const std::size_t headroom = entries_total / 16;
     const bool roomy = cells.staged && need + headroom * sizeof(uint32_t) + 2 * spare <= free_bytes;
     list.neighbors.reserve(roomy ? entries_total + headroom : entries_total);

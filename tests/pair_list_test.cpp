@@ -447,6 +447,16 @@ TEST(PairListSplits, SplitWalksListWhatOneWalkLists) {
 // for the denser, larger u finds the room a and b asked for too small for its later units, which
 // walk again), with one and with 4 splits, in every precision; and the masks were read (the test
 // would pass without them otherwise).
+// Two engines in fast memory mode with `splits` column splits: x's fills read the masks, y's test
+// every pair again.
+std::pair<GpuOptions, GpuOptions> masked_and_walked(Precision p, int splits) {
+  GpuOptions masked = list_options(p), walked = list_options(p);
+  masked.lean_lists = walked.lean_lists = false;
+  masked.list_splits = walked.list_splits = splits;
+  walked.list_masks = false;
+  return {masked, walked};
+}
+
 TEST(PairListMasks, FillFromMasksIsTheWalkedFill) {
   CF_SKIP_WITHOUT_DEVICE();
   const Scene a = make_scene("multitype3d_lb"), b = make_scene("random3d_periodic"),
@@ -457,10 +467,7 @@ TEST(PairListMasks, FillFromMasksIsTheWalkedFill) {
   for (Precision p : {Precision::kSingle, Precision::kMixed, Precision::kDouble})
     for (const int splits : {1, 4}) {
       SCOPED_TRACE(cellforce::to_string(p) + std::string(", ") + std::to_string(splits) + " splits");
-      GpuOptions masked = list_options(p), walked = list_options(p);
-      masked.lean_lists = walked.lean_lists = false;
-      masked.list_splits = walked.list_splits = splits;
-      walked.list_masks = false;
+      const auto [masked, walked] = masked_and_walked(p, splits);
       GpuEngine x(masked), y(walked);
       for (const auto& [c, scene] : sequence) expect_same_lists(x, y, *c, *scene);
       EXPECT_GE(x.list_masked_fills(), 2u);  // the rebuilds of a, at least
@@ -477,10 +484,7 @@ TEST(PairListMasks, FillFromMasksIsTheWalkedFillIn2D) {
   for (Precision p : {Precision::kSingle, Precision::kMixed, Precision::kDouble})
     for (const int splits : {1, 2}) {
       SCOPED_TRACE(cellforce::to_string(p) + std::string(", ") + std::to_string(splits) + " splits");
-      GpuOptions masked = list_options(p), walked = list_options(p);
-      masked.lean_lists = walked.lean_lists = false;
-      masked.list_splits = walked.list_splits = splits;
-      walked.list_masks = false;
+      const auto [masked, walked] = masked_and_walked(p, splits);
       GpuEngine x(masked), y(walked);
       for (const Configuration* c : {&s.config, &m, &far, &s.config}) expect_same_lists(x, y, *c, s);
       EXPECT_GE(x.list_masked_fills(), 1u);
