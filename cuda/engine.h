@@ -32,7 +32,7 @@ struct GpuOptions {
   std::optional<int> list_splits;     // tests only: the list build's column splits per row tile
                                       // (cuda/pair_list.cuh build_splits) instead of the rule
   std::optional<int> list_threads;    // tests only: the list force kernel's threads per particle (1, 2,
-                                      // 4 or 8) instead of the rule (1 from ~270,000 particles on an H100)
+                                      // 4 or 8) instead of the rule (1 from ~135,000 particles on an H100)
   std::optional<bool> list_masks;     // tests only (false): the list build's fill tests every pair
                                       // again instead of reading the count pass's masks (BuildMasks)
   int device = 0;                     // CUDA device ordinal

@@ -491,7 +491,7 @@ TEST(PairListMasks, FillFromMasksIsTheWalkedFillIn2D) {
     }
 }
 
-// The force kernel's threads per particle (1 from ~270,000 particles on an H100, which reads its
+// The force kernel's threads per particle (1 from ~135,000 particles on an H100, which reads its
 // list a 16-byte chunk at a time; 2, 4 or 8 below, entry by entry): each against the double
 // brute force at the build and at a reused step, as the PairList scenes are checked.
 TEST(PairListThreads, EveryThreadCountMatchesTheBruteForce) {
