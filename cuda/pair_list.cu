@@ -225,7 +225,10 @@ __global__ void unit_mask_words(const TraversalArgs<Real, Accum> args, uint32_t 
 // slot_counts[rank * 2^d + cell type] (a store with one split; with several, each range's count is
 // added there, an integer sum, and kept per unit and lane in split_counts). Fill: the same walk
 // writes them, after the partners the row's particle found in cells of lower type and in the
-// ranges before this one (so the list does not depend on the splits). Per tile of 32 columns, the
+// ranges before this one (so the list does not depend on the splits). With masks (BuildMasks, fast
+// memory mode), the count pass keeps each decision as a bit, writes the bits of the P-only tiles
+// that keep masks from their H rows' side (those tiles are not walked; the mirrored pass counts
+// them), and the fill of a unit that keeps masks writes the list from its bits. Per tile of 32 columns, the
 // distance test of every column comes first, as a bit mask, then the rule for those within. With
 // compensated coordinates (float) and no wrap inside a cell, that first test reads the hi parts
 // alone: hi-part r^2 >= pre2 (prefilter_bound) implies the compensated r^2 >= out2, so it drops
