@@ -465,45 +465,59 @@ __global__ void __launch_bounds__(kBlock)
     // threads read consecutive chunks.
     const uint32_t* entries = neighbors + list_entry(group_chunks[p / kGroup], p, 0);
     constexpr uint32_t kStride = S;  // between a batch's entries
-    for (uint32_t k0 = S == 1 ? 0u : part; k0 < len; k0 += uint32_t(S * kChunk)) {
-      uint32_t q[kChunk];
-      if constexpr (S == 1) {
-        const uint4 v = reinterpret_cast<const uint4*>(entries)[std::size_t(k0 / kChunk) * kGroup];
-        q[0] = v.x, q[1] = v.y, q[2] = v.z, q[3] = v.w;
-      } else {
+    // Every pair of this thread's share of the list within rc, in list order: on_pair(q, d, fr, e).
+    auto walk = [&](auto&& on_pair) {
+      for (uint32_t k0 = S == 1 ? 0u : part; k0 < len; k0 += uint32_t(S * kChunk)) {
+        uint32_t q[kChunk];
+        if constexpr (S == 1) {
+          const uint4 v = reinterpret_cast<const uint4*>(entries)[std::size_t(k0 / kChunk) * kGroup];
+          q[0] = v.x, q[1] = v.y, q[2] = v.z, q[3] = v.w;
+        } else {
+#pragma unroll
+          for (uint32_t b = 0; b < kChunk; ++b) {
+            const uint32_t k = k0 + b * kStride;
+            q[b] = k < len ? entries[std::size_t(k / kChunk) * kGroup * kChunk + k % kChunk] : 0u;
+          }
+        }
+#pragma unroll
+        for (uint32_t b = 0; b < kChunk; ++b)
+          if (k0 + b * kStride >= len) q[b] = uint32_t(p);  // past the list (padding: never written)
+        Particle Q[kChunk];
+#pragma unroll
+        for (int b = 0; b < kChunk; ++b) Q[b] = ranked[q[b]];
 #pragma unroll
         for (uint32_t b = 0; b < kChunk; ++b) {
-          const uint32_t k = k0 + b * kStride;
-          q[b] = k < len ? entries[std::size_t(k / kChunk) * kGroup * kChunk + k % kChunk] : 0u;
+          if (k0 + b * kStride >= len) break;  // past the list: the batch's rest is too
+          Real d[3];
+          pair_separation<D>(args.grid, P, Q[b], scale, d);
+          Real r2 = d[0] * d[0] + d[1] * d[1];
+          if constexpr (D == 3) r2 += d[2] * d[2];
+          LJParams<Real> prm;
+          if constexpr (T::kMultiType) prm = args.table[P.type * args.num_types + Q[b].type];
+          else prm = single;
+          Real fr, e = 0;
+          if (!lj_pair<T::kMode, T::kObservables>(r2, args.rc2, prm, fr, e)) continue;
+          on_pair(q[b], d, fr, e);
         }
       }
-#pragma unroll
-      for (uint32_t b = 0; b < kChunk; ++b)
-        if (k0 + b * kStride >= len) q[b] = uint32_t(p);  // past the list (padding: never written)
-      Particle Q[kChunk];
-#pragma unroll
-      for (int b = 0; b < kChunk; ++b) Q[b] = ranked[q[b]];
-#pragma unroll
-      for (uint32_t b = 0; b < kChunk; ++b) {
-        if (k0 + b * kStride >= len) break;  // past the list: the batch's rest is too
-        Real d[3];
-        pair_separation<D>(args.grid, P, Q[b], scale, d);
-        Real r2 = d[0] * d[0] + d[1] * d[1];
-        if constexpr (D == 3) r2 += d[2] * d[2];
-        LJParams<Real> prm;
-        if constexpr (T::kMultiType) prm = args.table[P.type * args.num_types + Q[b].type];
-        else prm = single;
-        Real fr, e = 0;
-        if (!lj_pair<T::kMode, T::kObservables>(r2, args.rc2, prm, fr, e)) continue;
-        if (!isfinite(fr)) detail::flag_bad_pair(args.flags, order[p], order[q[b]]);
-        for (int c = 0; c < D; ++c) f[c] += Accum(mul_rn(fr, d[c]));  // no FMA, as the traversals
-        if constexpr (T::kObservables) {
-          const Real half_e = Real(0.5) * e;
-          ea += Accum(half_e);
-          totals.template add<D>(half_e, Real(0.5) * fr, d);
-        }
+    };
+    walk([&](uint32_t, const Real (&d)[3], Real fr, Real e) {
+      for (int c = 0; c < D; ++c) f[c] += Accum(mul_rn(fr, d[c]));  // no FMA, as the traversals
+      if constexpr (T::kObservables) {
+        const Real half_e = Real(0.5) * e;
+        ea += Accum(half_e);
+        totals.template add<D>(half_e, Real(0.5) * fr, d);
       }
-    }
+    });
+    // A pair whose force is not finite leaves every component of the sum not finite (inf x 0 is
+    // NaN): only then is the share walked again to flag it, every such pair as a test per pair
+    // would (the flag keeps the smallest). Not per pair: ~2 instructions of ~50 an entry.
+    bool finite = true;
+    for (int c = 0; c < D; ++c) finite = finite && isfinite(f[c]);
+    if (!finite)
+      walk([&](uint32_t q, const Real (&)[3], Real fr, Real) {
+        if (!isfinite(fr)) detail::flag_bad_pair(args.flags, order[p], order[q]);
+      });
   }
   // The S parts of a particle (a whole warp takes the shuffles: p < n or not).
   for (int offset = S / 2; offset > 0; offset >>= 1) {
