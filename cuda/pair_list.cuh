@@ -149,8 +149,8 @@ struct ListStaging {
 // Builds the list from the structure just built (cells: its cells, tile starts, sorted IDs and
 // staged occupants, or none: then they are staged as the build loads them;
 // sorted_keys and control: stage 1-2's; the positions of `list_args`) for partners closer than
-// list_cutoff. Synchronises the stream once, to read the list's size (twice when the array grows:
-// the old one is freed first).
+// list_cutoff. Synchronises the stream once, to read the list's size (once more when the array
+// grows: the old one is freed first; and after the fill when the masks' room grows, BuildMasks).
 // Returns false, leaving no list (its array freed), when the grouped array would hold more than
 // twice the pairs plus 64 per particle (a few very crowded particles), or would not fit in the
 // device's free memory with 1/16 of it (at least 512 MiB) to spare: the caller then traverses the
