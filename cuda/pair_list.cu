@@ -487,7 +487,9 @@ __global__ void __launch_bounds__(kBlock)
         for (int b = 0; b < kChunk; ++b) Q[b] = ranked[q[b]];
 #pragma unroll
         for (uint32_t b = 0; b < kChunk; ++b) {
-          if (k0 + b * kStride >= len) break;  // past the list: the batch's rest is too
+          const bool listed = k0 + b * kStride < len;  // past the list: the batch's rest is too
+          if constexpr (T::kObservables)
+            if (!listed) break;
           Real d[3];
           pair_separation<D>(args.grid, P, Q[b], scale, d);
           Real r2 = d[0] * d[0] + d[1] * d[1];
@@ -496,7 +498,17 @@ __global__ void __launch_bounds__(kBlock)
           if constexpr (T::kMultiType) prm = args.table[P.type * args.num_types + Q[b].type];
           else prm = single;
           Real fr, e = 0;
-          if (!lj_pair<T::kMode, T::kObservables>(r2, args.rc2, prm, fr, e)) continue;
+          if constexpr (T::kObservables) {
+            if (!lj_pair<T::kMode, true>(r2, args.rc2, prm, fr, e)) continue;
+          } else {
+            // Without observables a pair beyond rc, and a padding entry past the list (q = p),
+            // adds fr = 0: +-0 to each sum, which leaves it bitwise as it was (a sum from +0 is
+            // never -0). So neither test is a branch: a warp's lanes take both sides of the cutoff
+            // anyway, and with no branch in the batch its kChunk gathers stay ahead of its pairs
+            // (behind a branch per pair nvcc issues each gather just before its pair).
+            lj_terms<T::kMode, false>(r2, prm, fr, e);
+            fr = listed && r2 < args.rc2 ? fr : Real(0);
+          }
           on_pair(q[b], d, fr, e);
         }
       }

@@ -47,12 +47,33 @@ LJParams<Real> make_lj_params(double sigma, double epsilon, double cutoff, Cutof
   return p;
 }
 
+// 1 / x. On the device in float: the reciprocal estimate refined by one Newton step, which is
+// what nvcc emits for 1 / x when x is normal and below 2^126, and there it is the correctly
+// rounded quotient, bitwise 1 / x; nvcc adds a range test and a branch to a slow path for the
+// rest: ~9 of the ~50 instructions of a pair in the list force kernel, and a branch that keeps
+// the kernel's cutoff test from being a select. Outside that range the result is not 1 / x: NaN
+// for x = 0 or subnormal (coincident particles: 1 / x is inf or beyond float's range, and the
+// pair's force is not finite either way, so it is flagged as before), 0 for x >= 2^126 (never
+// inside a cutoff). The host, and double, divide.
+template <class Real>
+CF_HD Real reciprocal(Real x) {
+#if defined(__CUDA_ARCH__)
+  if constexpr (sizeof(Real) == sizeof(float)) {
+    float r;
+    asm("rcp.approx.ftz.f32 %0, %1;" : "=f"(r) : "f"(x));
+    const float e = __fmaf_rn(x, r, -1.0f);
+    return __fmaf_rn(r, -e, r);
+  }
+#endif
+  return Real(1) / x;
+}
+
 // The pair terms at squared distance r2 > 0, with no cutoff test: force_over_r = F_c(r) / r, so
 // that the force on i is force_over_r * (x_i - x_j), and, when Energy, the pair energy U_c(r).
 // Mode and Energy are compile-time so that the unused arithmetic is not there at all.
 template <CutoffMode Mode, bool Energy, class Real>
 CF_HD void lj_terms(Real r2, const LJParams<Real>& p, Real& force_over_r, Real& energy) {
-  const Real ir2 = Real(1) / r2;
+  const Real ir2 = reciprocal(r2);
   const Real ir6 = ir2 * ir2 * ir2;
   const Real a12 = p.c12 * ir6 * ir6;
   const Real a6 = p.c6 * ir6;
