@@ -32,7 +32,8 @@ PipelineCounts read_counts(const PipelineCounts* counts, cudaStream_t stream);
 
 // Stage 1 (GPU Gems 3 ch. 32, section 32.2.2): one thread per particle. positions: n x grid.dim
 // doubles, user order. Writes keys and object_ids (n x 2^d, entry i * 2^d + t as on the CPU:
-// key = cell << 1 | phantom, kInvalidCell where unused) and control (n).
+// key = cell << 1 | phantom, kInvalidCell where unused) and control (n). keys and object_ids are
+// 16-byte aligned (the kernel stores 4 entries at a time).
 void build_cell_ids(const Grid& grid, const double* positions, std::size_t n, uint32_t* keys,
                     uint32_t* object_ids, Control* control, cudaStream_t stream);
 

@@ -135,11 +135,17 @@ struct StagedCoordinate<float> {
 
 // Bins one particle. x is its position (any image on periodic axes). Writes the H cell ID to
 // ids[0] and, for t = 1 .. 2^d - 1, the P cell reached by stepping along the axes whose bit is set
-// in t, or kInvalidCell where the box does not reach that far. Returns the control bits.
-CF_HD Control bin_particle(const Grid& g, const double x[kMaxDim], uint32_t ids[kMaxCellTypes]) {
+// in t, or kInvalidCell where the box does not reach that far. Returns the control bits. D is the
+// grid's dimension (g.dim): with it known at compile time every loop unrolls and every array and
+// Grid field is indexed by a constant, so a kernel keeps them in registers (with a run-time
+// dimension the CUDA cell-ID kernel copied the Grid and the arrays to local memory: performance.md,
+// change 27).
+template <int D>
+CF_HD Control bin_particle_in(const Grid& g, const double x[kMaxDim], uint32_t ids[kMaxCellTypes]) {
+  static_assert(D == 2 || D == 3, "two or three axes");
   int k[kMaxDim] = {0, 0, 0};
   int step[kMaxDim] = {0, 0, 0};  // -1 or +1: the neighbour the box reaches along the axis
-  for (int a = 0; a < g.dim; ++a) {
+  for (int a = 0; a < D; ++a) {
     const double xa = g.inv_length[a] != 0.0 ? wrap_coordinate(x[a], g.length[a]) : x[a];
     const double u = (xa - g.origin[a]) * g.inv_cell[a];
     const int n = int(g.n[a]);
@@ -160,16 +166,13 @@ CF_HD Control bin_particle(const Grid& g, const double x[kMaxDim], uint32_t ids[
   const unsigned home = cell_type(k);
   unsigned mask = 1u << home;
   ids[0] = cell_id(g, k);
-  const int slots = 1 << g.dim;
-  for (int t = 1; t < slots; ++t) {
+  constexpr int kSlots = 1 << D;
+  for (int t = 1; t < kSlots; ++t) {
     int kt[kMaxDim] = {k[0], k[1], k[2]};
     bool valid = true;
-    for (int a = 0; a < g.dim; ++a) {
+    for (int a = 0; a < D; ++a) {
       if (!((t >> a) & 1)) continue;
-      if (step[a] == 0) {
-        valid = false;
-        break;
-      }
+      if (step[a] == 0) valid = false;
       const int n = int(g.n[a]);
       kt[a] = (k[a] + step[a] + n) % n;
     }
@@ -181,6 +184,10 @@ CF_HD Control bin_particle(const Grid& g, const double x[kMaxDim], uint32_t ids[
     }
   }
   return make_control(home, mask);
+}
+
+CF_HD Control bin_particle(const Grid& g, const double x[kMaxDim], uint32_t ids[kMaxCellTypes]) {
+  return g.dim == 2 ? bin_particle_in<2>(g, x, ids) : bin_particle_in<3>(g, x, ids);
 }
 
 // ---- collision cells (stage 3, both backends) ---------------------------------------------------
