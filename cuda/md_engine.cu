@@ -24,6 +24,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstring>
+#include <type_traits>
 
 #include "backends/md_engine.h"
 #include "check.cuh"
@@ -56,16 +57,20 @@ struct MdFlags {
 // v += (h / m) F, per coordinate (rounded product, then sum: the same bits in every kernel that kicks).
 __device__ __forceinline__ double kicked(double v, double hm, double f) { return v + mul_rn(hm, f); }
 
-// Coordinate k of `kicks` half kicks v += (h / m) F (two: a step's closing one, deferred, and the
-// next step's opening one, rounded one after the other as two launches of one would).
+// `kicks` half kicks v += (h / m) F of one velocity component va under its force component fa (two:
+// a step's closing one, deferred, and the next step's opening one, rounded one after the other as
+// two launches of one would). Returns the new component.
+__device__ __forceinline__ double kick_value(double va, double fa, double m, double h, int kicks) {
+  const double hm = h / m;
+  for (int s = 0; s < kicks; ++s) va = kicked(va, hm, fa);
+  return va;
+}
+
+// Coordinate k of kick_value, in place.
 __device__ __forceinline__ void kick_coordinate(double* __restrict__ v, const double* __restrict__ f,
                                                 const double* __restrict__ mass, double h, int kicks, int dim,
                                                 std::size_t k) {
-  const double hm = h / mass[k / std::size_t(dim)];
-  double va = v[k];
-  const double fa = f[k];
-  for (int s = 0; s < kicks; ++s) va = kicked(va, hm, fa);
-  v[k] = va;
+  v[k] = kick_value(v[k], f[k], mass[k / std::size_t(dim)], h, kicks);
 }
 
 __global__ void kick_kernel(double* __restrict__ v, const double* __restrict__ f,
@@ -98,22 +103,34 @@ __device__ __forceinline__ DriftAxis drift_axis(const DriftBox& b, int a) {
                   : DriftAxis{b.length[2], b.most[2], b.inv_length[2], b.periodic[2]};
 }
 
-// Coordinate k of a drift x += h v, the displacement checked as the host's drift() checks it (a
-// particle that fails raises its index); with `wrap` (a step's last drift) the new position is
-// wrapped into [0, L) on periodic axes. Returns the new coordinate.
-__device__ __forceinline__ double drift_coordinate(double* __restrict__ x, const double* __restrict__ v, double h,
-                                                   const DriftBox& box, bool wrap, std::size_t k, MdFlags* flags) {
-  const std::size_t i = k / std::size_t(box.dim);
-  const DriftAxis axis = drift_axis(box, int(k - i * std::size_t(box.dim)));
-  const double dx = mul_rn(h, v[k]);
-  bool bad = !(fabs(dx) <= axis.most);  // also catches NaN
-  double xa = x[k] + dx;
+// A drift x += h v of one coordinate xa on `axis`, the displacement checked as the host's drift()
+// checks it (`bad` where it fails); with `wrap` (a step's last drift) the new position is wrapped
+// into [0, L) on a periodic axis. Returns the new coordinate.
+__device__ __forceinline__ double drift_value(double xa, double va, double h, const DriftAxis& axis, bool wrap,
+                                              bool& bad) {
+  const double dx = mul_rn(h, va);
+  bad = !(fabs(dx) <= axis.most);  // also catches NaN
+  xa += dx;
   if (wrap) {
     if (!isfinite(xa)) bad = true;
     else if (axis.periodic) xa = wrap_coordinate(xa, axis.length);
   }
-  x[k] = xa;
+  return xa;
+}
+
+// A particle whose drift failed the check raises its index.
+__device__ __forceinline__ void flag_diverged(bool bad, std::size_t i, MdFlags* flags) {
   if (bad) atomicMin(&flags->diverged, static_cast<unsigned long long>(i));
+}
+
+// Coordinate k of drift_value, in place (a particle that fails raises its index).
+__device__ __forceinline__ double drift_coordinate(double* __restrict__ x, const double* __restrict__ v, double h,
+                                                   const DriftBox& box, bool wrap, std::size_t k, MdFlags* flags) {
+  const std::size_t i = k / std::size_t(box.dim);
+  bool bad;
+  const double xa = drift_value(x[k], v[k], h, drift_axis(box, int(k - i * std::size_t(box.dim))), wrap, bad);
+  x[k] = xa;
+  flag_diverged(bad, i, flags);
   return xa;
 }
 
@@ -208,22 +225,39 @@ __device__ __forceinline__ void raise_displacement(double sq, int dim, std::size
   }
 }
 
-// The kick-drift of a Verlet step behind the step gate (step_gate.h): the gate first
-// (step_gate_shut: the kernel returns with the state as it was), then the kick-drift, then each
-// particle's squared displacement from `built` (the build's positions) into the gate.
+// The gated kernels of a step load every coordinate they read before the gate's barrier, in one
+// batch, and template the dimension (a constant divisor): the kick-drift's thread waited on four
+// dependent round trips in a row (the gate, then mass, velocity and force, then the position, which
+// nvcc loaded after the velocity's store, then the build's position after the position's store),
+// 74 us at 1M particles on an H100 with DRAM 58% busy (performance.md, change 28). A shut gate
+// discards what was loaded.
+
+// The kick-drift of a Verlet step behind the step gate (step_gate.h): the gate (step_gate_shut: the
+// kernel returns with the state as it was), then the kick-drift, then each particle's squared
+// displacement from `built` (the build's positions) into the gate.
+template <int D>
 __global__ void __launch_bounds__(kGateParticles * 3)
     gated_kick_drift_kernel(double* __restrict__ x, double* __restrict__ v, const double* __restrict__ f,
                             const double* __restrict__ mass, double h, int kicks, double dt, DriftBox box,
                             std::size_t n, MdFlags* flags, const double* __restrict__ built, cuda::GateView gate) {
-  if (step_gate_shut(gate)) return;
   const std::size_t k = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
+  const bool in = k < n * std::size_t(D);
+  const std::size_t i = k / D;
+  double xa = 0, va = 0, fa = 0, m = 1, then = 0;
+  if (in) xa = x[k], va = v[k], fa = f[k], m = mass[i], then = built[k];
+  if (step_gate_shut(gate)) return;
   double sq = 0;
-  if (k < n * std::size_t(box.dim)) {
-    const double xa = kick_drift_coordinate(x, v, f, mass, h, kicks, dt, box, k, flags);
-    const DriftAxis axis = drift_axis(box, int(k % std::size_t(box.dim)));
-    sq = displacement_term(xa, built[k], axis.length, axis.inv_length);
+  if (in) {
+    const DriftAxis axis = drift_axis(box, int(k - i * D));
+    va = kick_value(va, fa, m, h, kicks);
+    v[k] = va;
+    bool bad;
+    xa = drift_value(xa, va, dt, axis, true, bad);
+    x[k] = xa;
+    flag_diverged(bad, i, flags);
+    sq = displacement_term(xa, then, axis.length, axis.inv_length);
   }
-  raise_displacement(sq, box.dim, n, gate);
+  raise_displacement(sq, D, n, gate);
 }
 
 // A Langevin (BAOAB) step behind the step gate, in three kernels around the thermostat: (1) the gate
@@ -231,29 +265,51 @@ __global__ void __launch_bounds__(kGateParticles * 3)
 // opening one, rounded one after the other as kick_kernel would) and the first half drift; (2) the
 // thermostat (gated_thermostat_kernel); (3) the second half drift with the wrap, and the displacement
 // into the gate. The same arithmetic, kernel for kernel, as the ungated step.
+template <int D>
 __global__ void __launch_bounds__(kGateParticles * 3)
     gated_langevin_kick_drift_kernel(double* __restrict__ x, double* __restrict__ v, const double* __restrict__ f,
                                      const double* __restrict__ mass, double h, int kicks, DriftBox box,
                                      std::size_t n, MdFlags* flags, cuda::GateView gate) {
-  if (step_gate_shut(gate)) return;
   const std::size_t k = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
-  if (k >= n * std::size_t(box.dim)) return;
-  kick_coordinate(v, f, mass, h, kicks, box.dim, k);
-  drift_coordinate(x, v, h, box, false, k, flags);
+  const bool in = k < n * std::size_t(D);
+  const std::size_t i = k / D;
+  double xa = 0, va = 0, fa = 0, m = 1;
+  if (in) xa = x[k], va = v[k], fa = f[k], m = mass[i];
+  if (step_gate_shut(gate) || !in) return;
+  va = kick_value(va, fa, m, h, kicks);
+  v[k] = va;
+  bool bad;
+  x[k] = drift_value(xa, va, h, drift_axis(box, int(k - i * D)), false, bad);
+  flag_diverged(bad, i, flags);
 }
 
+template <int D>
 __global__ void __launch_bounds__(kGateParticles * 3)
     gated_langevin_drift_kernel(double* __restrict__ x, const double* __restrict__ v, double h, DriftBox box,
                                 std::size_t n, MdFlags* flags, const double* __restrict__ built, cuda::GateView gate) {
-  if (step_gate_closed(gate)) return;
   const std::size_t k = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
+  const bool in = k < n * std::size_t(D);
+  const std::size_t i = k / D;
+  double xa = 0, va = 0, then = 0;
+  if (in) xa = x[k], va = v[k], then = built[k];
+  if (step_gate_closed(gate)) return;
   double sq = 0;
-  if (k < n * std::size_t(box.dim)) {
-    const double xa = drift_coordinate(x, v, h, box, true, k, flags);
-    const DriftAxis axis = drift_axis(box, int(k % std::size_t(box.dim)));
-    sq = displacement_term(xa, built[k], axis.length, axis.inv_length);
+  if (in) {
+    const DriftAxis axis = drift_axis(box, int(k - i * D));
+    bool bad;
+    xa = drift_value(xa, va, h, axis, true, bad);
+    x[k] = xa;
+    flag_diverged(bad, i, flags);
+    sq = displacement_term(xa, then, axis.length, axis.inv_length);
   }
-  raise_displacement(sq, box.dim, n, gate);
+  raise_displacement(sq, D, n, gate);
+}
+
+// f(std::integral_constant<int, D>) for the box's dimension (2 or 3).
+template <class F>
+void with_dim(int dim, F&& f) {
+  if (dim == 2) f(std::integral_constant<int, 2>{});
+  else f(std::integral_constant<int, 3>{});
 }
 
 // BAOAB's O step: v = c1 v + c2 sqrt(kT / m) xi, xi from counter_normal keyed by the step and the
@@ -730,23 +786,26 @@ class CudaMdEngine final : public MdEngine {
     for (int64_t j = 0; j < count; ++j) {
       view.step = first + uint64_t(j);
       const int kicks = j == 0 ? first_kicks : 2;
-      if (!settings.langevin) {
-        gated_kick_drift_kernel<<<blocks, threads, 0, stream_>>>(positions_.data(), velocities_.data(),
-                                                                gpu_.device_forces(), masses_.data(), 0.5 * dt, kicks,
-                                                                dt, box, n_, flags_.data(), built, view);
-        CF_CUDA_CHECK_LAUNCH();
-      } else {
-        gated_langevin_kick_drift_kernel<<<blocks, threads, 0, stream_>>>(
-            positions_.data(), velocities_.data(), gpu_.device_forces(), masses_.data(), 0.5 * dt, kicks, box, n_,
-            flags_.data(), view);
-        CF_CUDA_CHECK_LAUNCH();
-        gated_thermostat_kernel<<<blocks_for(n_ * box_.dim), kBlock, 0, stream_>>>(
-            velocities_.data(), masses_.data(), c1, c2, settings.kT, settings.seed, n_, box_.dim, view);
-        CF_CUDA_CHECK_LAUNCH();
-        gated_langevin_drift_kernel<<<blocks, threads, 0, stream_>>>(positions_.data(), velocities_.data(), 0.5 * dt,
-                                                                    box, n_, flags_.data(), built, view);
-        CF_CUDA_CHECK_LAUNCH();
-      }
+      with_dim(box_.dim, [&](auto dim) {
+        constexpr int D = decltype(dim)::value;
+        if (!settings.langevin) {
+          gated_kick_drift_kernel<D><<<blocks, threads, 0, stream_>>>(
+              positions_.data(), velocities_.data(), gpu_.device_forces(), masses_.data(), 0.5 * dt, kicks, dt, box,
+              n_, flags_.data(), built, view);
+          CF_CUDA_CHECK_LAUNCH();
+        } else {
+          gated_langevin_kick_drift_kernel<D><<<blocks, threads, 0, stream_>>>(
+              positions_.data(), velocities_.data(), gpu_.device_forces(), masses_.data(), 0.5 * dt, kicks, box, n_,
+              flags_.data(), view);
+          CF_CUDA_CHECK_LAUNCH();
+          gated_thermostat_kernel<<<blocks_for(n_ * box_.dim), kBlock, 0, stream_>>>(
+              velocities_.data(), masses_.data(), c1, c2, settings.kT, settings.seed, n_, box_.dim, view);
+          CF_CUDA_CHECK_LAUNCH();
+          gated_langevin_drift_kernel<D><<<blocks, threads, 0, stream_>>>(
+              positions_.data(), velocities_.data(), 0.5 * dt, box, n_, flags_.data(), built, view);
+          CF_CUDA_CHECK_LAUNCH();
+        }
+      });
       std::size_t slot = timed + std::size_t(j);  // events only: counted below for the steps served
       timed_evaluation(slot, [&] { gpu_.evaluate_gated(box_, n_, positions_.data(), types, ff_, view); });
     }
