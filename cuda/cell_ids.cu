@@ -1,5 +1,5 @@
 // Stage 1, cell IDs (GPU Gems 3 ch. 32, section 32.2.2), one thread per particle: the H cell and
-// up to 2^d - 1 P cells of each particle's box, through the same bin_particle() as the CPU (its
+// up to 2^d - 1 P cells of each particle's box, through the same bin_particle_in<D>() as the CPU (its
 // geometry is immune to FMA contraction, so both bin every particle identically), and the count
 // of valid entries by a CUB reduction, left in device memory for the later stages.
 #include <cub/device/device_reduce.cuh>

@@ -465,7 +465,9 @@ __global__ void __launch_bounds__(kBlock)
     // threads read consecutive chunks.
     const uint32_t* entries = neighbors + list_entry(group_chunks[p / kGroup], p, 0);
     constexpr uint32_t kStride = S;  // between a batch's entries
-    // Every pair of this thread's share of the list within rc, in list order: on_pair(q, d, fr, e).
+    // Every entry of this thread's share of the list, in list order: on_pair(q, d, fr, e). With
+    // observables only the pairs within rc; without, every entry, fr = 0 beyond rc and past the
+    // list (the select below).
     auto walk = [&](auto&& on_pair) {
       for (uint32_t k0 = S == 1 ? 0u : part; k0 < len; k0 += uint32_t(S * kChunk)) {
         uint32_t q[kChunk];
@@ -503,7 +505,9 @@ __global__ void __launch_bounds__(kBlock)
           } else {
             // Without observables a pair beyond rc, and a padding entry past the list (q = p),
             // adds fr = 0: +-0 to each sum, which leaves it bitwise as it was (a sum from +0 is
-            // never -0). So neither test is a branch: a warp's lanes take both sides of the cutoff
+            // never -0; d is finite: positions are checked finite on input and a diverged drift
+            // closes the step gate, and padding has d = 0). So neither test is a branch: a warp's
+            // lanes take both sides of the cutoff
             // anyway, and with no branch in the batch its kChunk gathers stay ahead of its pairs
             // (behind a branch per pair nvcc issues each gather just before its pair).
             lj_terms<T::kMode, false>(r2, prm, fr, e);

@@ -158,12 +158,31 @@ std::vector<Real> device_reciprocals(const std::vector<Real>& x) {
   return download(d_out, x.size());
 }
 
-// The device's float reciprocal (the estimate and one Newton step, no range test) is the host's
-// correctly rounded 1 / x BITWISE for every normal x below 2^126: every float of [0.5, 2) with a
-// 12-bit stride in its mantissa (2^12 significands), scaled by every power of two from 2^-126 to
-// 2^125, both signs, plus the float r^2 of 10^5 random LJ separations (0.5 to 3 sigma). Outside
-// that range it is documented as not 1 / x: NaN for 0 and subnormals (the pair is flagged as not
-// finite either way).
+// Every float x with 2^-126 <= |x| <= 2^126 (bit patterns 0x00800000 to 0x7e800000, both signs):
+// counts the x whose cellforce::reciprocal differs in any bit from __frcp_rn (the device's IEEE
+// round-to-nearest reciprocal, with its slow path), and keeps the smallest such pattern.
+__global__ void reciprocal_sweep(unsigned long long* mismatches, unsigned* first) {
+  constexpr uint32_t kLo = 0x00800000u, kHi = 0x7e800000u;
+  const uint64_t stride = uint64_t(gridDim.x) * blockDim.x;
+  for (uint64_t u = kLo + uint64_t(blockIdx.x) * blockDim.x + threadIdx.x; u <= kHi; u += stride) {
+    for (int negative = 0; negative < 2; ++negative) {
+      const uint32_t sign = negative ? 0x80000000u : 0u;
+      const float x = __uint_as_float(uint32_t(u) | sign);
+      if (__float_as_uint(cellforce::reciprocal(x)) != __float_as_uint(__frcp_rn(x))) {
+        atomicAdd(mismatches, 1ull);
+        atomicMin(first, uint32_t(u) | sign);
+      }
+    }
+  }
+}
+
+// The device's float reciprocal (the estimate and one Newton step, no range test) is the correctly
+// rounded 1 / x BITWISE for every normal x up to 2^126: against __frcp_rn for every such float
+// (both signs, ~4.2e9), and against the host's division for 2^12 significands of [1, 2) (a
+// stride of 2^11 in the mantissa) scaled by every power of two from 2^-126 to 2^125, both signs,
+// 2^126 itself, and the float r^2 of 10^5 random LJ separations (0.5 to 3 sigma). Beyond that
+// range it is documented as not 1 / x: NaN for 0, subnormals and inf (the pair is flagged as not
+// finite either way), 0 above 2^126.
 TEST_F(CoreOnDevice, FloatReciprocalIsTheCorrectlyRoundedQuotient) {
   std::vector<float> x;
   for (uint32_t m = 0; m < (1u << 23); m += 1u << 11) {
@@ -180,6 +199,8 @@ TEST_F(CoreOnDevice, FloatReciprocalIsTheCorrectlyRoundedQuotient) {
     const float r = 0.5f + 2.5f * float(state >> 40) / float(1u << 24);
     x.push_back(r * r);
   }
+  x.push_back(std::ldexp(1.0f, 126));
+  x.push_back(-std::ldexp(1.0f, 126));
   const std::vector<float> device = device_reciprocals(x);
   std::size_t mismatches = 0;
   for (std::size_t k = 0; k < x.size(); ++k) {
@@ -189,9 +210,21 @@ TEST_F(CoreOnDevice, FloatReciprocalIsTheCorrectlyRoundedQuotient) {
   }
   EXPECT_EQ(mismatches, 0u) << "of " << x.size();
 
-  const float sub = std::numeric_limits<float>::denorm_min();
-  const std::vector<float> off = device_reciprocals(std::vector<float>{0.0f, sub, 1e-39f});
+  DeviceBuffer<unsigned long long> d_count(1);
+  DeviceBuffer<unsigned> d_first(1);
+  upload(d_count, std::vector<unsigned long long>{0});
+  upload(d_first, std::vector<unsigned>{~0u});
+  reciprocal_sweep<<<4096, 256>>>(d_count.data(), d_first.data());
+  CF_CUDA_CHECK_LAUNCH();
+  CF_CUDA_CHECK(cudaDeviceSynchronize());
+  const unsigned long long swept = download(d_count, 1)[0];
+  const unsigned first = download(d_first, 1)[0];
+  EXPECT_EQ(swept, 0ull) << "floats whose reciprocal is not __frcp_rn's, the first 0x" << std::hex << first;
+
+  const float sub = std::numeric_limits<float>::denorm_min(), inf = std::numeric_limits<float>::infinity();
+  const std::vector<float> off = device_reciprocals(std::vector<float>{0.0f, -0.0f, sub, 1e-39f, inf});
   for (const float r : off) EXPECT_TRUE(std::isnan(r)) << r;
+  EXPECT_EQ(device_reciprocals(std::vector<float>{std::ldexp(1.5f, 126)})[0], 0.0f);
   // Double divides on the device too: bitwise the host's.
   const std::vector<double> xd = {1e-300, 0.37, 2.5 * 2.5, 6.25000001, 1e300};
   const std::vector<double> dd = device_reciprocals(xd);

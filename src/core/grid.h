@@ -186,6 +186,7 @@ CF_HD Control bin_particle_in(const Grid& g, const double x[kMaxDim], uint32_t i
   return make_control(home, mask);
 }
 
+// g.dim is 2 or 3 (a scene, the API and the readers reject any other: validate.cpp, context.cpp).
 CF_HD Control bin_particle(const Grid& g, const double x[kMaxDim], uint32_t ids[kMaxCellTypes]) {
   return g.dim == 2 ? bin_particle_in<2>(g, x, ids) : bin_particle_in<3>(g, x, ids);
 }

@@ -51,10 +51,11 @@ LJParams<Real> make_lj_params(double sigma, double epsilon, double cutoff, Cutof
 // what nvcc emits for 1 / x when x is normal and below 2^126, and there it is the correctly
 // rounded quotient, bitwise 1 / x; nvcc adds a range test and a branch to a slow path for the
 // rest: ~9 of the ~50 instructions of a pair in the list force kernel, and a branch that keeps
-// the kernel's cutoff test from being a select. Outside that range the result is not 1 / x: NaN
-// for x = 0 or subnormal (coincident particles: 1 / x is inf or beyond float's range, and the
-// pair's force is not finite either way, so it is flagged as before), 0 for x >= 2^126 (never
-// inside a cutoff). The host, and double, divide.
+// the kernel's cutoff test from being a select. At 2^126 it is 2^-126, still 1 / x. Beyond that
+// range it is not 1 / x: NaN for x = 0 or subnormal (coincident particles: 1 / x is inf or beyond
+// float's range, and the pair's force is not finite either way, so it is flagged as before), 0
+// above 2^126 and NaN at inf (never inside a cutoff: every caller tests or selects the cutoff).
+// The host, and double, divide.
 template <class Real>
 CF_HD Real reciprocal(Real x) {
 #if defined(__CUDA_ARCH__)
