@@ -166,17 +166,23 @@ template <int D, class Particle>
 __global__ void gather_ranked(Grid g, const double* __restrict__ positions, const uint32_t* __restrict__ types,
                               const uint32_t* __restrict__ order, std::size_t n, uint32_t num_types,
                               Particle* __restrict__ ranked, DeviceFlags* flags, GateView gate) {
-  if (gate_shut(gate)) return;
+  // The particle's rank order, its position and type are loaded before the gate's barrier (a shut
+  // gate discards them): the gate's read, the order and the position were three round trips in a
+  // row (change 33, as change 28 for the kick-drift).
   const std::size_t p = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
-  if (gate.gate && p == 0) atomicMax(&gate.gate->served, gate.gate->d2[gate.step % 3]);
-  if (p >= n) return;
-  const std::size_t i = order[p];
-  double x[3] = {0, 0, 0};
-  for (int a = 0; a < D; ++a) {
-    const double v = positions[i * D + a];
-    x[a] = g.inv_length[a] != 0.0 ? wrap_coordinate(v, g.length[a]) : v;
+  const bool in = p < n;
+  const std::size_t i = in ? order[p] : 0u;
+  double v[3] = {0, 0, 0};
+  uint32_t t = 0;
+  if (in) {
+    for (int a = 0; a < D; ++a) v[a] = positions[i * D + a];
+    t = types ? types[i] : 0u;
   }
-  const uint32_t t = types ? types[i] : 0u;
+  if (gate_shut(gate)) return;
+  if (gate.gate && p == 0) atomicMax(&gate.gate->served, gate.gate->d2[gate.step % 3]);
+  if (!in) return;
+  double x[3] = {0, 0, 0};
+  for (int a = 0; a < D; ++a) x[a] = g.inv_length[a] != 0.0 ? wrap_coordinate(v[a], g.length[a]) : v[a];
   store_ranked<D>(ranked, p, g, x, t < num_types ? t : 0u, i, flags);
 }
 
@@ -448,22 +454,26 @@ __global__ void __launch_bounds__(kBlock)
                       const Particle* __restrict__ ranked, const uint32_t* __restrict__ length,
                       const unsigned long long* __restrict__ group_chunks, const uint32_t* __restrict__ neighbors,
                       const FixedScales scale, Accum* __restrict__ block_sums, GateView gate) {
-  if (gate_shut(gate)) return;  // the whole block: before any shuffle or barrier
   constexpr int D = T::kDim;
   const std::size_t n = args.n;
   const std::size_t t = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
   const std::size_t p = t / S;
   const uint32_t part = uint32_t(t % S);
+  // The particle, its list's length and its group's first chunk are loaded before the gate's
+  // barrier (a shut gate discards them), so that their round trip overlaps the gate's (change 33).
+  Particle P{};
+  uint32_t len = 0;
+  unsigned long long group_chunk0 = 0;
+  if (p < n) P = ranked[p], len = length[p], group_chunk0 = group_chunks[p / kGroup];
+  if (gate_shut(gate)) return;  // the whole block: before any shuffle or barrier
   CellTotals<Accum, true, true> totals;
   Accum f[D] = {};
   Accum ea = 0;
   if (p < n) {
-    const Particle P = ranked[p];
-    const uint32_t len = length[p];
     const LJParams<Real> single = args.table[0];
     // Entry k at entries[(k / kChunk) * kGroup * kChunk + k % kChunk] (list_entry): a warp's
     // threads read consecutive chunks.
-    const uint32_t* entries = neighbors + list_entry(group_chunks[p / kGroup], p, 0);
+    const uint32_t* entries = neighbors + list_entry(group_chunk0, p, 0);
     constexpr uint32_t kStride = S;  // between a batch's entries
     // Every entry of this thread's share of the list, in list order: on_pair(q, d, fr, e). With
     // observables only the pairs within rc; without, every entry, fr = 0 beyond rc and past the
