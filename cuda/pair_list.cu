@@ -515,11 +515,12 @@ __global__ void __launch_bounds__(kBlock)
           } else {
             // Without observables a pair beyond rc, and a padding entry past the list (q = p),
             // adds fr = 0: +-0 to each sum, which leaves it bitwise as it was (a sum from +0 is
-            // never -0; d is finite: positions are checked finite on input and a diverged drift
-            // closes the step gate, and padding has d = 0). So neither test is a branch: a warp's
-            // lanes take both sides of the cutoff
-            // anyway, and with no branch in the batch its kChunk gathers stay ahead of its pairs
-            // (behind a branch per pair nvcc issues each gather just before its pair).
+            // never -0). That needs d finite: fixed-point separations always are, padding has
+            // d = 0, and a coordinate that is not finite was flagged by the gather (the
+            // evaluation then fails naming it; its particles' sums may be NaN instead of
+            // skipping the pair). So neither test is a branch: a warp's lanes take both sides of
+            // the cutoff anyway, and with no branch in the batch its kChunk gathers stay ahead of
+            // its pairs (behind a branch per pair nvcc issues each gather just before its pair).
             lj_terms<T::kMode, false>(r2, prm, fr, e);
             fr = listed && r2 < args.rc2 ? fr : Real(0);
           }
