@@ -6,6 +6,7 @@
 #include <thrust/iterator/transform_iterator.h>
 
 #include "stages.cuh"
+#include "with_dim.cuh"
 
 namespace cellforce::cuda {
 namespace {
@@ -49,8 +50,9 @@ void build_cell_ids(const Grid& grid, const double* positions, std::size_t n, ui
   if (n == 0) return;
   constexpr int kBlock = 256;
   const unsigned blocks = unsigned((n + kBlock - 1) / kBlock);
-  if (grid.dim == 2) cell_ids_kernel<2><<<blocks, kBlock, 0, stream>>>(grid, positions, n, keys, object_ids, control);
-  else cell_ids_kernel<3><<<blocks, kBlock, 0, stream>>>(grid, positions, n, keys, object_ids, control);
+  with_dim(grid.dim, [&](auto d) {
+    cell_ids_kernel<decltype(d)::value><<<blocks, kBlock, 0, stream>>>(grid, positions, n, keys, object_ids, control);
+  });
   CF_CUDA_CHECK_LAUNCH();
 }
 

@@ -24,7 +24,6 @@
 #include <chrono>
 #include <cmath>
 #include <cstring>
-#include <type_traits>
 
 #include "backends/md_engine.h"
 #include "check.cuh"
@@ -38,6 +37,7 @@
 #include "md/fire_step.h"
 #include "step_gate.cuh"
 #include "traversal.cuh"   // kCellSums
+#include "with_dim.cuh"
 
 namespace cellforce {
 namespace {
@@ -121,6 +121,19 @@ __device__ __forceinline__ double drift_value(double xa, double va, double h, co
 // A particle whose drift failed the check raises its index.
 __device__ __forceinline__ void flag_diverged(bool bad, std::size_t i, MdFlags* flags) {
   if (bad) atomicMin(&flags->diverged, static_cast<unsigned long long>(i));
+}
+
+// A gated step's last drift of coordinate k (particle i, on `axis`) from xa by h va, wrapped,
+// stored and checked. Returns its term of the particle's squared displacement from `then` (the
+// build's position), for the gate.
+__device__ __forceinline__ double last_drift(double* __restrict__ x, std::size_t k, std::size_t i, double xa,
+                                             double va, double h, const DriftAxis& axis, double then,
+                                             MdFlags* flags) {
+  bool bad;
+  xa = drift_value(xa, va, h, axis, true, bad);
+  x[k] = xa;
+  flag_diverged(bad, i, flags);
+  return displacement_term(xa, then, axis.length, axis.inv_length);
 }
 
 // Coordinate k of drift_value, in place (a particle that fails raises its index).
@@ -248,14 +261,9 @@ __global__ void __launch_bounds__(kGateParticles * 3)
   if (step_gate_shut(gate)) return;
   double sq = 0;
   if (in) {
-    const DriftAxis axis = drift_axis(box, int(k - i * D));
     va = kick_value(va, fa, m, h, kicks);
     v[k] = va;
-    bool bad;
-    xa = drift_value(xa, va, dt, axis, true, bad);
-    x[k] = xa;
-    flag_diverged(bad, i, flags);
-    sq = displacement_term(xa, then, axis.length, axis.inv_length);
+    sq = last_drift(x, k, i, xa, va, dt, drift_axis(box, int(k - i * D)), then, flags);
   }
   raise_displacement(sq, D, n, gate);
 }
@@ -295,21 +303,9 @@ __global__ void __launch_bounds__(kGateParticles * 3)
   if (step_gate_closed(gate)) return;
   double sq = 0;
   if (in) {
-    const DriftAxis axis = drift_axis(box, int(k - i * D));
-    bool bad;
-    xa = drift_value(xa, va, h, axis, true, bad);
-    x[k] = xa;
-    flag_diverged(bad, i, flags);
-    sq = displacement_term(xa, then, axis.length, axis.inv_length);
+    sq = last_drift(x, k, i, xa, va, h, drift_axis(box, int(k - i * D)), then, flags);
   }
   raise_displacement(sq, D, n, gate);
-}
-
-// f(std::integral_constant<int, D>) for the box's dimension (2 or 3).
-template <class F>
-void with_dim(int dim, F&& f) {
-  if (dim == 2) f(std::integral_constant<int, 2>{});
-  else f(std::integral_constant<int, 3>{});
 }
 
 // BAOAB's O step: v = c1 v + c2 sqrt(kT / m) xi, xi from counter_normal keyed by the step and the
@@ -786,7 +782,7 @@ class CudaMdEngine final : public MdEngine {
     for (int64_t j = 0; j < count; ++j) {
       view.step = first + uint64_t(j);
       const int kicks = j == 0 ? first_kicks : 2;
-      with_dim(box_.dim, [&](auto dim) {
+      cuda::with_dim(box_.dim, [&](auto dim) {
         constexpr int D = decltype(dim)::value;
         if (!settings.langevin) {
           gated_kick_drift_kernel<D><<<blocks, threads, 0, stream_>>>(

@@ -12,6 +12,7 @@
 #include "pair_list.cuh"
 #include "step_gate.cuh"
 #include "traversal_impl.cuh"  // Traits, dispatch, warp_sum, flag_bad_pair
+#include "with_dim.cuh"
 
 namespace cellforce::cuda {
 namespace {
@@ -575,12 +576,6 @@ __global__ void __launch_bounds__(kBlock)
 }
 
 unsigned blocks_for(std::size_t count) { return unsigned((count + kBlock - 1) / kBlock); }
-
-template <class F>
-void with_dim(int dim, F&& f) {
-  if (dim == 2) f(std::integral_constant<int, 2>{});
-  else f(std::integral_constant<int, 3>{});
-}
 
 template <class Particle, class Real, class Accum>
 void gather(const ListArgs<Real, Accum>& args, PairList& list, DeviceBuffer<Particle>& ranked, cudaStream_t stream,

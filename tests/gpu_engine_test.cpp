@@ -92,16 +92,7 @@ TEST_P(GpuVsCpu, SameResultsAsCpuOfSamePrecision) {
   const ForceResult cpu = run_cpu(precision, acc, s);
   const ForceResult gpu = run_gpu(gpu_options(form, precision, acc), s);
   ASSERT_EQ(gpu.forces.size(), cpu.forces.size());
-  if (precision == Precision::kDouble) {
-    EXPECT_TRUE(forces_match(cpu, gpu, 1e-12));
-    EXPECT_TRUE(energies_match(cpu, gpu, 1e-12));
-    EXPECT_TRUE(total_energy_matches(cpu, gpu, 1e-12));
-    EXPECT_TRUE(virial_matches(cpu, gpu, 1e-12));
-  } else {
-    EXPECT_LT(median_relative_force_error(cpu, gpu), 1e-6);
-    EXPECT_TRUE(total_energy_matches(cpu, gpu, 1e-5));
-    EXPECT_TRUE(virial_matches(cpu, gpu, 1e-5));
-  }
+  expect_results_match(cpu, gpu, precision);
 }
 
 INSTANTIATE_TEST_SUITE_P(

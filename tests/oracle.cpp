@@ -356,6 +356,19 @@ double force_rms(const ForceResult& r) {
   return ::testing::AssertionSuccess();
 }
 
+void expect_results_match(const ForceResult& ref, const ForceResult& got, cellforce::Precision precision) {
+  if (precision == cellforce::Precision::kDouble) {
+    EXPECT_TRUE(forces_match(ref, got, 1e-12));
+    EXPECT_TRUE(energies_match(ref, got, 1e-12));
+    EXPECT_TRUE(total_energy_matches(ref, got, 1e-12));
+    EXPECT_TRUE(virial_matches(ref, got, 1e-12));
+  } else {
+    EXPECT_LT(median_relative_force_error(ref, got), 1e-6);
+    EXPECT_TRUE(total_energy_matches(ref, got, 1e-5));
+    EXPECT_TRUE(virial_matches(ref, got, 1e-5));
+  }
+}
+
 double median_relative_force_error(const ForceResult& ref, const ForceResult& got) {
   const std::size_t n = particles(ref), d = std::size_t(ref.dim);
   std::vector<double> rel;

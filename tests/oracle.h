@@ -102,6 +102,11 @@ double force_rms(const cellforce::ForceResult& r);
 // Median over particles with F_ref_i != 0 of |F_got_i - F_ref_i| / |F_ref_i|.
 double median_relative_force_error(const cellforce::ForceResult& ref,
                                    const cellforce::ForceResult& got);
+// The engines' agreement with a reference evaluation in their precision (EXPECTs): double to 1e-12
+// (forces, per-particle energies, total energy, virial); float pairs (single, mixed) a median
+// relative force error below 1e-6 and total energy and virial to 1e-5.
+void expect_results_match(const cellforce::ForceResult& ref, const cellforce::ForceResult& got,
+                          cellforce::Precision precision);
 
 // ---- pair sets ----------------------------------------------------------------------------------
 // Each pair as (min, max), sorted; duplicates kept.

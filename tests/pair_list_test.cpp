@@ -107,16 +107,8 @@ TEST_P(PairList, ReusedEvaluationMatchesTheBruteForce) {
     if (lists_fit(s, kSkin)) {
       EXPECT_GT(e.listed_pairs(), 0u) << which << ": the cells served, not the list";
     }
-    if (precision == Precision::kDouble) {
-      EXPECT_TRUE(forces_match(ref, got, 1e-12)) << which;
-      EXPECT_TRUE(energies_match(ref, got, 1e-12)) << which;
-      EXPECT_TRUE(total_energy_matches(ref, got, 1e-12)) << which;
-      EXPECT_TRUE(virial_matches(ref, got, 1e-12)) << which;
-    } else {
-      EXPECT_LT(median_relative_force_error(ref, got), 1e-6) << which;
-      EXPECT_TRUE(total_energy_matches(ref, got, 1e-5)) << which;
-      EXPECT_TRUE(virial_matches(ref, got, 1e-5)) << which;
-    }
+    SCOPED_TRACE(which);
+    expect_results_match(ref, got, precision);
   }
 }
 
@@ -510,15 +502,7 @@ TEST(PairListThreads, EveryThreadCountMatchesTheBruteForce) {
         e.evaluate(c->view(), s.ff, all, got);
         cellforce::brute_force(c->view(), s.ff, all, ref);
         ASSERT_GT(e.listed_pairs(), 0u);
-        if (p == Precision::kDouble) {
-          EXPECT_TRUE(forces_match(ref, got, 1e-12));
-          EXPECT_TRUE(total_energy_matches(ref, got, 1e-12));
-          EXPECT_TRUE(virial_matches(ref, got, 1e-12));
-        } else {
-          EXPECT_LT(median_relative_force_error(ref, got), 1e-6);
-          EXPECT_TRUE(total_energy_matches(ref, got, 1e-5));
-          EXPECT_TRUE(virial_matches(ref, got, 1e-5));
-        }
+        expect_results_match(ref, got, p);
       }
     }
 }
