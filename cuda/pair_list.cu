@@ -476,9 +476,6 @@ __global__ void __launch_bounds__(kBlock)
     // threads read consecutive chunks.
     const uint32_t* entries = neighbors + list_entry(group_chunk0, p, 0);
     constexpr uint32_t kStride = S;  // between a batch's entries
-    // Every entry of this thread's share of the list, in list order: on_pair(q, d, fr, e). With
-    // observables only the pairs within rc; without, every entry, fr = 0 beyond rc and past the
-    // list (the select below).
     // The batch of entries from k0 on (k0 < len): one 16-byte chunk (S = 1), or kChunk entries
     // S apart.
     auto load_batch = [&](uint32_t k0, uint32_t (&q)[kChunk]) {
@@ -494,54 +491,68 @@ __global__ void __launch_bounds__(kBlock)
       }
     };
     constexpr uint32_t kStep = uint32_t(S * kChunk);  // between a thread's batches
+    // One batch: its kChunk entries q from k0 on, gathered, then evaluated in list order. In the
+    // last batch (Tail), entries past the list are padding (never written): q = p.
+    auto batch = [&](auto tail, uint32_t k0, uint32_t (&q)[kChunk], auto&& on_pair) {
+      constexpr bool Tail = decltype(tail)::value;
+      if constexpr (Tail) {
+#pragma unroll
+        for (uint32_t b = 0; b < kChunk; ++b)
+          if (k0 + b * kStride >= len) q[b] = uint32_t(p);
+      }
+      Particle Q[kChunk];
+#pragma unroll
+      for (int b = 0; b < kChunk; ++b) Q[b] = ranked[q[b]];
+#pragma unroll
+      for (uint32_t b = 0; b < kChunk; ++b) {
+        const bool listed = !Tail || k0 + b * kStride < len;  // past the list: the batch's rest is too
+        if constexpr (T::kObservables)
+          if (!listed) break;
+        Real d[3];
+        pair_separation<D>(args.grid, P, Q[b], scale, d);
+        Real r2 = d[0] * d[0] + d[1] * d[1];
+        if constexpr (D == 3) r2 += d[2] * d[2];
+        LJParams<Real> prm;
+        if constexpr (T::kMultiType) prm = args.table[P.type * args.num_types + Q[b].type];
+        else prm = single;
+        Real fr, e = 0;
+        if constexpr (T::kObservables) {
+          if (!lj_pair<T::kMode, true>(r2, args.rc2, prm, fr, e)) continue;
+        } else {
+          // Without observables a pair beyond rc, and a padding entry past the list (q = p),
+          // adds fr = 0: +-0 to each sum, which leaves it bitwise as it was (a sum from +0 is
+          // never -0). That needs d finite: fixed-point separations always are, padding has
+          // d = 0, and a coordinate that is not finite was flagged by the gather (the
+          // evaluation then fails naming it; its particles' sums may be NaN instead of
+          // skipping the pair). So neither test is a branch: a warp's lanes take both sides of
+          // the cutoff anyway, and with no branch in the batch its kChunk gathers stay ahead of
+          // its pairs (behind a branch per pair nvcc issues each gather just before its pair).
+          lj_terms<T::kMode, false>(r2, prm, fr, e);
+          fr = listed && r2 < args.rc2 ? fr : Real(0);
+        }
+        on_pair(q[b], d, fr, e);
+      }
+    };
+    // Every entry of this thread's share of the list, in list order: on_pair(q, d, fr, e). With
+    // observables only the pairs within rc; without, every entry, fr = 0 beyond rc and past the
+    // list (the select below).
     // The next batch's entries are loaded before this batch's pairs (change 34): the list comes
     // from DRAM, and a batch that loads its own entries first waits the whole round trip before
-    // its gathers can start (a third of the kernel's stall samples at 1M were on that load).
+    // its gathers can start (a third of the kernel's stall samples at 1M were on that load). The
+    // whole batches come first, with no test of the list's end per entry (change 38), then the
+    // last one if the list ends inside it.
     auto walk = [&](auto&& on_pair) {
-      const uint32_t first = S == 1 ? 0u : part;
+      uint32_t k0 = S == 1 ? 0u : part;
       uint32_t next[kChunk] = {0u, 0u, 0u, 0u};
-      if (first < len) load_batch(first, next);
-      for (uint32_t k0 = first; k0 < len; k0 += kStep) {
+      if (k0 < len) load_batch(k0, next);
+      for (; k0 + (kChunk - 1) * kStride < len; k0 += kStep) {
         uint32_t q[kChunk];
 #pragma unroll
         for (uint32_t b = 0; b < kChunk; ++b) q[b] = next[b];
         if (k0 + kStep < len) load_batch(k0 + kStep, next);
-#pragma unroll
-        for (uint32_t b = 0; b < kChunk; ++b)
-          if (k0 + b * kStride >= len) q[b] = uint32_t(p);  // past the list (padding: never written)
-        Particle Q[kChunk];
-#pragma unroll
-        for (int b = 0; b < kChunk; ++b) Q[b] = ranked[q[b]];
-#pragma unroll
-        for (uint32_t b = 0; b < kChunk; ++b) {
-          const bool listed = k0 + b * kStride < len;  // past the list: the batch's rest is too
-          if constexpr (T::kObservables)
-            if (!listed) break;
-          Real d[3];
-          pair_separation<D>(args.grid, P, Q[b], scale, d);
-          Real r2 = d[0] * d[0] + d[1] * d[1];
-          if constexpr (D == 3) r2 += d[2] * d[2];
-          LJParams<Real> prm;
-          if constexpr (T::kMultiType) prm = args.table[P.type * args.num_types + Q[b].type];
-          else prm = single;
-          Real fr, e = 0;
-          if constexpr (T::kObservables) {
-            if (!lj_pair<T::kMode, true>(r2, args.rc2, prm, fr, e)) continue;
-          } else {
-            // Without observables a pair beyond rc, and a padding entry past the list (q = p),
-            // adds fr = 0: +-0 to each sum, which leaves it bitwise as it was (a sum from +0 is
-            // never -0). That needs d finite: fixed-point separations always are, padding has
-            // d = 0, and a coordinate that is not finite was flagged by the gather (the
-            // evaluation then fails naming it; its particles' sums may be NaN instead of
-            // skipping the pair). So neither test is a branch: a warp's lanes take both sides of
-            // the cutoff anyway, and with no branch in the batch its kChunk gathers stay ahead of
-            // its pairs (behind a branch per pair nvcc issues each gather just before its pair).
-            lj_terms<T::kMode, false>(r2, prm, fr, e);
-            fr = listed && r2 < args.rc2 ? fr : Real(0);
-          }
-          on_pair(q[b], d, fr, e);
-        }
+        batch(std::false_type{}, k0, q, on_pair);
       }
+      if (k0 < len) batch(std::true_type{}, k0, next, on_pair);
     };
     walk([&](uint32_t, const Real (&d)[3], Real fr, Real e) {
       for (int c = 0; c < D; ++c) f[c] += Accum(mul_rn(fr, d[c]));  // no FMA, as the traversals
