@@ -251,6 +251,32 @@ TEST(PairListRepeat, TwoEnginesAreBitwiseEqual) {
   }
 }
 
+// The forces of a step do not depend on whether its energy and virial were asked for: the force
+// kernels with and without observables give bitwise the same forces, at a build and on a reused
+// step, in every precision. An MD run observes only its output steps and a restart recomputes the
+// forces with observables, so a bitwise restart needs this. Single-type cubes (the in.lj case,
+// where the fixed-point scale is the same on every axis) and a multi-type box. Change 39 (a
+// kernel-only fold of the fixed-point scale) broke this and was reverted.
+TEST(PairListRequests, ForcesDoNotDependOnTheObservablesAsked) {
+  CF_SKIP_WITHOUT_DEVICE();
+  for (const char* name : {"lattice_fcc_jitter", "lattice_bcc_perfect", "multitype3d_lb"}) {
+    const Scene s = make_scene(name);
+    ASSERT_TRUE(lists_fit(s, kSkin)) << name;
+    const Configuration m = moved(s.config, 0.1, 7);
+    for (Precision p : {Precision::kSingle, Precision::kMixed, Precision::kDouble}) {
+      GpuEngine bare(list_options(p)), full(list_options(p));
+      for (const Configuration* c : {&s.config, &m}) {
+        ForceResult rb, rf;
+        bare.evaluate(c->view(), s.ff, Request{false, false}, rb);
+        full.evaluate(c->view(), s.ff, Request{true, true}, rf);
+        EXPECT_GT(bare.listed_pairs(), 0u) << name << " " << cellforce::to_string(p);
+        EXPECT_EQ(bare.stats().rebuilt, full.stats().rebuilt) << name << " " << cellforce::to_string(p);
+        EXPECT_EQ(rb.forces, rf.forces) << name << " " << cellforce::to_string(p);
+      }
+    }
+  }
+}
+
 // The lean memory mode (the build stages occupants as it loads them and frees what is dead first,
 // chosen for systems near the device's memory) makes the same list as the staged build: the same
 // results, bit for bit, at a build, on a reused step, and at rebuilds (another system, then the
