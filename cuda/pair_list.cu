@@ -535,7 +535,7 @@ __global__ void __launch_bounds__(kBlock)
     };
     // Every entry of this thread's share of the list, in list order: on_pair(q, d, fr, e). With
     // observables only the pairs within rc; without, every entry, fr = 0 beyond rc and past the
-    // list (the select below).
+    // list (the select in `batch`).
     // The next batch's entries are loaded before this batch's pairs (change 34): the list comes
     // from DRAM, and a batch that loads its own entries first waits the whole round trip before
     // its gathers can start (a third of the kernel's stall samples at 1M were on that load). The
