@@ -4,8 +4,10 @@ r"""A/B of the pair-list build between two `cellforce` binaries, in one call on 
 For each size, the two binaries run `cellforce bench` of the in.lj fluid with pair lists (skin 0.6,
 mixed precision, no reference), interleaved, --repeats times each; the table gives the median
 steps/s per binary and their ratio. With --ncu, Nsight Compute then times --kernel (by default
-the list build's `list_rows`, its count and fill passes; `list_force_kernel` for the evaluations)
-of each binary at each size: the median duration of the 6 captured launches.
+the list build's `list_rows`; `list_force_kernel` for the evaluations) of each binary at each
+size: the median duration of 6 captured launches, each kernel apart (the build's count, mirrored
+and fill passes of its second and third builds: `count 1,745.0 / fill 1,128.7 / mirrored 144.8`).
+Until 2026-11-26 the passes' launches, the first build's included, shared one median.
 
   python3 validation/list_build_ab.py --base old/cellforce --new build-gpu-bin/cellforce \
       --sizes 32000 256000 1048576 --repeats 2 --ncu --out $OUT
@@ -27,6 +29,8 @@ import sys
 import tempfile
 from pathlib import Path
 
+from step_profile import short_name  # the build's passes apart, as the step profile names them
+
 
 def bench(binary: str, n: int, seconds: float, work: Path, extra: list[str]) -> dict:
     out = work / "row.json"
@@ -43,22 +47,51 @@ def bench(binary: str, n: int, seconds: float, work: Path, extra: list[str]) -> 
     return row
 
 
-def ncu_kernel(binary: str, n: int, extra: list[str], kernel: str) -> dict:
-    """Median duration (us) of the captured launches of `kernel` (a regex), and how many were captured."""
-    command = ["ncu", "--kernel-name", f"regex:{kernel}", "--launch-count", "6", "--metrics",
-               "gpu__time_duration.sum", "--csv", binary, "bench", "--sizes", str(n), "--precision", "mixed",
-               "--backend", "cuda", "--skin", "0.6", "--neighbor-list", "--steps", "40", "--warmup", "5",
-               "--samples", "2", "--no-reference"] + extra
-    p = subprocess.run(command, capture_output=True, text=True, timeout=300)
-    text = p.stdout[p.stdout.find('"ID"'):] if '"ID"' in p.stdout else ""
-    times = []
+US_PER = {"ns": 1e-3, "nsecond": 1e-3, "us": 1.0, "usecond": 1.0, "ms": 1e3, "msecond": 1e3}  # Nsight's units
+
+
+def ncu_times(text: str) -> dict[str, list[float]]:
+    """Nsight Compute's --csv output -> each kernel's launch durations (us), by step_profile's
+    short name (the build's passes apart: `list_rows (count)`, `(mirrored)`, `(fill)`)."""
+    text = text[text.find('"ID"'):] if '"ID"' in text else ""
+    times: dict[str, list[float]] = {}
     for rec in csv.DictReader(io.StringIO(text)):
         if rec.get("Metric Name") == "gpu__time_duration.sum":
             value = float(rec["Metric Value"].replace(",", ""))
-            times.append(value / 1e3 if rec.get("Metric Unit") == "ns" else value)
+            us = value * US_PER.get(rec.get("Metric Unit", "us"), 1.0)
+            times.setdefault(short_name(rec["Kernel Name"]), []).append(us)
+    return times
+
+
+def ncu_kernel(binary: str, n: int, extra: list[str], kernel: str) -> dict:
+    """Median duration (us) of the captured launches of `kernel` (a regex), each kernel (each pass
+    of the build) apart, and how many were captured. For the build's passes the first build's two
+    are skipped (it has no masks yet: its fill walks every column again), so that the six captured
+    are the count, mirrored and fill passes of the second and third builds."""
+    skip = "2" if kernel == "list_rows" else "0"
+    command = ["ncu", "--kernel-name", f"regex:{kernel}", "--launch-skip", skip, "--launch-count", "6",
+               "--metrics", "gpu__time_duration.sum", "--csv", binary, "bench", "--sizes", str(n), "--precision",
+               "mixed", "--backend", "cuda", "--skin", "0.6", "--neighbor-list", "--steps", "60", "--warmup", "5",
+               "--samples", "2", "--no-reference"] + extra
+    p = subprocess.run(command, capture_output=True, text=True, timeout=300)
+    times = ncu_times(p.stdout)
     if not times:
         return {"error": f"ncu exit {p.returncode}: {(p.stderr or p.stdout).strip()[-300:]}"}
-    return {"kernel": kernel, "us_median": statistics.median(times), "launches": len(times)}
+    return {"kernel": kernel, "launches": sum(len(v) for v in times.values()),
+            "us_median": statistics.median([t for v in times.values() for t in v]),
+            "by_kernel": {name: {"us_median": statistics.median(v), "launches": len(v)}
+                          for name, v in sorted(times.items())}}
+
+
+def ncu_cell(result: dict) -> str:
+    """A table cell: the median per kernel (`count 1,742 / fill 1,128`), or '-'."""
+    by = result.get("by_kernel")
+    if not by:
+        return "-"
+    if len(by) == 1:
+        return f"{next(iter(by.values()))['us_median']:,.1f}"
+    return " / ".join(f"{name.split('(')[-1].rstrip(')') if '(' in name else name} {v['us_median']:,.1f}"
+                      for name, v in by.items())
 
 
 def main() -> int:
@@ -101,7 +134,7 @@ def main() -> int:
                 for label in ("base", "new"):
                     kern[label] = ncu_kernel(getattr(args, label), n, extra, args.kernel)
                     runs.append({"n": n, "binary": label, "ncu": kern[label]})
-            us = {k: f"{v['us_median']:.1f}" if "us_median" in v else "-" for k, v in kern.items()}
+            us = {k: ncu_cell(v) for k, v in kern.items()}
             lines.append(f"| {n:,} | {med['base']:,.0f} | {med['new']:,.0f} | {med['new'] / med['base']:.3f} | "
                          f"{us['base']} | {us['new']} |")
             (args.out / "list_build_ab.json").write_text(json.dumps(runs, indent=1))
