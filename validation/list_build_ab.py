@@ -65,7 +65,8 @@ def ncu_times(text: str) -> dict[str, list[float]]:
 
 def ncu_kernel(binary: str, n: int, extra: list[str], kernel: str) -> dict:
     """Median duration (us) of the captured launches of `kernel` (a regex), each kernel (each pass
-    of the build) apart, and how many were captured. For the build's passes the first build's two
+    of the build) apart (a median over different passes would mean nothing), and how many were
+    captured. For the build's passes the first build's two
     are skipped (it has no masks yet: its fill walks every column again), so that the six captured
     are the count, mirrored and fill passes of the second and third builds."""
     skip = "2" if kernel == "list_rows" else "0"
@@ -78,7 +79,6 @@ def ncu_kernel(binary: str, n: int, extra: list[str], kernel: str) -> dict:
     if not times:
         return {"error": f"ncu exit {p.returncode}: {(p.stderr or p.stdout).strip()[-300:]}"}
     return {"kernel": kernel, "launches": sum(len(v) for v in times.values()),
-            "us_median": statistics.median([t for v in times.values() for t in v]),
             "by_kernel": {name: {"us_median": statistics.median(v), "launches": len(v)}
                           for name, v in sorted(times.items())}}
 
