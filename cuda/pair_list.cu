@@ -439,6 +439,24 @@ __global__ void sum_slot_counts(const uint32_t* __restrict__ slot_counts, std::s
   length[p] = s;
 }
 
+// A cube's fixed-point scale folded into the pair's constants (change 39, then 40 for the kernels
+// with observables), for the force kernel's FixedParticle pairs of one type: every axis has the
+// same scale s = s_hi (1 + eps) (fixed_scale: a float pair, |eps| <= 2^-24), so the separation d' =
+// s_hi f (f the integer difference as a float: one multiply per axis, not two) is the true one over
+// g = 1 + eps on every axis, r'^2 = r^2 / g^2, and the force (12 c12 r^-14 - 6 c6 r^-8) d (minus
+// f_rc d / r with force shift) is the same expression of d' and r' with c12 / g^13 and c6 / g^7
+// (f_rc unchanged), compared with rc^2 / g^2. Every kernel of such a system takes the fold, with
+// observables or without, so that a step's forces do not depend on what else it was asked for
+// (a restart between output steps repeats the run bit for bit: PairListRequests). With c12 / g^13,
+// c6 / g^7, u_rc / g and rc / g the pair energy and F(r)/r d'_a d'_b come out as the true ones over
+// g: the particle energies and the totals are multiplied by g once, at the end. The constants take
+// one more rounding (2^-24 relative, against the two roundings per axis the fold saves).
+struct FixedFold {
+  double k13 = 1, k7 = 1, k1 = 1;  // g^-13, g^-7 and g^-1
+  float rc2 = 0;                   // rc^2 / g^2
+  double eps = 0;                  // g - 1: the observables' sums times g, as v + v eps
+};
+
 // S threads per rank (S = 1, 2, 4 or 8, adjacent lanes of one warp). With one, the thread reads its
 // list a chunk at a time (one 16-byte load for kChunk entries). With S > 1 (small systems, to fill
 // the GPU), thread j takes entries j, j + S, ..., kChunk at a time (whole chunks per thread would
@@ -449,12 +467,15 @@ __global__ void sum_slot_counts(const uint32_t* __restrict__ slot_counts, std::s
 // gathers' latency otherwise), and its pairs are added in list order.
 static_assert(kChunk == 4, "a chunk is one uint4");
 
-template <class T, int S, class Particle, class Real, class Accum>
+template <class T, int S, bool Folded, class Particle, class Real, class Accum>
 __global__ void __launch_bounds__(kBlock)
     list_force_kernel(const ListArgs<Real, Accum> args, const uint32_t* __restrict__ order,
                       const Particle* __restrict__ ranked, const uint32_t* __restrict__ length,
                       const unsigned long long* __restrict__ group_chunks, const uint32_t* __restrict__ neighbors,
-                      const FixedScales scale, Accum* __restrict__ block_sums, GateView gate) {
+                      const FixedScales scale, const FixedFold fold, Accum* __restrict__ block_sums,
+                      GateView gate) {
+  static_assert(!Folded || (std::is_same_v<Particle, FixedParticle> && !T::kMultiType),
+                "the fold serves fixed-point pairs of one type");
   constexpr int D = T::kDim;
   const std::size_t n = args.n;
   const std::size_t t = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
@@ -471,7 +492,15 @@ __global__ void __launch_bounds__(kBlock)
   Accum f[D] = {};
   Accum ea = 0;
   if (p < n) {
-    const LJParams<Real> single = args.table[0];
+    LJParams<Real> single = args.table[0];
+    Real rc2 = args.rc2;
+    if constexpr (Folded) {
+      single.c12 = Real(double(single.c12) * fold.k13);
+      single.c6 = Real(double(single.c6) * fold.k7);
+      single.u_rc = Real(double(single.u_rc) * fold.k1);
+      single.rc = Real(double(single.rc) * fold.k1);
+      rc2 = fold.rc2;
+    }
     // Entry k at entries[(k / kChunk) * kGroup * kChunk + k % kChunk] (list_entry): a warp's
     // threads read consecutive chunks.
     const uint32_t* entries = neighbors + list_entry(group_chunk0, p, 0);
@@ -509,7 +538,13 @@ __global__ void __launch_bounds__(kBlock)
         if constexpr (T::kObservables)
           if (!listed) break;
         Real d[3];
-        pair_separation<D>(args.grid, P, Q[b], scale, d);
+        if constexpr (Folded) {
+          d[0] = float(int32_t(P.x - Q[b].x)) * scale.axis[0].hi;
+          d[1] = float(int32_t(P.y - Q[b].y)) * scale.axis[0].hi;
+          d[2] = D == 3 ? float(int32_t(P.z - Q[b].z)) * scale.axis[0].hi : 0.0f;
+        } else {
+          pair_separation<D>(args.grid, P, Q[b], scale, d);
+        }
         Real r2 = d[0] * d[0] + d[1] * d[1];
         if constexpr (D == 3) r2 += d[2] * d[2];
         LJParams<Real> prm;
@@ -517,7 +552,7 @@ __global__ void __launch_bounds__(kBlock)
         else prm = single;
         Real fr, e = 0;
         if constexpr (T::kObservables) {
-          if (!lj_pair<T::kMode, true>(r2, args.rc2, prm, fr, e)) continue;
+          if (!lj_pair<T::kMode, true>(r2, rc2, prm, fr, e)) continue;
         } else {
           // Without observables a pair beyond rc, and a padding entry past the list (q = p),
           // adds fr = 0: +-0 to each sum, which leaves it bitwise as it was (a sum from +0 is
@@ -528,7 +563,7 @@ __global__ void __launch_bounds__(kBlock)
           // the cutoff anyway, and with no branch in the batch its kChunk gathers stay ahead of
           // its pairs (behind a branch per pair nvcc issues each gather just before its pair).
           lj_terms<T::kMode, false>(r2, prm, fr, e);
-          fr = listed && r2 < args.rc2 ? fr : Real(0);
+          fr = listed && r2 < rc2 ? fr : Real(0);
         }
         on_pair(q[b], d, fr, e);
       }
@@ -580,7 +615,11 @@ __global__ void __launch_bounds__(kBlock)
   if (p < n && part == 0) {
     const std::size_t i = order[p];
     for (int c = 0; c < D; ++c) args.forces[i * D + c] = double(f[c]);
-    if (args.energies) args.energies[i] = double(ea);
+    if (args.energies) {
+      double e = double(ea);
+      if constexpr (Folded) e += e * fold.eps;  // FixedFold: the folded energy is the true one over g
+      args.energies[i] = e;
+    }
   }
   if constexpr (T::kObservables) {
     // The block's sums: each warp's butterfly, then the warps in order (a fixed tree).
@@ -595,6 +634,7 @@ __global__ void __launch_bounds__(kBlock)
     if (threadIdx.x < unsigned(kCellSums)) {
       Accum v = partial[0][threadIdx.x];
       for (int w = 1; w < kBlock / 32; ++w) v += partial[w][threadIdx.x];
+      if constexpr (Folded) v += v * Accum(fold.eps);  // FixedFold: the folded totals are the true ones over g
       block_sums[std::size_t(blockIdx.x) * kCellSums + threadIdx.x] = v;
     }
   }
@@ -816,6 +856,20 @@ void list_forces(const Switches& sw, const ListArgs<Real, Accum>& args, PairList
   s.wrap = false;  // positions are absolute: the minimum image is on every periodic axis
   FixedScales scale;  // FixedParticle: L_a / 2^32 per axis, once per evaluation
   for (int a = 0; a < 3; ++a) scale.axis[a] = fixed_scale(args.grid.length[a]);
+  // A cube (every axis the same scale): the fold (FixedFold) for the kernels that take it.
+  bool cube = true;
+  for (int a = 1; a < args.grid.dim; ++a)
+    cube = cube && scale.axis[a].hi == scale.axis[0].hi && scale.axis[a].lo == scale.axis[0].lo;
+  FixedFold fold;
+  {
+    const double eps = double(scale.axis[0].lo) / double(scale.axis[0].hi);  // 0 where hi is 0 (unused)
+    const double g = scale.axis[0].hi != 0.0f ? 1.0 + eps : 1.0;
+    fold.k13 = std::pow(g, -13.0);
+    fold.k7 = std::pow(g, -7.0);
+    fold.k1 = 1.0 / g;
+    fold.eps = g - 1.0;
+    fold.rc2 = float(double(args.rc2) / (g * g));
+  }
   auto evaluate = [&](auto& ranked) {
     using Particle = typename std::remove_reference_t<decltype(ranked)>::value_type;
     gather(args, list, ranked, stream, gate);
@@ -823,9 +877,18 @@ void list_forces(const Switches& sw, const ListArgs<Real, Accum>& args, PairList
       using T = decltype(traits);
       if constexpr (!T::kWrap) {
         auto go = [&](auto split) {
-          list_force_kernel<T, decltype(split)::value, Particle, Real, Accum><<<blocks, kBlock, 0, stream>>>(
-              args, list.order.data(), ranked.data(), list.length.data(), list.group_chunks.data(),
-              list.neighbors.data(), scale, reinterpret_cast<Accum*>(list.block_sums.data()), gate);
+          auto launch = [&](auto folded) {
+            list_force_kernel<T, decltype(split)::value, decltype(folded)::value, Particle, Real, Accum>
+                <<<blocks, kBlock, 0, stream>>>(args, list.order.data(), ranked.data(), list.length.data(),
+                                                list.group_chunks.data(), list.neighbors.data(), scale, fold,
+                                                reinterpret_cast<Accum*>(list.block_sums.data()), gate);
+          };
+          if constexpr (std::is_same_v<Particle, FixedParticle> && !T::kMultiType) {
+            if (cube) launch(std::true_type{});
+            else launch(std::false_type{});
+          } else {
+            launch(std::false_type{});
+          }
         };
         switch (list.threads_per_particle) {
           case 1: go(std::integral_constant<int, 1>{}); break;
