@@ -100,6 +100,9 @@ struct PairList {
                                        // tile x column split) and lane, for the fill's offsets
   DeviceBuffer<uint32_t> masks;        // BuildMasks::words (fast memory mode), sized by the build before
   DeviceBuffer<unsigned long long> mask_base;  // BuildMasks::base, units + 1
+  DeviceBuffer<uint32_t> walk_order;   // launched units: the count pass's (in order), then the rest
+                                       // (reversed: the mirrored pass's among them)
+  DeviceBuffer<uint32_t> walked;       // 1: how many units the count pass walks
   DeviceBuffer<uint32_t> blocks;       // 1: the force kernel's blocks (their sums' count)
   DeviceBuffer<std::byte> block_sums;  // kCellSums per block of the force kernel
   DeviceBuffer<std::byte> scratch;     // CUB
@@ -117,7 +120,7 @@ struct PairList {
   void for_each_buffer(F&& f) {
     f(order), f(rank), f(slot_counts), f(length), f(group_chunks), f(neighbors), f(ranked), f(fixed);
     f(sizes), f(selected);
-    f(split_counts), f(masks), f(mask_base), f(blocks);
+    f(split_counts), f(masks), f(mask_base), f(walk_order), f(walked), f(blocks);
     f(block_sums), f(scratch);
   }
 };
