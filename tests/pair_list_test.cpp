@@ -253,25 +253,41 @@ TEST(PairListRepeat, TwoEnginesAreBitwiseEqual) {
 
 // The forces of a step do not depend on whether its energy and virial were asked for: the force
 // kernels with and without observables give bitwise the same forces, at a build and on a reused
-// step, in every precision. An MD run observes only its output steps and a restart recomputes the
-// forces with observables, so a bitwise restart needs this. Single-type cubes (the in.lj case,
-// where the fixed-point scale is the same on every axis) and a multi-type box. Change 39 (a
-// kernel-only fold of the fixed-point scale) broke this and was reverted.
+// step, in every precision and cutoff mode. An MD run observes only its output steps and a restart
+// recomputes the forces with observables, so a bitwise restart needs this. Single-type cubes and
+// squares (the in.lj case, where the fixed-point scale is the same on every axis and the force
+// kernels fold it into the pair's constants, change 40) and a multi-type box. Change 39 (the fold
+// in the kernels without observables only) broke this and was reverted. The full request's energy
+// and virial, which the folded kernels scale back by 1 + eps, are checked against the double brute
+// force as the list tests check them (not on the perfect lattice, whose forces are ~0).
 TEST(PairListRequests, ForcesDoNotDependOnTheObservablesAsked) {
   CF_SKIP_WITHOUT_DEVICE();
-  for (const char* name : {"lattice_fcc_jitter", "lattice_bcc_perfect", "multitype3d_lb"}) {
-    const Scene s = make_scene(name);
-    ASSERT_TRUE(lists_fit(s, kSkin)) << name;
-    const Configuration m = moved(s.config, 0.1, 7);
-    for (Precision p : {Precision::kSingle, Precision::kMixed, Precision::kDouble}) {
-      GpuEngine bare(list_options(p)), full(list_options(p));
-      for (const Configuration* c : {&s.config, &m}) {
-        ForceResult rb, rf;
-        bare.evaluate(c->view(), s.ff, Request{false, false}, rb);
-        full.evaluate(c->view(), s.ff, Request{true, true}, rf);
-        EXPECT_GT(bare.listed_pairs(), 0u) << name << " " << cellforce::to_string(p);
-        EXPECT_EQ(bare.stats().rebuilt, full.stats().rebuilt) << name << " " << cellforce::to_string(p);
-        EXPECT_EQ(rb.forces, rf.forces) << name << " " << cellforce::to_string(p);
+  using cellforce::CutoffMode;
+  for (const char* name : {"lattice_fcc_jitter", "lattice_bcc_perfect", "multitype3d_lb", "random2d_periodic",
+                           "lattice_square2d_jitter"}) {
+    for (CutoffMode mode : {CutoffMode::kTruncate, CutoffMode::kShift, CutoffMode::kForceShift}) {
+      Scene s = make_scene(name);
+      s.ff.mode = mode;
+      ASSERT_TRUE(lists_fit(s, kSkin)) << name;
+      const Configuration& c0 = s.config;
+      const Configuration m = moved(c0, 0.1, 7);
+      const bool oracle = std::string(name) != "lattice_bcc_perfect";
+      for (Precision p : {Precision::kSingle, Precision::kMixed, Precision::kDouble}) {
+        SCOPED_TRACE(std::string(name) + " " + cellforce::to_string(mode) + " " + cellforce::to_string(p));
+        GpuEngine bare(list_options(p)), full(list_options(p));
+        for (const Configuration* c : {&c0, &m}) {
+          ForceResult rb, rf;
+          bare.evaluate(c->view(), s.ff, Request{false, false}, rb);
+          full.evaluate(c->view(), s.ff, Request{true, true}, rf);
+          EXPECT_GT(bare.listed_pairs(), 0u);
+          EXPECT_EQ(bare.stats().rebuilt, full.stats().rebuilt);
+          EXPECT_EQ(rb.forces, rf.forces);
+          if (oracle) {
+            ForceResult ref;
+            cellforce::brute_force(c->view(), s.ff, Request{true, true}, ref);
+            expect_results_match(ref, rf, p);
+          }
+        }
       }
     }
   }
