@@ -913,8 +913,8 @@ void list_forces(const Switches& sw, const ListArgs<Real, Accum>& args, PairList
     cube = cube && scale.axis[a].hi == scale.axis[0].hi && scale.axis[a].lo == scale.axis[0].lo;
   FixedFold fold;
   {
-    const double eps = double(scale.axis[0].lo) / double(scale.axis[0].hi);  // not finite where hi is 0: g = 1 then
-    const double g = scale.axis[0].hi != 0.0f ? 1.0 + eps : 1.0;
+    const float hi = scale.axis[0].hi;  // 0 only for an empty axis: no fold (g = 1)
+    const double g = hi != 0.0f ? 1.0 + double(scale.axis[0].lo) / double(hi) : 1.0;
     fold.k13 = std::pow(g, -13.0);
     fold.k7 = std::pow(g, -7.0);
     fold.k1 = 1.0 / g;
