@@ -127,7 +127,9 @@ def main() -> int:
                         print(f"{n} {label}: {row['error']}", flush=True)
                     else:
                         rates[label].append(row["steps_per_second"])
-                        print(f"{n} {label}: {row['steps_per_second']:.1f} steps/s", flush=True)
+                        pad = (f", list slots / pairs {row['list_slots'] / row['list_pairs']:.4f}"
+                               if row.get("list_pairs") else "")  # the layout's padding (binaries from 2026-11-26 on)
+                        print(f"{n} {label}: {row['steps_per_second']:.1f} steps/s{pad}", flush=True)
             med = {k: statistics.median(v) if v else float("nan") for k, v in rates.items()}
             kern = {"base": {}, "new": {}}
             if args.ncu:

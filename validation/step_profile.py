@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 r"""Where an MD step's device time goes: every kernel of a window of `cellforce bench` steps, timed
-by Nsight Compute (at its base clocks, kernels serialised), summed per kernel and divided by the
-steps in the window (the launches of the kick-drift kernels, gated or not: one per Verlet step).
+by Nsight Compute (at its base clocks, or the GPU's own with --clock-control none; kernels
+serialised), summed per kernel and divided by the steps in the window (the launches of the kick-drift kernels, gated or not: one per Verlet step).
 
   python3 validation/step_profile.py --cellforce build-gpu-bin/cellforce --sizes 32000 1048576 --out $OUT
   (--bench-args="--skin 0.6 --neighbor-list": the configuration, as `cellforce bench` takes it)
@@ -63,8 +63,9 @@ def short_name(name: str) -> str:
     return base
 
 
-def profile(binary: str, n: int, steps: int, skip: int, count: int, extra: list[str]) -> dict:
-    command = ["ncu", "--launch-skip", str(skip), "--launch-count", str(count), "--metrics", ",".join(METRICS),
+def profile(binary: str, n: int, steps: int, skip: int, count: int, extra: list[str], clocks: str = "base") -> dict:
+    command = ["ncu", "--clock-control", clocks, "--launch-skip", str(skip), "--launch-count", str(count),
+               "--metrics", ",".join(METRICS),
                "--csv", binary, "bench", "--sizes", str(n), "--backend", "cuda", "--steps", str(steps),
                "--warmup", "5", "--samples", "2", "--no-reference"] + extra
     p = subprocess.run(command, capture_output=True, text=True, timeout=550)
@@ -109,20 +110,23 @@ def main() -> int:
     ap.add_argument("--count", type=int, default=500, help="launches timed")
     ap.add_argument("--precision", default="mixed")
     ap.add_argument("--bench-args", default="--skin 0.6 --neighbor-list")
+    ap.add_argument("--clock-control", default="base", choices=["base", "none"],
+                    help="Nsight Compute's clocks: base (locked, the default) or none (the GPU's own, as a bench runs)")
     ap.add_argument("--out", type=Path, required=True)
     args = ap.parse_args()
     extra = ["--precision", args.precision] + shlex.split(args.bench_args)
     args.out.mkdir(parents=True, exist_ok=True)
     results, lines, failed = [], [], False
     for n in args.sizes:
-        r = profile(args.cellforce, n, args.steps, args.skip, args.count, extra)
+        r = profile(args.cellforce, n, args.steps, args.skip, args.count, extra, args.clock_control)
         results.append(r)
         if "error" in r:
             failed = True
             lines.append(f"N = {n:,}: {r['error']}\n")
             continue
         lines += [f"N = {n:,}: {r['steps']} steps in a window of {r['launches']} launches, "
-                  f"{r['us_per_step']:.1f} us per step at ncu's clocks (`cellforce bench {' '.join(extra)}`)", "",
+                  f"{r['us_per_step']:.1f} us per step at "
+                  f"{'ncu' if args.clock_control == 'base' else 'the GPU'}'s clocks (`cellforce bench {' '.join(extra)}`)", "",
                   "| kernel | launches | us per step | us per launch (median) | DRAM GB/s | DRAM MB per launch |",
                   "|---|---|---|---|---|---|"]
         for row in r["rows"]:

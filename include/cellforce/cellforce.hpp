@@ -133,6 +133,10 @@ struct RunStatistics {
   // buffers (as of the last sampled evaluation) and the MD state (positions, velocities, masses,
   // types and the integrator's and minimiser's working arrays).
   std::size_t buffer_bytes = 0, state_bytes = 0;
+  // CUDA pair lists, as of the last sampled evaluation: the listed pairs (within rc + skin, once
+  // from each side) and the entries their layout holds, padding included (the force kernel walks
+  // each warp's lists as long as its longest); 0 without lists.
+  std::size_t list_pairs = 0, list_slots = 0;
   // With neighbor-audit: pairs within the cutoff that a reused structure missed or repeated.
   std::size_t missed_pairs = 0, repeated_pairs = 0;
 };

@@ -529,6 +529,8 @@ RunStatistics Context::run_statistics() const {
   r.missed_pairs = c.missed_pairs;
   r.repeated_pairs = c.repeated_pairs;
   r.buffer_bytes = impl_->md->forces().stats().buffer_bytes;
+  r.list_pairs = impl_->md->forces().stats().list_pairs;
+  r.list_slots = impl_->md->forces().stats().list_slots;
   r.state_bytes = impl_->md->state_bytes();
   return r;
 }

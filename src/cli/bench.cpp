@@ -177,6 +177,8 @@ SizeResult bench_size(const BenchArgs& args, const EngineChoice& engine, int cel
       row["dangerous_builds"] = st.dangerous_builds;
       row["bytes_per_step_host_device"] = double(st.bytes_to_host + st.bytes_to_device) / double(steps);
       row["buffer_bytes"] = st.buffer_bytes;
+      row["list_pairs"] = st.list_pairs;
+      row["list_slots"] = st.list_slots;
       row["state_bytes"] = st.state_bytes;
       row["bytes_per_particle"] = double(st.buffer_bytes + st.state_bytes) / double(n);
       row["energy_per_particle_start"] = e.front();

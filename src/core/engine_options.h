@@ -63,6 +63,10 @@ struct PipelineStats {
   // never from the number of grid cells, so a dilute scene in a huge box costs no more than a
   // dense one of the same size.
   std::size_t buffer_bytes = 0;
+  // Pair lists (CUDA, ReuseOptions::list) of the structure in use, after the evaluation: the listed
+  // pairs (within rc + skin, once from each side) and the entries their layout holds, padding
+  // included (each group of 32 lists as long as its longest, in whole chunks); 0 without lists.
+  std::size_t list_pairs = 0, list_slots = 0;
   // Reuse of the structure (core/reuse.h; skin > 0): whether this evaluation ran stages 1-3, how
   // many builds the engine has made, the largest displacement since the build in use (0 when not
   // measured), and, with the audit, pairs closer than rc that the reused structure never

@@ -72,21 +72,23 @@ CF_HD Real reciprocal(Real x) {
 // The pair terms at squared distance r2 > 0, with no cutoff test: force_over_r = F_c(r) / r, so
 // that the force on i is force_over_r * (x_i - x_j), and, when Energy, the pair energy U_c(r).
 // Mode and Energy are compile-time so that the unused arithmetic is not there at all.
+// F(r) / r = (12 c12 r^-12 - 6 c6 r^-6) r^-2 is formed as r^-8 (12 c12 r^-6 - 6 c6): with 12 c12
+// and 6 c6 constant over a loop's pairs, that is a multiply-add and two multiplies after r^-6, three
+// instructions fewer a pair than forming c12 r^-12 and c6 r^-6 first (change 44). The energy, when
+// asked, is (c12 r^-6 - c6) r^-6 beside it, so that the force is the same expression (the same
+// bits) whether or not the energy is asked for.
 template <CutoffMode Mode, bool Energy, class Real>
 CF_HD void lj_terms(Real r2, const LJParams<Real>& p, Real& force_over_r, Real& energy) {
   const Real ir2 = reciprocal(r2);
   const Real ir6 = ir2 * ir2 * ir2;
-  const Real a12 = p.c12 * ir6 * ir6;
-  const Real a6 = p.c6 * ir6;
-  Real fr = (Real(12) * a12 - Real(6) * a6) * ir2;
+  Real fr = (ir6 * ir2) * (Real(12) * p.c12 * ir6 - Real(6) * p.c6);
+  if constexpr (Energy) energy = (p.c12 * ir6 - p.c6) * ir6;
   if constexpr (Mode == CutoffMode::kForceShift) {
     const Real r = std::sqrt(r2);
     fr -= p.f_rc / r;
-    if constexpr (Energy) energy = a12 - a6 - p.u_rc + (r - p.rc) * p.f_rc;
+    if constexpr (Energy) energy = energy - p.u_rc + (r - p.rc) * p.f_rc;
   } else if constexpr (Mode == CutoffMode::kShift) {
-    if constexpr (Energy) energy = a12 - a6 - p.u_rc;
-  } else {
-    if constexpr (Energy) energy = a12 - a6;
+    if constexpr (Energy) energy -= p.u_rc;
   }
   force_over_r = fr;
 }
