@@ -284,6 +284,7 @@ struct GpuEngine::Impl {
   }
 
   cudaEvent_t joined = nullptr, finished = nullptr;  // the caller's stream <-> the engine's
+  std::size_t device_bytes = 0;  // the device's memory (cudaMemGetInfo's total), once asked
 
   // Stages 1-3 on the uploaded positions: cell IDs, count, sort, collision cells (split by type
   // for Gauss-Seidel). With a skin, keeps the build's positions (and, for the audit, its keys).
@@ -311,9 +312,11 @@ struct GpuEngine::Impl {
       // Lean when the fast layout's buffers (about 1,300 bytes per particle with a 0.6 skin: a
       // staged array, the sort's arrays and the list side by side) would not fit in 90% of the
       // device: a rule of the system and the device, and the results do not depend on it.
-      std::size_t free_bytes = 0, total_bytes = 0;
-      CF_CUDA_CHECK(cudaMemGetInfo(&free_bytes, &total_bytes));
-      lean = o.lean_lists ? *o.lean_lists : double(n) * 1300.0 > 0.9 * double(total_bytes);
+      if (device_bytes == 0) {  // asked once: cudaMemGetInfo at every build held the device idle ~8 us
+        std::size_t free_bytes = 0;
+        CF_CUDA_CHECK(cudaMemGetInfo(&free_bytes, &device_bytes));
+      }
+      lean = o.lean_lists ? *o.lean_lists : double(n) * 1300.0 > 0.9 * double(device_bytes);
       if (lean) {
         list.neighbors.release();  // the new build makes a new list: the old one is dead
         list.masks.release();      // lean builds keep no masks
@@ -857,6 +860,8 @@ void GpuEngine::finish_timing() {
   stats_.t_accumulate = s.seconds(kTraversed, kAccumulated);
   stats_.t_total = s.seconds(kStart, kDownloaded);
   stats_.buffer_bytes = s.bytes();
+  stats_.list_pairs = listed_pairs();
+  stats_.list_slots = stats_.list_pairs ? s.list.slots : 0;
 }
 
 
@@ -864,6 +869,7 @@ void GpuEngine::finish_timing() {
 // one: shared by evaluate() and the pair recorder.
 void GpuEngine::prepare(const SystemView& system, const ForceField& ff, const DeviceSystemView* on_device) {
   Impl& s = *impl_;
+  has_known_d2_ = false;  // known_displacement2() serves a resident evaluation only
   validate_system(system, ff);
   check_capacity(system, ff);
   s.upload_system(system, on_device);
@@ -885,10 +891,13 @@ void GpuEngine::prepare(const SystemView& system, const ForceField& ff, const De
 // drifts are checked on the device), so nothing here reads them on the host.
 void GpuEngine::prepare_resident(const SystemView& system, const ForceField& ff, const DeviceSystemView& on_device) {
   Impl& s = *impl_;
+  const bool known = has_known_d2_;
+  has_known_d2_ = false;  // this evaluation's alone, whatever happens in it
   check_capacity(system, ff);
   s.upload_system(system, &on_device);
   const bool rebuild = reuse_.decide(system, ff.cutoff, [&] {
-    return cuda::max_displacement2(system.box, s.pos, s.build_positions.data(), system.n, s.cub, s.stream);
+    return known ? known_d2_
+                 : cuda::max_displacement2(system.box, s.pos, s.build_positions.data(), system.n, s.cub, s.stream);
   }, stats_);
   s.record(kChecked);
   if (rebuild) {

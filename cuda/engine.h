@@ -109,6 +109,11 @@ class GpuEngine {
   // largest squared displacement among them `served_d2`). stats() then reads as after a reused
   // evaluation.
   void settle_gate(int64_t served, double served_d2);
+  // The gate closed at a step (its displacement past skin / 2): the next evaluation's reuse check
+  // takes `d2`, the largest squared displacement the gated kick-drift measured at those positions
+  // (the bits max_displacement2 would reduce to), instead of reducing it again on the device and
+  // waiting for it (~60-100 us a build, the device idle). Consumed by that evaluation.
+  void known_displacement2(double d2) { known_d2_ = d2, has_known_d2_ = true; }
   const double* device_forces() const;
   const double* device_totals() const;
   void* stream() const;   // the engine's cudaStream_t
@@ -164,6 +169,8 @@ class GpuEngine {
   void build(const SystemView& system, const ForceField& ff);
   void audit(const SystemView& system, const ForceField& ff);
   GpuOptions options_;
+  double known_d2_ = 0;  // known_displacement2()
+  bool has_known_d2_ = false;
   ReusePolicy reuse_;
   PipelineStats stats_;
   std::unique_ptr<Impl> impl_;

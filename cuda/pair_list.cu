@@ -31,20 +31,6 @@ struct Widen {
   __device__ unsigned long long operator()(uint32_t v) const { return v; }
 };
 
-// The chunks of rank group g (kGroup consecutive ranks): its longest list in whole chunks; 0 past
-// the last group, so that an exclusive scan over groups + 1 ends with the total.
-struct GroupChunks {
-  const uint32_t* length;
-  std::size_t n, groups;
-  __device__ unsigned long long operator()(std::size_t g) const {
-    if (g >= groups) return 0;
-    uint32_t w = 0;
-    const std::size_t end = min(n, (g + 1) * kGroup);
-    for (std::size_t p = g * kGroup; p < end; ++p) w = max(w, length[p]);
-    return (w + kChunk - 1) / kChunk;
-  }
-};
-
 __global__ void invert_order(const uint32_t* __restrict__ order, std::size_t n, uint32_t* __restrict__ rank) {
   const std::size_t p = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
   if (p < n) rank[order[p]] = uint32_t(p);
@@ -272,7 +258,7 @@ __global__ void __launch_bounds__(kBlock)
               Real pre2, double cutoff2, uint32_t splits, uint32_t* __restrict__ slot_counts,
               uint32_t* __restrict__ split_counts, const unsigned long long* __restrict__ group_chunks,
               uint32_t* __restrict__ neighbors, const BuildMasks masks, const uint32_t* __restrict__ walk_order,
-              const uint32_t* __restrict__ walked, uint32_t launched) {
+              const uint32_t* __restrict__ walked) {
   constexpr int D = T::kDim;
   constexpr uint32_t kSlots = 1u << D;
   constexpr bool Fill = Pass == ListPass::kFill, Mirrored = Pass == ListPass::kMirrored;
@@ -293,6 +279,7 @@ __global__ void __launch_bounds__(kBlock)
   if constexpr (!Fill) {
     if (walk_order) {
       const uint32_t first = *walked;
+      const uint32_t launched = gridDim.x * (kBlock / 32);  // walk_order's length
       const uint32_t at = Mirrored ? first + slot : slot;
       if (at >= (Mirrored ? launched : first)) return;  // the whole warp
       unit = walk_order[at];
@@ -463,14 +450,25 @@ __global__ void __launch_bounds__(kBlock)
   }
 }
 
+// Each rank's list length (its counts over the cell types summed), and each group's length in
+// whole chunks (its longest list), into group_chunks[g] for the scan that makes them the groups'
+// first chunks; group_chunks[groups] = 0, so that the scan ends with the total. A group is a warp's
+// ranks (blocks of kBlock ranks start on a group): one warp-wide max, where a scan over groups that
+// read its 32 lengths per item took ~48 us a build at 256k and at 1M alike (latency-bound).
+// Launched over n + kGroup threads, so that a warp exists for group_chunks[groups].
 template <int D>
-__global__ void sum_slot_counts(const uint32_t* __restrict__ slot_counts, std::size_t n,
-                                uint32_t* __restrict__ length) {
+__global__ void sum_slot_counts(const uint32_t* __restrict__ slot_counts, std::size_t n, std::size_t groups,
+                                uint32_t* __restrict__ length, unsigned long long* __restrict__ group_chunks) {
+  static_assert(kGroup == 32 && kBlock % kGroup == 0, "a group of ranks is one warp's");
   const std::size_t p = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
-  if (p >= n) return;
   uint32_t s = 0;
-  for (int t = 0; t < (1 << D); ++t) s += slot_counts[p * (1u << D) + t];
-  length[p] = s;
+  if (p < n) {
+    for (int t = 0; t < (1 << D); ++t) s += slot_counts[p * (1u << D) + t];
+    length[p] = s;
+  }
+  const uint32_t longest = __reduce_max_sync(0xffffffffu, s);  // the whole warp: no return above
+  const std::size_t g = p / kGroup;
+  if (threadIdx.x % 32 == 0 && g <= groups) group_chunks[g] = g < groups ? (longest + kChunk - 1) / kChunk : 0u;
 }
 
 // A cube's fixed-point scale folded into the pair's constants (change 39, then 40 for the kernels
@@ -732,7 +730,7 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
   list.rank.reserve(std::max<std::size_t>(n, 1));
   list.slot_counts.reserve(std::max<std::size_t>(n * slots, 1));
   list.length.reserve(std::max<std::size_t>(n, 1));
-  list.sizes.reserve(2);
+  list.sizes.reserve(4);
   list.selected.reserve(1);
   list.width = list.pairs = list.slots = 0;
   if (n == 0) return true;
@@ -781,8 +779,14 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
   // The count pass's units first (CountWalks), the rest after them (change 41), where a row tile's
   // columns are one unit (splits = 1, from ~67,000 particles): with splits (small systems) the
   // partition cost more than it saved (H100, 32,000: the count pass 88.6 -> 85.2 us, steps/s -1.7%).
-  const bool partitioned = row_blocks && list.splits == 1;
-  if (partitioned) {
+  // Only with masks in use: without (lean mode, or a fast-mode build before the room for them)
+  // the count pass walks every unit of the range, and those come first in launch order already, so
+  // walk_order is not kept (lean mode's memory).
+  const bool partitioned = row_blocks && list.splits == 1 && masks.words;
+  if (!partitioned) {
+    list.walk_order.release();
+    list.walked.release();
+  } else {
     list.walk_order.reserve(launched_units);
     list.walked.reserve(1);
     const CountWalks<Real, Accum> walks{cells, uint32_t(list.splits), masks};
@@ -809,15 +813,19 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
             cells, staging, list.rank.data(), in2, out2, pre2, cutoff2, uint32_t(list.splits),
             list.slot_counts.data(), list.splits > 1 ? list.split_counts.data() : nullptr, list.group_chunks.data(),
             kFill ? list.neighbors.data() : nullptr, masks, partitioned ? list.walk_order.data() : nullptr,
-            list.walked.data(), launched_units);
+            list.walked.data());
     });
     CF_CUDA_CHECK_LAUNCH();
   };
   if (row_blocks) walk_rows(std::integral_constant<ListPass, ListPass::kCount>{});
   if (masks.words) walk_rows(std::integral_constant<ListPass, ListPass::kMirrored>{});
+  // Each group of kGroup ranks is as long as its longest list, in whole chunks: the groups' lengths,
+  // then (the scan below) their first chunks.
+  const std::size_t groups = (n + kGroup - 1) / kGroup;
+  list.group_chunks.reserve(groups + 1);
   with_dim(dim, [&](auto d) {
-    sum_slot_counts<decltype(d)::value><<<blocks_for(n), kBlock, 0, stream>>>(list.slot_counts.data(), n,
-                                                                            list.length.data());
+    sum_slot_counts<decltype(d)::value><<<blocks_for(n + kGroup), kBlock, 0, stream>>>(
+        list.slot_counts.data(), n, groups, list.length.data(), list.group_chunks.data());
     CF_CUDA_CHECK_LAUNCH();
   });
   const auto wide = thrust::make_transform_iterator(list.length.data(), Widen{});
@@ -838,37 +846,39 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
   const uint32_t blocks = blocks_for(n * std::size_t(list.threads_per_particle));
   list.blocks.reserve(1);
   CF_CUDA_CHECK(cudaMemcpyAsync(list.blocks.data(), &blocks, sizeof(blocks), cudaMemcpyHostToDevice, stream));
-  // Each group of kGroup ranks is as long as its longest list, in whole chunks: the groups' first chunks.
-  const std::size_t groups = (n + kGroup - 1) / kGroup;
-  list.group_chunks.reserve(groups + 1);
-  const auto widths = thrust::make_transform_iterator(thrust::counting_iterator<std::size_t>(0),
-                                                      GroupChunks{list.length.data(), n, groups});
   std::size_t scan_bytes = 0;
-  CF_CUDA_CHECK(cub::DeviceScan::ExclusiveSum(nullptr, scan_bytes, widths, list.group_chunks.data(),
+  CF_CUDA_CHECK(cub::DeviceScan::ExclusiveSum(nullptr, scan_bytes, list.group_chunks.data(), list.group_chunks.data(),
                                               int(groups + 1), stream));
   list.scratch.reserve(std::max<std::size_t>(scan_bytes, 1));
-  CF_CUDA_CHECK(cub::DeviceScan::ExclusiveSum(list.scratch.data(), scan_bytes, widths, list.group_chunks.data(),
-                                              int(groups + 1), stream));
-  unsigned long long sizes[4] = {0, 0, 0, 0};
-  CF_CUDA_CHECK(cudaMemcpyAsync(sizes, list.sizes.data(), 2 * sizeof(sizes[0]), cudaMemcpyDeviceToHost, stream));
+  CF_CUDA_CHECK(cub::DeviceScan::ExclusiveSum(list.scratch.data(), scan_bytes, list.group_chunks.data(),
+                                              list.group_chunks.data(), int(groups + 1), stream));
+  // The host reads the four sizes in one copy, one wait (three waits in a row cost ~25 us a build):
+  // the longest list, the pairs, the words every unit's masks would take and the list's chunks.
   if (masks.base)
-    CF_CUDA_CHECK(cudaMemcpyAsync(sizes + 2, masks.base + launched_units, sizeof(sizes[0]), cudaMemcpyDeviceToHost,
-                                  stream));
-  CF_CUDA_CHECK(cudaMemcpyAsync(sizes + 3, list.group_chunks.data() + groups, sizeof(sizes[0]),
-                                cudaMemcpyDeviceToHost, stream));
+    CF_CUDA_CHECK(cudaMemcpyAsync(list.sizes.data() + 2, masks.base + launched_units, sizeof(unsigned long long),
+                                  cudaMemcpyDeviceToDevice, stream));
+  CF_CUDA_CHECK(cudaMemcpyAsync(list.sizes.data() + 3, list.group_chunks.data() + groups, sizeof(unsigned long long),
+                                cudaMemcpyDeviceToDevice, stream));
+  unsigned long long sizes[4] = {0, 0, 0, 0};
+  CF_CUDA_CHECK(cudaMemcpyAsync(sizes, list.sizes.data(), sizeof(sizes), cudaMemcpyDeviceToHost, stream));
   CF_CUDA_CHECK(cudaStreamSynchronize(stream));
   const std::size_t width = std::size_t(sizes[0]), pairs = std::size_t(sizes[1]);
-  const std::size_t mask_words = std::size_t(sizes[2]);  // what every unit's masks would take
+  const std::size_t mask_words = masks.base ? std::size_t(sizes[2]) : 0;  // what every unit's masks would take
   const std::size_t entries_total = std::size_t(sizes[3]) * kGroup * kChunk;  // the list's slots, padding included
   // A few crowded particles (the cells are cheaper), or a list that would not fit in the device's
   // free memory with 1/16 of it (at least 512 MiB) to spare (a dense cluster: n^2 partners): the
-  // cells serve this structure. The list in use counts as free: it is replaced.
+  // cells serve this structure. The list in use counts as free: it is replaced. A list that fits the
+  // array it has takes no memory, and the free memory is not asked for (cudaMemGetInfo, ~8 us
+  // between the wait above and the fill's launch, the device idle).
+  const bool held = entries_total <= list.neighbors.capacity();
   std::size_t free_bytes = 0, total_bytes = 0;
-  CF_CUDA_CHECK(cudaMemGetInfo(&free_bytes, &total_bytes));
-  free_bytes += list.neighbors.bytes() + list.masks.bytes();  // the masks give way to a growing list
+  if (!held) {
+    CF_CUDA_CHECK(cudaMemGetInfo(&free_bytes, &total_bytes));
+    free_bytes += list.neighbors.bytes() + list.masks.bytes();  // the masks give way to a growing list
+  }
   const std::size_t spare = std::max<std::size_t>(free_bytes / 16, std::size_t(512) << 20);
   const std::size_t need = entries_total * sizeof(uint32_t);
-  if (entries_total > 2 * pairs + 64 * n || need + spare > free_bytes) {
+  if (entries_total > 2 * pairs + 64 * n || (!held && need + spare > free_bytes)) {
     list.neighbors.release();  // dead: the cells serve, and need the room
     list.masks.release();
     list.mask_base.release();

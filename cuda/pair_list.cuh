@@ -94,14 +94,17 @@ struct PairList {
                                        // padding up to its group's length is never written)
   DeviceBuffer<RankedParticle> ranked; // n: gathered at every evaluation (double pairs, an open axis)
   DeviceBuffer<FixedParticle> fixed;   // n: gathered at every evaluation (float pairs, all periodic)
-  DeviceBuffer<unsigned long long> sizes;  // 2: the longest list and the sum of the lengths
+  DeviceBuffer<unsigned long long> sizes;  // 4: the longest list, the sum of the lengths, the words
+                                           // every unit's masks would take, the list's chunks (the
+                                           // host reads them in one copy)
   DeviceBuffer<uint32_t> selected;     // 1: CUB's count of H entries (n)
   DeviceBuffer<uint32_t> split_counts; // splits > 1: the count pass's partners per work unit (row
                                        // tile x column split) and lane, for the fill's offsets
   DeviceBuffer<uint32_t> masks;        // BuildMasks::words (fast memory mode), sized by the build before
   DeviceBuffer<unsigned long long> mask_base;  // BuildMasks::base, units + 1
   DeviceBuffer<uint32_t> walk_order;   // launched units: the count pass's (in order), then the rest
-                                       // (reversed: the mirrored pass's among them)
+                                       // (reversed: the mirrored pass's among them); held only while
+                                       // the build keeps masks (empty in lean mode)
   DeviceBuffer<uint32_t> walked;       // 1: how many units the count pass walks
   DeviceBuffer<uint32_t> blocks;       // 1: the force kernel's blocks (their sums' count)
   DeviceBuffer<std::byte> block_sums;  // kCellSums per block of the force kernel
