@@ -754,11 +754,14 @@ class CudaMdEngine final : public MdEngine {
 
   // How many of the next `most` steps to queue behind the gate: 0 when the force engine cannot
   // serve them from its list, else enough to reach the next rebuild if it comes as far after this
-  // build as the last one did (interval_), so that few queued steps find the gate shut.
+  // build as the last one did (interval_), and one more, so that few queued steps find the gate
+  // shut: a shut step still costs its kernels' loads (~60 us at 1M). Change 48: one step past the
+  // expected rebuild and at least 2 (two and at least 4 before: ~3.4 shut steps a build at 1M).
+  // A chunk that ends before the gate closes costs one more read of the gate.
   int64_t gate_chunk(int64_t most) const {
     const int64_t allowed = std::min(most, gpu_.gate_steps(box_, n_, ff_));
     if (allowed <= 0) return 0;
-    const int64_t expected = std::clamp<int64_t>(interval_ + 2 - since_build_, 4, kMaxGated);
+    const int64_t expected = std::clamp<int64_t>(interval_ + 1 - since_build_, 2, kMaxGated);
     return std::min(allowed, expected);
   }
 
