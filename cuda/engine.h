@@ -111,9 +111,12 @@ class GpuEngine {
   void settle_gate(int64_t served, double served_d2);
   // The gate closed at a step (its displacement past skin / 2): the next evaluation's reuse check
   // takes `d2`, the largest squared displacement the gated kick-drift measured at those positions
-  // (the bits max_displacement2 would reduce to), instead of reducing it again on the device and
-  // waiting for it (~60-100 us a build, the device idle). Consumed by that evaluation.
+  // (the bits max_displacement2 would reduce to, but that a non-finite displacement reads +inf:
+  // a rebuild, where the reduction's NaN would not; the divergence is flagged either way), instead
+  // of reducing it again on the device and waiting for it (~60-100 us a build, the device idle).
+  // Consumed by that evaluation; forget() drops it when the evaluation threw before it.
   void known_displacement2(double d2) { known_d2_ = d2, has_known_d2_ = true; }
+  void known_displacement2_forget() { has_known_d2_ = false; }
   const double* device_forces() const;
   const double* device_totals() const;
   void* stream() const;   // the engine's cudaStream_t

@@ -702,7 +702,7 @@ class CudaMdEngine final : public MdEngine {
     CF_CUDA_CHECK(cudaEventRecord(chunk_end_, stream_));
     check(first, step_);  // synchronises: the one host wait beyond the search's counts
     float ms = 0;
-    double forces_ms = shut_ms_;  // the evaluations the gate shut: force kernels that returned at once
+    double forces_ms = shut_ms_;  // a chunk's timed first evaluation when the gate shut it
     for (std::size_t t = 0; t < timed; ++t) {
       CF_CUDA_CHECK(cudaEventElapsedTime(&ms, force_events_[2 * t], force_events_[2 * t + 1]));
       forces_ms += ms * double(force_weights_[t]);
@@ -812,7 +812,9 @@ class CudaMdEngine final : public MdEngine {
       // 3.5 and 3.0 us before and after the evaluation against 1.7 between its own two kernels).
       // The chunk's served evaluations are booked at that one's time (they run the same kernels
       // on the same list); the untimed ones the gate shut (kernels that return at once) fall in
-      // the integration's time.
+      // the integration's time. The timed one is queued right after the host's read of the gate:
+      // at small sizes its window may hold a little of the host's launching (at 32k, 41.4 us of
+      // forces and 3.8 of integration a step against a ~4 us kick-drift kernel).
       if (j == 0) {
         std::size_t slot = timed;  // counted below, for every step served
         timed_evaluation(slot, [&] { gpu_.evaluate_gated(box_, n_, positions_.data(), types, ff_, view); });
@@ -851,8 +853,15 @@ class CudaMdEngine final : public MdEngine {
     resume();
     double closed_d2 = 0;  // its displacement, as the gated kick-drift measured it: the check's value
     std::memcpy(&closed_d2, &g.d2[closed % 3], sizeof closed_d2);
-    gpu_.known_displacement2(closed_d2);
-    timed_evaluation(timed, [&] { evaluate(false); });
+    timed_evaluation(timed, [&] {
+      gpu_.known_displacement2(closed_d2);  // for this evaluation only: forgotten if it throws first
+      try {
+        evaluate(false);
+      } catch (...) {
+        gpu_.known_displacement2_forget();
+        throw;
+      }
+    });
     return served + 1;
   }
 
@@ -1057,7 +1066,7 @@ class CudaMdEngine final : public MdEngine {
   std::vector<cudaEvent_t> wait_events_;  // per host turnaround of a run() call's gated chunks: pause, resume
   std::size_t waits_ = 0;                 // turnarounds in the run() call
   bool paused_ = false;                   // a turnaround's resume is still to be recorded
-  double shut_ms_ = 0;                    // force-kernel time of the evaluations the gate shut, this call
+  double shut_ms_ = 0;                    // force-kernel time of the timed evaluations the gate shut, this call
   cudaEvent_t chunk_start_ = nullptr, chunk_end_ = nullptr;
 };
 

@@ -459,7 +459,7 @@ __global__ void __launch_bounds__(kBlock)
 template <int D>
 __global__ void sum_slot_counts(const uint32_t* __restrict__ slot_counts, std::size_t n, std::size_t groups,
                                 uint32_t* __restrict__ length, unsigned long long* __restrict__ group_chunks) {
-  static_assert(kGroup == 32 && kBlock % kGroup == 0, "a group of ranks is one warp's");
+  static_assert(kGroup == 32 && kBlock % kGroup == 0, "a group of ranks is one warp's");  // __reduce_max_sync: sm_80+
   const std::size_t p = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
   uint32_t s = 0;
   if (p < n) {

@@ -260,10 +260,11 @@ TEST(PairListRepeat, TwoEnginesAreBitwiseEqual) {
 // in the kernels without observables only) broke this and was reverted. The full request's energy
 // and virial, which the folded kernels scale back by 1 + eps, are checked against the double brute
 // force as the list tests check them: not on the perfect lattice, whose forces are ~0, and on the
-// jittered square lattice in double only: its spacing (1.118) sits at the LJ minimum (2^(1/6) =
-// 1.122), where each pair's force cancels to a small remainder, so float's median relative force
-// error there is ~1.0-1.3e-6 (measured on the H100, 2026-11-26; a host emulation of the float pair
-// gives 1.1e-6 in either form of the force), above the 1e-6 that well-conditioned scenes meet.
+// jittered square lattice with float bounds of its own (2e-6 median relative force error, virial
+// 2e-5): its spacing (1.118) sits at the LJ minimum (2^(1/6) = 1.122), where each pair's force
+// cancels to a small remainder, so float's median error there is ~1.0-1.3e-6 and force shift's
+// virial 1.0e-5 (measured on the H100, 2026-11-26; a host emulation of the float pair gives 1.1e-6
+// in either form of the force), above the 1e-6 and 1e-5 that well-conditioned scenes meet.
 TEST(PairListRequests, ForcesDoNotDependOnTheObservablesAsked) {
   CF_SKIP_WITHOUT_DEVICE();
   using cellforce::CutoffMode;
@@ -276,7 +277,7 @@ TEST(PairListRequests, ForcesDoNotDependOnTheObservablesAsked) {
       const Configuration m = moved(s.config, 0.1, 7);
       const Configuration* configs[2] = {&s.config, &m};
       const bool oracle = std::string(name) != "lattice_bcc_perfect";
-      const bool float_oracle = oracle && std::string(name) != "lattice_square2d_jitter";
+      const bool at_minimum = std::string(name) == "lattice_square2d_jitter";
       ForceResult refs[2];  // the double brute force of each configuration, for every precision
       if (oracle)
         for (int k = 0; k < 2; ++k) cellforce::brute_force(configs[k]->view(), s.ff, Request{true, true}, refs[k]);
@@ -290,7 +291,13 @@ TEST(PairListRequests, ForcesDoNotDependOnTheObservablesAsked) {
           EXPECT_GT(bare.listed_pairs(), 0u);
           EXPECT_EQ(bare.stats().rebuilt, full.stats().rebuilt);
           EXPECT_EQ(rb.forces, rf.forces);
-          if (p == Precision::kDouble ? oracle : float_oracle) expect_results_match(refs[k], rf, p);
+          if (at_minimum && p != Precision::kDouble) {
+            EXPECT_LT(median_relative_force_error(refs[k], rf), 2e-6);
+            EXPECT_TRUE(total_energy_matches(refs[k], rf, 1e-5));
+            EXPECT_TRUE(virial_matches(refs[k], rf, 2e-5));
+          } else if (oracle) {
+            expect_results_match(refs[k], rf, p);
+          }
         }
       }
     }
