@@ -746,7 +746,7 @@ void GpuEngine::synchronize(const ForceField& ff) {
 }
 
 void GpuEngine::evaluate_resident(const Box& box, std::size_t n, const double* positions, const uint32_t* types,
-                                  const ForceField& ff, const Request& request) {
+                                  const ForceField& ff, const Request& request, std::optional<double> known_d2) {
   const DeviceScope scope(options_.device);
   Impl& s = *impl_;
   if (!s.accumulate_flags) {  // the first resident evaluation: flags from here on accumulate
@@ -757,7 +757,7 @@ void GpuEngine::evaluate_resident(const Box& box, std::size_t n, const double* p
   const DeviceSystemView on_device{box, n, positions, types};
   s.plan_from_corners = true;
   s.corner_count = 0;
-  prepare_resident(system, ff, on_device);
+  prepare_resident(system, ff, on_device, known_d2);
   traverse(system, ff, request, false);
   s.record(kDownloaded);
   if (options_.reuse.audit && !stats_.rebuilt) {  // diagnostics: the positions come to the host
@@ -869,7 +869,6 @@ void GpuEngine::finish_timing() {
 // one: shared by evaluate() and the pair recorder.
 void GpuEngine::prepare(const SystemView& system, const ForceField& ff, const DeviceSystemView* on_device) {
   Impl& s = *impl_;
-  has_known_d2_ = false;  // known_displacement2() serves a resident evaluation only
   validate_system(system, ff);
   check_capacity(system, ff);
   s.upload_system(system, on_device);
@@ -889,15 +888,14 @@ void GpuEngine::prepare(const SystemView& system, const ForceField& ff, const De
 
 // prepare() for resident evaluations: the caller validated the arrays (at the start of its run;
 // drifts are checked on the device), so nothing here reads them on the host.
-void GpuEngine::prepare_resident(const SystemView& system, const ForceField& ff, const DeviceSystemView& on_device) {
+void GpuEngine::prepare_resident(const SystemView& system, const ForceField& ff, const DeviceSystemView& on_device,
+                                 std::optional<double> known_d2) {
   Impl& s = *impl_;
-  const bool known = has_known_d2_;
-  has_known_d2_ = false;  // this evaluation's alone, whatever happens in it
   check_capacity(system, ff);
   s.upload_system(system, &on_device);
   const bool rebuild = reuse_.decide(system, ff.cutoff, [&] {
-    return known ? known_d2_
-                 : cuda::max_displacement2(system.box, s.pos, s.build_positions.data(), system.n, s.cub, s.stream);
+    return known_d2 ? *known_d2
+                    : cuda::max_displacement2(system.box, s.pos, s.build_positions.data(), system.n, s.cub, s.stream);
   }, stats_);
   s.record(kChecked);
   if (rebuild) {

@@ -85,8 +85,13 @@ class GpuEngine {
   // (device_totals(): energy, then w_xx, w_yy, w_zz, w_xy, w_xz, w_yz). The kernels' flags are
   // not read: they accumulate until check_flags() (or synchronize()). Stage times are not read either
   // (collect_timing() reads the last evaluation's). The reuse audit does not run here.
+  // `known_d2`: where the step gate closed at these positions, the largest squared displacement
+  // its kick-drift measured (the bits max_displacement2 would reduce to, but that a non-finite
+  // displacement reads +inf: a rebuild, where the reduction's NaN would not; the divergence is
+  // flagged either way): the reuse check takes it instead of reducing it again on the device and
+  // waiting for it (~60-100 us a build, the device idle).
   void evaluate_resident(const Box& box, std::size_t n, const double* positions, const uint32_t* types,
-                         const ForceField& ff, const Request& request);
+                         const ForceField& ff, const Request& request, std::optional<double> known_d2 = {});
   // Reads the flags raised since the last check (synchronises the stream) and clears them; throws
   // cellforce::Error naming both particles of a pair whose force was not finite (the positions
   // come to the host only then, for the message).
@@ -109,14 +114,6 @@ class GpuEngine {
   // largest squared displacement among them `served_d2`). stats() then reads as after a reused
   // evaluation.
   void settle_gate(int64_t served, double served_d2);
-  // The gate closed at a step (its displacement past skin / 2): the next evaluation's reuse check
-  // takes `d2`, the largest squared displacement the gated kick-drift measured at those positions
-  // (the bits max_displacement2 would reduce to, but that a non-finite displacement reads +inf:
-  // a rebuild, where the reduction's NaN would not; the divergence is flagged either way), instead
-  // of reducing it again on the device and waiting for it (~60-100 us a build, the device idle).
-  // Consumed by that evaluation; forget() drops it when the evaluation threw before it.
-  void known_displacement2(double d2) { known_d2_ = d2, has_known_d2_ = true; }
-  void known_displacement2_forget() { has_known_d2_ = false; }
   const double* device_forces() const;
   const double* device_totals() const;
   void* stream() const;   // the engine's cudaStream_t
@@ -166,14 +163,13 @@ class GpuEngine {
                                                     bool keep);
   void prepare(const SystemView& system, const ForceField& ff, const DeviceSystemView* on_device = nullptr);
   void traverse(const SystemView& system, const ForceField& ff, const Request& request, bool read_flags = true);
-  void prepare_resident(const SystemView& system, const ForceField& ff, const DeviceSystemView& on_device);
+  void prepare_resident(const SystemView& system, const ForceField& ff, const DeviceSystemView& on_device,
+                        std::optional<double> known_d2 = {});
   void plan_corners(const Box& box, std::size_t n, const double* positions);
   void finish_timing();
   void build(const SystemView& system, const ForceField& ff);
   void audit(const SystemView& system, const ForceField& ff);
   GpuOptions options_;
-  double known_d2_ = 0;  // known_displacement2()
-  bool has_known_d2_ = false;
   ReusePolicy reuse_;
   PipelineStats stats_;
   std::unique_ptr<Impl> impl_;

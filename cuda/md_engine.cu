@@ -24,6 +24,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstring>
+#include <optional>
 
 #include "backends/md_engine.h"
 #include "check.cuh"
@@ -853,15 +854,7 @@ class CudaMdEngine final : public MdEngine {
     resume();
     double closed_d2 = 0;  // its displacement, as the gated kick-drift measured it: the check's value
     std::memcpy(&closed_d2, &g.d2[closed % 3], sizeof closed_d2);
-    timed_evaluation(timed, [&] {
-      gpu_.known_displacement2(closed_d2);  // for this evaluation only: forgotten if it throws first
-      try {
-        evaluate(false);
-      } catch (...) {
-        gpu_.known_displacement2_forget();
-        throw;
-      }
-    });
+    timed_evaluation(timed, [&] { evaluate(false, closed_d2); });
     return served + 1;
   }
 
@@ -899,9 +892,10 @@ class CudaMdEngine final : public MdEngine {
     CF_CUDA_CHECK_LAUNCH();
   }
 
-  void evaluate(bool observe) {
+  // known_d2: the step gate's displacement at these positions, where it closed (the reuse check's value).
+  void evaluate(bool observe, std::optional<double> known_d2 = {}) {
     gpu_.evaluate_resident(box_, n_, positions_.data(), ff_.num_types() > 1 ? types_.data() : nullptr, ff_,
-                           Request{observe, observe});
+                           Request{observe, observe}, known_d2);
     observed_ = observe;
     ++counters_.evaluations;
     add_reuse(counters_, gpu_.stats());

@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
 r"""Where the device idles during `cellforce bench` steps: a timeline of a bench run (Nsight
 Systems, or, where it is not installed, the CUPTI injection library built from
-validation/bench/cupti_trace.cpp, --tracer), its GPU operations (kernels, copies, sets) in the
+validation/bench/cupti_trace.cpp, --tracer; only the latter has run so far: the GPU machine has no
+Nsight Systems), its GPU operations (kernels, copies, sets) in the
 steady part of the run, and every gap between one operation's end and the next one's start, with
 what the host was doing meanwhile.
 
