@@ -440,15 +440,21 @@ struct GpuEngine::Impl {
   // step gate's evaluations, GpuEngine::evaluate_gated). Returns whether energy and virial were asked.
   template <class Real, class Accum>
   bool list_forces(const Grid& g, const SystemView& sys, const ForceField& ff, const Request& req,
-                   const cuda::GateView& gate) {
+                   const cuda::GateView& gate, bool placed = false) {
     const cuda::ListArgs<Real, Accum> la = list_args<Real, Accum>(g, sys, ff, req);
     cuda::Switches sw;
     sw.dim = g.dim;
     sw.multi_type = ff.num_types() > 1;
     sw.mode = ff.mode;
     sw.observables = req.energy || req.virial;
-    cuda::list_forces<Real, Accum>(sw, la, list, stream, gate);
+    cuda::list_forces<Real, Accum>(sw, la, list, stream, gate, placed);
     return sw.observables;
+  }
+
+  // Where the gated drifts place the positions for the list in use (GpuEngine::rank_order).
+  template <class Real, class Accum>
+  cuda::RankOrder rank_order(const Grid& g, const SystemView& sys, const ForceField& ff) {
+    return cuda::rank_order<Real, Accum>(list_args<Real, Accum>(g, sys, ff, Request{false, false}), list);
   }
 
   // Every particle's list partners (user indices, list order), downloaded: the list audit's input.
@@ -804,8 +810,25 @@ unsigned long long GpuEngine::gate_limit() const {
 
 const double* GpuEngine::device_build_positions() const { return impl_->build_positions.data(); }
 
+cuda::RankOrder GpuEngine::rank_order(const Box& box, std::size_t n, const double* positions, const uint32_t* types,
+                                      const ForceField& ff) {
+  const DeviceScope scope(options_.device);
+  Impl& s = *impl_;
+  if (!s.list_usable || s.list_built_for != s.builds)
+    throw Error("internal error: rank_order() without the pair list of the structure in use");
+  s.borrow(positions, types);
+  const SystemView system{box, n, nullptr, nullptr};
+  const Grid& g = stats_.grid;
+  switch (options_.precision) {
+    case Precision::kSingle: return s.rank_order<float, float>(g, system, ff);
+    case Precision::kMixed: return s.rank_order<float, double>(g, system, ff);
+    case Precision::kDouble: break;
+  }
+  return s.rank_order<double, double>(g, system, ff);
+}
+
 void GpuEngine::evaluate_gated(const Box& box, std::size_t n, const double* positions, const uint32_t* types,
-                               const ForceField& ff, const cuda::GateView& gate) {
+                               const ForceField& ff, const cuda::GateView& gate, bool placed) {
   const DeviceScope scope(options_.device);
   Impl& s = *impl_;
   const SystemView system{box, n, nullptr, nullptr};
@@ -813,9 +836,9 @@ void GpuEngine::evaluate_gated(const Box& box, std::size_t n, const double* posi
   const Grid& g = stats_.grid;
   const Request forces_only{false, false};
   switch (options_.precision) {
-    case Precision::kSingle: s.list_forces<float, float>(g, system, ff, forces_only, gate); break;
-    case Precision::kMixed: s.list_forces<float, double>(g, system, ff, forces_only, gate); break;
-    case Precision::kDouble: s.list_forces<double, double>(g, system, ff, forces_only, gate); break;
+    case Precision::kSingle: s.list_forces<float, float>(g, system, ff, forces_only, gate, placed); break;
+    case Precision::kMixed: s.list_forces<float, double>(g, system, ff, forces_only, gate, placed); break;
+    case Precision::kDouble: s.list_forces<double, double>(g, system, ff, forces_only, gate, placed); break;
   }
 }
 

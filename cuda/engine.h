@@ -16,6 +16,7 @@
 #include "core/grid.h"
 #include "core/reuse.h"
 #include "core/system.h"
+#include "rank_order.h"
 #include "step_gate.h"
 
 namespace cellforce {
@@ -106,10 +107,16 @@ class GpuEngine {
   // structure in use was built from (n x dim, device).
   unsigned long long gate_limit() const;
   const double* device_build_positions() const;
+  // Where the gated steps' last drift kernels place the positions in the list's rank order
+  // (rank_order.h: the gather's values), for gated evaluations that then leave their gather out.
+  // Valid until the structure is rebuilt (the gate's chunk).
+  cuda::RankOrder rank_order(const Box& box, std::size_t n, const double* positions, const uint32_t* types,
+                             const ForceField& ff);
   // One gated evaluation (forces only, from the pair list), queued; the host does not wait and
-  // nothing is counted until settle_gate().
+  // nothing is counted until settle_gate(). `placed`: the step's drift placed the positions
+  // (rank_order()), so the evaluation does not gather them.
   void evaluate_gated(const Box& box, std::size_t n, const double* positions, const uint32_t* types,
-                      const ForceField& ff, const cuda::GateView& gate);
+                      const ForceField& ff, const cuda::GateView& gate, bool placed = false);
   // After the host read the gate: `served` gated evaluations ran (the structure served them, the
   // largest squared displacement among them `served_d2`). stats() then reads as after a reused
   // evaluation.

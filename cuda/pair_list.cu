@@ -126,30 +126,6 @@ class ChunkWriter {
   uint32_t v0_ = 0, v1_ = 0, v2_ = 0, v3_ = 0;
 };
 
-// A non-finite coordinate is flagged as the device input check does (the particle and axis named
-// at the next check of the flags): a pair with it has a NaN r^2, which fails every cutoff test,
-// so the force kernel would drop its pairs without a word, and it has no fixed-point value.
-template <int D>
-__device__ __forceinline__ void flag_non_finite(const double x[3], std::size_t i, DeviceFlags* flags) {
-  for (int a = 0; a < D; ++a)
-    if (!isfinite(x[a])) atomicMin(&flags->bad_coordinate, static_cast<unsigned long long>(i) << 32 | unsigned(a));
-}
-template <int D>
-__device__ __forceinline__ void store_ranked(RankedParticle* __restrict__ ranked, std::size_t p, const Grid&,
-                                             const double x[3], uint32_t type, std::size_t i, DeviceFlags* flags) {
-  flag_non_finite<D>(x, i, flags);
-  ranked[p] = RankedParticle{x[0], x[1], x[2], type, 0u};
-}
-// Every axis periodic (fixed_point_serves).
-template <int D>
-__device__ __forceinline__ void store_ranked(FixedParticle* __restrict__ ranked, std::size_t p, const Grid& g,
-                                             const double x[3], uint32_t type, std::size_t i, DeviceFlags* flags) {
-  flag_non_finite<D>(x, i, flags);
-  uint32_t u[3] = {0, 0, 0};
-  for (int a = 0; a < D; ++a) u[a] = fixed_coordinate(x[a], g.inv_length[a]);
-  ranked[p] = FixedParticle{u[0], u[1], u[2], type};
-}
-
 template <int D, class Particle>
 __global__ void gather_ranked(Grid g, const double* __restrict__ positions, const uint32_t* __restrict__ types,
                               const uint32_t* __restrict__ order, std::size_t n, uint32_t num_types,
@@ -166,12 +142,8 @@ __global__ void gather_ranked(Grid g, const double* __restrict__ positions, cons
     for (int a = 0; a < D; ++a) v[a] = positions[i * D + a];
     t = types ? types[i] : 0u;
   }
-  if (gate_shut(gate)) return;
-  if (gate.gate && p == 0) atomicMax(&gate.gate->served, gate.gate->d2[gate.step % 3]);
-  if (!in) return;
-  double x[3] = {0, 0, 0};
-  for (int a = 0; a < D; ++a) x[a] = g.inv_length[a] != 0.0 ? wrap_coordinate(v[a], g.length[a]) : v[a];
-  store_ranked<D>(ranked, p, g, x, t < num_types ? t : 0u, i, flags);
+  if (gate_shut(gate) || !in) return;
+  store_ranked<D>(ranked, p, g, v, t, num_types, i, flags);
 }
 
 // The 32 x 32 bit matrix a warp holds (lane l: row l, bit k: column k) transposed (lane k gets
@@ -520,6 +492,7 @@ __global__ void __launch_bounds__(kBlock)
   unsigned long long group_chunk0 = 0;
   if (p < n) P = ranked[p], len = length[p], group_chunk0 = group_chunks[p / kGroup];
   if (gate_shut(gate)) return;  // the whole block: before any shuffle or barrier
+  if (gate.gate && t == 0) atomicMax(&gate.gate->served, gate.gate->d2[gate.step % 3]);  // served: this step's
   CellTotals<Accum, true, true> totals;
   Accum f[D] = {};
   Accum ea = 0;
@@ -717,6 +690,13 @@ void grow_masks(PairList& list, std::size_t words, cudaStream_t stream) {
   }
 }
 
+// Whether the evaluations of these args read FixedParticles (float pairs, fixed_point_serves) or
+// RankedParticles.
+template <class Real, class Accum>
+bool gathers_fixed(const ListArgs<Real, Accum>& args) {
+  return std::is_same_v<Real, float> && fixed_point_serves(args.grid, std::sqrt(double(args.rc2)));
+}
+
 }  // namespace
 
 template <class Real, class Accum>
@@ -908,8 +888,29 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
 }
 
 template <class Real, class Accum>
+RankOrder rank_order(const ListArgs<Real, Accum>& args, PairList& list) {
+  RankOrder to;
+  to.rank = list.rank.data();
+  to.fixed = gathers_fixed(args);
+  if (to.fixed) {
+    list.ranked.release();
+    list.fixed.reserve(std::max<std::size_t>(args.n, 1));
+    to.particles = list.fixed.data();
+  } else {
+    list.fixed.release();
+    list.ranked.reserve(std::max<std::size_t>(args.n, 1));
+    to.particles = list.ranked.data();
+  }
+  to.grid = args.grid;
+  to.types = args.types;
+  to.num_types = args.num_types;
+  to.flags = args.flags;
+  return to;
+}
+
+template <class Real, class Accum>
 void list_forces(const Switches& sw, const ListArgs<Real, Accum>& args, PairList& list, cudaStream_t stream,
-                 const GateView& gate) {
+                 const GateView& gate, bool gathered) {
   if (args.n == 0) return;
   const unsigned blocks = blocks_for(args.n * std::size_t(list.threads_per_particle));
   list.block_sums.reserve(std::size_t(blocks) * kCellSums * sizeof(Accum));
@@ -933,7 +934,7 @@ void list_forces(const Switches& sw, const ListArgs<Real, Accum>& args, PairList
   }
   auto evaluate = [&](auto& ranked) {
     using Particle = typename std::remove_reference_t<decltype(ranked)>::value_type;
-    gather(args, list, ranked, stream, gate);
+    if (!gathered) gather(args, list, ranked, stream, gate);
     detail::dispatch(s, [&](auto traits) {
       using T = decltype(traits);
       if constexpr (!T::kWrap) {
@@ -962,7 +963,7 @@ void list_forces(const Switches& sw, const ListArgs<Real, Accum>& args, PairList
     CF_CUDA_CHECK_LAUNCH();
   };
   if constexpr (std::is_same_v<Real, float>) {
-    if (fixed_point_serves(args.grid, std::sqrt(double(args.rc2)))) {
+    if (gathers_fixed(args)) {
       list.ranked.release();
       evaluate(list.fixed);
       return;
@@ -977,7 +978,8 @@ void list_forces(const Switches& sw, const ListArgs<Real, Accum>& args, PairList
                                              std::size_t, double, const ListArgs<Real, Accum>&, PairList&,       \
                                              cudaStream_t);                                                      \
   template void list_forces<Real, Accum>(const Switches&, const ListArgs<Real, Accum>&, PairList&, cudaStream_t, \
-                                         const GateView&);
+                                         const GateView&, bool);                                                \
+  template RankOrder rank_order<Real, Accum>(const ListArgs<Real, Accum>&, PairList&);
 CF_PAIR_LIST(float, float)
 CF_PAIR_LIST(float, double)
 CF_PAIR_LIST(double, double)

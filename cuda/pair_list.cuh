@@ -30,6 +30,7 @@
 #include <cstdint>
 
 #include "list_build.h"  // split_columns, build_splits, prefilter_bound, fixed-point coordinates
+#include "rank_order.h"
 #include "step_gate.h"
 #include "traversal.cuh"
 
@@ -152,6 +153,47 @@ struct ListStaging {
   const Control* control = nullptr;       // n: stage 1's control bits
 };
 
+// A non-finite coordinate is flagged as the device input check does (the particle and axis named
+// at the next check of the flags): a pair with it has a NaN r^2, which fails every cutoff test,
+// so the force kernel would drop its pairs without a word, and it has no fixed-point value.
+template <int D>
+__device__ __forceinline__ void flag_non_finite(const double x[3], std::size_t i, DeviceFlags* flags) {
+  for (int a = 0; a < D; ++a)
+    if (!isfinite(x[a])) atomicMin(&flags->bad_coordinate, static_cast<unsigned long long>(i) << 32 | unsigned(a));
+}
+
+// Particle i (position v, type t) as rank p's entry of the gathered array: wrapped into the box on
+// periodic axes, then stored in double (RankedParticle) or fixed point (FixedParticle, every axis
+// periodic: fixed_point_serves). The one arithmetic of the gather and of a gated drift's placing.
+template <int D>
+__device__ __forceinline__ void store_ranked(RankedParticle* __restrict__ ranked, std::size_t p, const Grid& g,
+                                             const double v[3], uint32_t t, uint32_t num_types, std::size_t i,
+                                             DeviceFlags* flags) {
+  double x[3] = {0, 0, 0};
+  for (int a = 0; a < D; ++a) x[a] = g.inv_length[a] != 0.0 ? wrap_coordinate(v[a], g.length[a]) : v[a];
+  flag_non_finite<D>(x, i, flags);
+  ranked[p] = RankedParticle{x[0], x[1], x[2], t < num_types ? t : 0u, 0u};
+}
+template <int D>
+__device__ __forceinline__ void store_ranked(FixedParticle* __restrict__ ranked, std::size_t p, const Grid& g,
+                                             const double v[3], uint32_t t, uint32_t num_types, std::size_t i,
+                                             DeviceFlags* flags) {
+  double x[3] = {0, 0, 0};
+  for (int a = 0; a < D; ++a) x[a] = g.inv_length[a] != 0.0 ? wrap_coordinate(v[a], g.length[a]) : v[a];
+  flag_non_finite<D>(x, i, flags);
+  uint32_t u[3] = {0, 0, 0};
+  for (int a = 0; a < D; ++a) u[a] = fixed_coordinate(x[a], g.inv_length[a]);
+  ranked[p] = FixedParticle{u[0], u[1], u[2], t < num_types ? t : 0u};
+}
+
+// A gated drift's placing (RankOrder): particle i, now at v, into its rank's entry.
+template <int D>
+__device__ __forceinline__ void place_ranked(const RankOrder& to, std::size_t i, uint32_t p, const double v[3],
+                                             uint32_t t) {
+  if (to.fixed) store_ranked<D>(static_cast<FixedParticle*>(to.particles), p, to.grid, v, t, to.num_types, i, to.flags);
+  else store_ranked<D>(static_cast<RankedParticle*>(to.particles), p, to.grid, v, t, to.num_types, i, to.flags);
+}
+
 // Builds the list from the structure just built (cells: its cells, tile starts, sorted IDs and
 // staged occupants, or none: then they are staged as the build loads them;
 // sorted_keys and control: stage 1-2's; the positions of `list_args`) for partners closer than
@@ -170,9 +212,17 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
 // else RankedParticle) and evaluates every listed pair with r < rc: forces (and
 // energies) to the user-order outputs, energy and virial per block into list.block_sums, whose
 // count list.blocks holds (for sum_cells). With a gate (step_gate.h) both kernels return at once
-// when it is shut for gate.step.
+// when it is shut for gate.step; else the force kernel raises the gate's served displacement.
+// With `gathered`, the positions are in the gathered array already (a gated step's drift placed
+// them: rank_order) and the gather is left out.
 template <class Real, class Accum>
 void list_forces(const Switches& sw, const ListArgs<Real, Accum>& args, PairList& list, cudaStream_t stream,
-                 const GateView& gate = {});
+                 const GateView& gate = {}, bool gathered = false);
+
+// Where the evaluations of the list in use read the positions in rank order (the array list_forces
+// gathers into for these args, reserved; the other one released), for a gated step's drift to
+// place them (RankOrder).
+template <class Real, class Accum>
+RankOrder rank_order(const ListArgs<Real, Accum>& args, PairList& list);
 
 }  // namespace cellforce::cuda

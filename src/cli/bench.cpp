@@ -7,6 +7,7 @@
 #include <new>
 #include <nlohmann/json.hpp>
 #include <optional>
+#include <random>
 
 #include <cellforce/cellforce.hpp>
 
@@ -33,6 +34,24 @@ double seconds_since(Clock::time_point t0) { return std::chrono::duration<double
 int fcc_cells_for(double n) {
   const int c = std::max(1, int(std::lround(std::cbrt(n / 4.0))));
   return c;
+}
+
+// --shuffle: the same particles (positions, velocities, types) numbered in a random order, a
+// Fisher-Yates shuffle driven by std::mt19937_64 (fully specified: the same order everywhere).
+void shuffle_particles(MdState& state, uint64_t seed) {
+  const std::size_t n = state.config.size(), dim = std::size_t(state.config.box.dim);
+  std::vector<std::size_t> from(n);
+  for (std::size_t i = 0; i < n; ++i) from[i] = i;
+  std::mt19937_64 rng(seed ^ 0x73687566666c65ull);
+  for (std::size_t i = n; i > 1; --i) std::swap(from[i - 1], from[std::size_t(rng() % i)]);
+  const MdState before = state;
+  for (std::size_t i = 0; i < n; ++i) {
+    state.config.types[i] = before.config.types[from[i]];
+    for (std::size_t a = 0; a < dim; ++a) {
+      state.config.positions[i * dim + a] = before.config.positions[from[i] * dim + a];
+      state.velocities[i * dim + a] = before.velocities[from[i] * dim + a];
+    }
+  }
 }
 
 // Least-squares slope of y against x.
@@ -105,6 +124,8 @@ SizeResult bench_size(const BenchArgs& args, const EngineChoice& engine, int cel
     const int dim = 3;
     const std::vector<double> masses(n, scene.masses[0]);
     initialize_velocities(state, masses, scene.initial_temperature, scene.seed, !args.langevin);
+    if (args.shuffle) shuffle_particles(state, scene.seed);
+    row["order"] = args.shuffle ? "shuffled" : "lattice";
     std::vector<double> final_positions(n * dim), final_forces(n * dim);
     {
       Context ctx = make_context(state.config.box, scene.force_field, engine);

@@ -1,0 +1,25 @@
+// Where a gated MD step's last drift puts each particle for its evaluation's list kernels (change
+// 49): the pair list's rank order, written as the evaluation's gather would write it (the same
+// values: cuda/pair_list.cuh place_ranked), so that the gated evaluation needs no gather kernel.
+// Plain C++: engine.h includes it.
+#pragma once
+
+#include <cstdint>
+
+#include "core/grid.h"
+
+namespace cellforce::cuda {
+
+struct DeviceFlags;
+
+struct RankOrder {
+  const uint32_t* rank = nullptr;   // n: the rank of particle i in the list in use
+  void* particles = nullptr;        // n: FixedParticle (fixed) or RankedParticle, as list_forces reads them
+  bool fixed = false;
+  Grid grid{};                      // the structure's: the wrap and the fixed-point scale
+  const uint32_t* types = nullptr;  // n or null (all type 0)
+  uint32_t num_types = 1;
+  DeviceFlags* flags = nullptr;     // a coordinate that is not finite is flagged here
+};
+
+}  // namespace cellforce::cuda
