@@ -14,8 +14,10 @@
 #include "cli/engine_context.h"
 #include "cli/options.h"
 #include "core/error.h"
+#include "core/grid.h"
 #include "core/memory.h"
 #include "core/names.h"
+#include "core/reuse.h"
 #include "io/text_file.h"
 #include "md/md.h"
 #include "scene/scene.h"
@@ -36,14 +38,10 @@ int fcc_cells_for(double n) {
   return c;
 }
 
-// --shuffle: the same particles (positions, velocities, types) numbered in a random order, a
-// Fisher-Yates shuffle driven by std::mt19937_64 (fully specified: the same order everywhere).
-void shuffle_particles(MdState& state, uint64_t seed) {
+// The same particles (positions, velocities, types) numbered anew: particle i becomes the one
+// that was from[i].
+void renumber(MdState& state, const std::vector<std::size_t>& from) {
   const std::size_t n = state.config.size(), dim = std::size_t(state.config.box.dim);
-  std::vector<std::size_t> from(n);
-  for (std::size_t i = 0; i < n; ++i) from[i] = i;
-  std::mt19937_64 rng(seed ^ 0x73687566666c65ull);
-  for (std::size_t i = n; i > 1; --i) std::swap(from[i - 1], from[std::size_t(rng() % i)]);
   const MdState before = state;
   for (std::size_t i = 0; i < n; ++i) {
     state.config.types[i] = before.config.types[from[i]];
@@ -52,6 +50,33 @@ void shuffle_particles(MdState& state, uint64_t seed) {
       state.velocities[i * dim + a] = before.velocities[from[i] * dim + a];
     }
   }
+}
+
+// --order shuffled: a Fisher-Yates shuffle driven by std::mt19937_64 (fully specified: the same
+// order everywhere). --order cells: by home cell on the grid planned for rc + skin (the engine's
+// for the tight rule and its skin), the lattice's order kept inside a cell.
+void apply_order(MdState& state, const std::string& order, uint64_t seed, double cutoff, double skin) {
+  const std::size_t n = state.config.size();
+  std::vector<std::size_t> from(n);
+  for (std::size_t i = 0; i < n; ++i) from[i] = i;
+  if (order == "shuffled") {
+    std::mt19937_64 rng(seed ^ 0x73687566666c65ull);
+    for (std::size_t i = n; i > 1; --i) std::swap(from[i - 1], from[std::size_t(rng() % i)]);
+  } else if (order == "cells") {
+    const Grid g = plan_grid(state.config.box, cutoff, state.config.positions.data(), n, GridOptions{}, skin);
+    std::vector<uint32_t> home(n);
+    for (std::size_t i = 0; i < n; ++i) {
+      double x[kMaxDim] = {0, 0, 0};
+      uint32_t ids[kMaxCellTypes];
+      for (int a = 0; a < g.dim; ++a) x[a] = state.config.positions[i * std::size_t(g.dim) + std::size_t(a)];
+      bin_particle(g, x, ids);
+      home[i] = ids[0];
+    }
+    std::stable_sort(from.begin(), from.end(), [&](std::size_t a, std::size_t b) { return home[a] < home[b]; });
+  } else {
+    return;  // lattice
+  }
+  renumber(state, from);
 }
 
 // Least-squares slope of y against x.
@@ -124,8 +149,9 @@ SizeResult bench_size(const BenchArgs& args, const EngineChoice& engine, int cel
     const int dim = 3;
     const std::vector<double> masses(n, scene.masses[0]);
     initialize_velocities(state, masses, scene.initial_temperature, scene.seed, !args.langevin);
-    if (args.shuffle) shuffle_particles(state, scene.seed);
-    row["order"] = args.shuffle ? "shuffled" : "lattice";
+    const double skin = engine.reuse.automatic ? kAutoSkinPerCutoff * scene.force_field.cutoff : engine.reuse.skin;
+    apply_order(state, args.order, scene.seed, scene.force_field.cutoff, skin);
+    row["order"] = args.order;
     std::vector<double> final_positions(n * dim), final_forces(n * dim);
     {
       Context ctx = make_context(state.config.box, scene.force_field, engine);

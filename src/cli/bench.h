@@ -36,9 +36,11 @@ struct BenchArgs {
                                   // step's positions and forces (n x 3 little-endian doubles) per
                                   // size, PREFIX gaining "-<n>"
   std::string label;              // the rows' "configuration" (default: "default" or "chapter")
-  bool shuffle = false;           // number the particles in a seeded random order, not the lattice's:
-                                  // the order diffusion leaves after a long run (an engine that keeps
-                                  // the caller's order then finds no locality in it)
+  std::string order = "lattice";  // how the particles are numbered: "lattice" (the fcc's order),
+                                  // "shuffled" (seeded random: the order diffusion leaves after a long
+                                  // run, where an engine that keeps the caller's order finds no
+                                  // locality) or "cells" (cell by cell on the grid of rc + skin, the
+                                  // lattice's order inside a cell: the order a list build's ranks give)
 };
 
 // Returns the exit code: 0 when every size ran, 1 when one failed (its row says why).

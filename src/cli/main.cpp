@@ -322,9 +322,13 @@ int main(int argc, char** argv) {
   bench_cmd->add_flag("--langevin", ba.langevin,
                       "Langevin dynamics (BAOAB, kT 1.44, friction 1) instead of NVE: the same fluid at its "
                       "temperature (no NVE drift)");
-  bench_cmd->add_flag("--shuffle", ba.shuffle,
-                      "Number the particles in a random (seeded) order instead of the lattice's: the order a long "
-                      "run's diffusion leaves, for an engine that keeps the caller's order");
+  bench_cmd
+      ->add_option("--order", ba.order,
+                   "How the particles are numbered: lattice (the fcc's order), shuffled (seeded random: the order a "
+                   "long run's diffusion leaves) or cells (cell by cell on the grid of rc + skin: the order of a "
+                   "list build's ranks)")
+      ->check(CLI::IsMember({"lattice", "shuffled", "cells"}))
+      ->capture_default_str();
   bench_cmd->add_option("--label", ba.label, "The rows' configuration name (default: default, or chapter)");
   bench_cmd->add_option("--save-final", ba.save_final,
                         "Write PREFIX-<n>.positions.f64 and PREFIX-<n>.forces.f64: the last step's positions and "
