@@ -285,6 +285,7 @@ struct GpuEngine::Impl {
 
   cudaEvent_t joined = nullptr, finished = nullptr;  // the caller's stream <-> the engine's
   std::size_t device_bytes = 0;  // the device's memory (cudaMemGetInfo's total), once asked
+  bool gated_forces_by_rank = false;  // the last rank_order(): gated evaluations leave forces in rank order
 
   // Stages 1-3 on the uploaded positions: cell IDs, count, sort, collision cells (split by type
   // for Gauss-Seidel). With a skin, keeps the build's positions (and, for the audit, its keys).
@@ -447,14 +448,18 @@ struct GpuEngine::Impl {
     sw.multi_type = ff.num_types() > 1;
     sw.mode = ff.mode;
     sw.observables = req.energy || req.virial;
-    cuda::list_forces<Real, Accum>(sw, la, list, stream, gate, placed);
+    cuda::list_forces<Real, Accum>(sw, la, list, stream, gate, placed, placed && gated_forces_by_rank);
     return sw.observables;
   }
 
-  // Where the gated drifts place the positions for the list in use (GpuEngine::rank_order).
+  // Where the gated drifts place the positions for the list in use, and where its gated
+  // evaluations leave the forces: in rank order unless the build is lean (24 bytes a particle
+  // more) (GpuEngine::rank_order).
   template <class Real, class Accum>
   cuda::RankOrder rank_order(const Grid& g, const SystemView& sys, const ForceField& ff) {
-    return cuda::rank_order<Real, Accum>(list_args<Real, Accum>(g, sys, ff, Request{false, false}), list);
+    gated_forces_by_rank = !lean;
+    return cuda::rank_order<Real, Accum>(list_args<Real, Accum>(g, sys, ff, Request{false, false}), list,
+                                         gated_forces_by_rank);
   }
 
   // Every particle's list partners (user indices, list order), downloaded: the list audit's input.
@@ -825,6 +830,13 @@ cuda::RankOrder GpuEngine::rank_order(const Box& box, std::size_t n, const doubl
     case Precision::kDouble: break;
   }
   return s.rank_order<double, double>(g, system, ff);
+}
+
+void GpuEngine::unrank_forces(std::size_t n) {
+  const DeviceScope scope(options_.device);
+  Impl& s = *impl_;
+  if (!s.gated_forces_by_rank) return;
+  cuda::unrank_forces(s.list, n, stats_.grid.dim, s.forces.data(), s.stream);
 }
 
 void GpuEngine::evaluate_gated(const Box& box, std::size_t n, const double* positions, const uint32_t* types,

@@ -112,9 +112,13 @@ class GpuEngine {
   // Valid until the structure is rebuilt (the gate's chunk).
   cuda::RankOrder rank_order(const Box& box, std::size_t n, const double* positions, const uint32_t* types,
                              const ForceField& ff);
+  // After a chunk whose last gated evaluation ran: its forces, left in rank order (the RankOrder's
+  // `forces`, when not null), into device_forces() in the caller's order.
+  void unrank_forces(std::size_t n);
   // One gated evaluation (forces only, from the pair list), queued; the host does not wait and
   // nothing is counted until settle_gate(). `placed`: the step's drift placed the positions
-  // (rank_order()), so the evaluation does not gather them.
+  // (rank_order()), so the evaluation does not gather them, and it leaves the forces where the
+  // RankOrder says (in rank order, or in device_forces()).
   void evaluate_gated(const Box& box, std::size_t n, const double* positions, const uint32_t* types,
                       const ForceField& ff, const cuda::GateView& gate, bool placed = false);
   // After the host read the gate: `served` gated evaluations ran (the structure served them, the

@@ -275,19 +275,23 @@ struct Placing {
 // The kick-drift of a Verlet step behind the step gate (step_gate.h): the gate (step_gate_shut: the
 // kernel returns with the state as it was), then the kick-drift, then each particle's squared
 // displacement from `built` (the build's positions) into the gate, and its new position into the
-// list's rank order (Placing).
+// list's rank order (Placing). The forces come from `f` in the caller's order, or, after a gated
+// evaluation that left them in rank order (change 51), from `f_ranked` at the particle's rank.
 template <int D>
 __global__ void __launch_bounds__(kGateParticles * 3)
     gated_kick_drift_kernel(double* __restrict__ x, double* __restrict__ v, const double* __restrict__ f,
                             const double* __restrict__ mass, double h, int kicks, double dt, DriftBox box,
                             std::size_t n, MdFlags* flags, const double* __restrict__ built, cuda::GateView gate,
-                            cuda::RankOrder to) {
+                            cuda::RankOrder to, const double* __restrict__ f_ranked) {
   const std::size_t k = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
   const bool in = k < n * std::size_t(D);
   const std::size_t i = k / D;
   const Placing placing(to, n);
   double xa = 0, va = 0, fa = 0, m = 1, then = 0;
-  if (in) xa = x[k], va = v[k], fa = f[k], m = mass[i], then = built[k];
+  if (in) {
+    xa = x[k], va = v[k], m = mass[i], then = built[k];
+    fa = f_ranked ? f_ranked[std::size_t(to.rank[i]) * D + (k - i * D)] : f[k];
+  }
   if (step_gate_shut(gate)) return;
   __shared__ double moved[kGateParticles * D];
   double sq = 0;
@@ -309,12 +313,16 @@ template <int D>
 __global__ void __launch_bounds__(kGateParticles * 3)
     gated_langevin_kick_drift_kernel(double* __restrict__ x, double* __restrict__ v, const double* __restrict__ f,
                                      const double* __restrict__ mass, double h, int kicks, DriftBox box,
-                                     std::size_t n, MdFlags* flags, cuda::GateView gate) {
+                                     std::size_t n, MdFlags* flags, cuda::GateView gate,
+                                     const uint32_t* __restrict__ rank, const double* __restrict__ f_ranked) {
   const std::size_t k = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
   const bool in = k < n * std::size_t(D);
   const std::size_t i = k / D;
   double xa = 0, va = 0, fa = 0, m = 1;
-  if (in) xa = x[k], va = v[k], fa = f[k], m = mass[i];
+  if (in) {
+    xa = x[k], va = v[k], m = mass[i];
+    fa = f_ranked ? f_ranked[std::size_t(rank[i]) * D + (k - i * D)] : f[k];  // as gated_kick_drift_kernel
+  }
   if (step_gate_shut(gate) || !in) return;
   va = kick_value(va, fa, m, h, kicks);
   v[k] = va;
@@ -824,17 +832,18 @@ class CudaMdEngine final : public MdEngine {
     for (int64_t j = 0; j < count; ++j) {
       view.step = first + uint64_t(j);
       const int kicks = j == 0 ? first_kicks : 2;
+      const double* f_ranked = j > 0 ? to.forces : nullptr;  // the last evaluation a gated one (change 51)
       cuda::with_dim(box_.dim, [&](auto dim) {
         constexpr int D = decltype(dim)::value;
         if (!settings.langevin) {
           gated_kick_drift_kernel<D><<<blocks, threads, 0, stream_>>>(
               positions_.data(), velocities_.data(), gpu_.device_forces(), masses_.data(), 0.5 * dt, kicks, dt, box,
-              n_, flags_.data(), built, view, to);
+              n_, flags_.data(), built, view, to, f_ranked);
           CF_CUDA_CHECK_LAUNCH();
         } else {
           gated_langevin_kick_drift_kernel<D><<<blocks, threads, 0, stream_>>>(
               positions_.data(), velocities_.data(), gpu_.device_forces(), masses_.data(), 0.5 * dt, kicks, box, n_,
-              flags_.data(), view);
+              flags_.data(), view, to.rank, f_ranked);
           CF_CUDA_CHECK_LAUNCH();
           gated_thermostat_kernel<<<blocks_for(n_ * box_.dim), kBlock, 0, stream_>>>(
               velocities_.data(), masses_.data(), c1, c2, settings.kT, settings.seed, n_, box_.dim, view);
@@ -867,6 +876,10 @@ class CudaMdEngine final : public MdEngine {
     uint64_t closed = g.closed;
     if (closed == cuda::kGateOpen && g.d2[last % 3] > view.limit) closed = last;  // no later drift closed it
     const int64_t served = closed == cuda::kGateOpen ? count : int64_t(closed - first);
+    // Every step served: the last gated evaluation's forces are the state's, in the caller's order
+    // for whatever comes next. (Where the gate closed, the closed step's kick-drift has read them and
+    // its evaluation writes new ones.)
+    if (served == count && to.forces) gpu_.unrank_forces(n_);
     if (served == 0) {  // the timed evaluation was shut: its slot is reused below, so read it now
       float ms = 0;
       CF_CUDA_CHECK(cudaEventElapsedTime(&ms, force_events_[2 * timed], force_events_[2 * timed + 1]));

@@ -10,6 +10,7 @@
 #include <algorithm>
 #include <cmath>
 
+#include "core/error.h"
 #include "pair_list.cuh"
 #include "step_gate.cuh"
 #include "traversal_impl.cuh"  // Traits, dispatch, warp_sum, flag_bad_pair
@@ -477,7 +478,7 @@ __global__ void __launch_bounds__(kBlock)
                       const Particle* __restrict__ ranked, const uint32_t* __restrict__ length,
                       const unsigned long long* __restrict__ group_chunks, const uint32_t* __restrict__ neighbors,
                       const FixedScales scale, const FixedFold fold, Accum* __restrict__ block_sums,
-                      GateView gate) {
+                      GateView gate, bool by_rank) {
   static_assert(!Folded || (std::is_same_v<Particle, FixedParticle> && !T::kMultiType),
                 "the fold serves fixed-point pairs of one type");
   constexpr int D = T::kDim;
@@ -618,7 +619,7 @@ __global__ void __launch_bounds__(kBlock)
     if constexpr (T::kObservables) ea += __shfl_xor_sync(0xffffffffu, ea, offset);
   }
   if (p < n && part == 0) {
-    const std::size_t i = order[p];
+    const std::size_t i = by_rank ? p : order[p];  // rank order: a gated evaluation's (change 51)
     for (int c = 0; c < D; ++c) args.forces[i * D + c] = double(f[c]);
     if (args.energies) {
       double e = double(ea);
@@ -888,9 +889,15 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
 }
 
 template <class Real, class Accum>
-RankOrder rank_order(const ListArgs<Real, Accum>& args, PairList& list) {
+RankOrder rank_order(const ListArgs<Real, Accum>& args, PairList& list, bool forces_by_rank) {
   RankOrder to;
   to.rank = list.rank.data();
+  if (forces_by_rank) {
+    list.ranked_forces.reserve(std::max<std::size_t>(args.n * std::size_t(args.grid.dim), 1));
+    to.forces = list.ranked_forces.data();
+  } else {
+    list.ranked_forces.release();
+  }
   to.fixed = gathers_fixed(args);
   if (to.fixed) {
     list.ranked.release();
@@ -909,9 +916,16 @@ RankOrder rank_order(const ListArgs<Real, Accum>& args, PairList& list) {
 }
 
 template <class Real, class Accum>
-void list_forces(const Switches& sw, const ListArgs<Real, Accum>& args, PairList& list, cudaStream_t stream,
-                 const GateView& gate, bool gathered) {
-  if (args.n == 0) return;
+void list_forces(const Switches& sw, const ListArgs<Real, Accum>& given, PairList& list, cudaStream_t stream,
+                 const GateView& gate, bool gathered, bool by_rank) {
+  if (given.n == 0) return;
+  if (by_rank && (sw.observables || given.energies))
+    throw Error("internal error: forces in rank order are for evaluations of forces only");
+  ListArgs<Real, Accum> args = given;
+  if (by_rank) {
+    list.ranked_forces.reserve(std::max<std::size_t>(args.n * std::size_t(args.grid.dim), 1));
+    args.forces = list.ranked_forces.data();
+  }
   const unsigned blocks = blocks_for(args.n * std::size_t(list.threads_per_particle));
   list.block_sums.reserve(std::size_t(blocks) * kCellSums * sizeof(Accum));
   Switches s = sw;
@@ -943,7 +957,8 @@ void list_forces(const Switches& sw, const ListArgs<Real, Accum>& args, PairList
             list_force_kernel<T, decltype(split)::value, decltype(folded)::value, Particle, Real, Accum>
                 <<<blocks, kBlock, 0, stream>>>(args, list.order.data(), ranked.data(), list.length.data(),
                                                 list.group_chunks.data(), list.neighbors.data(), scale, fold,
-                                                reinterpret_cast<Accum*>(list.block_sums.data()), gate);
+                                                reinterpret_cast<Accum*>(list.block_sums.data()), gate,
+                                                by_rank);
           };
           if constexpr (std::is_same_v<Particle, FixedParticle> && !T::kMultiType) {
             if (cube) launch(std::true_type{});
@@ -973,13 +988,33 @@ void list_forces(const Switches& sw, const ListArgs<Real, Accum>& args, PairList
   evaluate(list.ranked);
 }
 
+namespace {
+template <int D>
+__global__ void unrank_forces_kernel(const uint32_t* __restrict__ order, const double* __restrict__ ranked,
+                                     std::size_t n, double* __restrict__ forces) {
+  const std::size_t p = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
+  if (p >= n) return;
+  const std::size_t i = order[p];
+  for (int a = 0; a < D; ++a) forces[i * D + a] = ranked[p * D + a];
+}
+}  // namespace
+
+void unrank_forces(const PairList& list, std::size_t n, int dim, double* forces, cudaStream_t stream) {
+  if (n == 0) return;
+  with_dim(dim, [&](auto d) {
+    unrank_forces_kernel<decltype(d)::value>
+        <<<blocks_for(n), kBlock, 0, stream>>>(list.order.data(), list.ranked_forces.data(), n, forces);
+  });
+  CF_CUDA_CHECK_LAUNCH();
+}
+
 #define CF_PAIR_LIST(Real, Accum)                                                                              \
   template bool build_pair_list<Real, Accum>(const TraversalArgs<Real, Accum>&, const uint32_t*, const Control*, \
                                              std::size_t, double, const ListArgs<Real, Accum>&, PairList&,       \
                                              cudaStream_t);                                                      \
   template void list_forces<Real, Accum>(const Switches&, const ListArgs<Real, Accum>&, PairList&, cudaStream_t, \
-                                         const GateView&, bool);                                                \
-  template RankOrder rank_order<Real, Accum>(const ListArgs<Real, Accum>&, PairList&);
+                                         const GateView&, bool, bool);                                          \
+  template RankOrder rank_order<Real, Accum>(const ListArgs<Real, Accum>&, PairList&, bool);
 CF_PAIR_LIST(float, float)
 CF_PAIR_LIST(float, double)
 CF_PAIR_LIST(double, double)

@@ -95,6 +95,7 @@ struct PairList {
                                        // padding up to its group's length is never written)
   DeviceBuffer<RankedParticle> ranked; // n: gathered at every evaluation (double pairs, an open axis)
   DeviceBuffer<FixedParticle> fixed;   // n: gathered at every evaluation (float pairs, all periodic)
+  DeviceBuffer<double> ranked_forces;  // n x dim: the gated evaluations' forces in rank order (RankOrder)
   DeviceBuffer<unsigned long long> sizes;  // 4: the longest list, the sum of the lengths, the words
                                            // every unit's masks would take, the list's chunks (the
                                            // host reads them in one copy)
@@ -122,7 +123,7 @@ struct PairList {
 
   template <class F>
   void for_each_buffer(F&& f) {
-    f(order), f(rank), f(slot_counts), f(length), f(group_chunks), f(neighbors), f(ranked), f(fixed);
+    f(order), f(rank), f(slot_counts), f(length), f(group_chunks), f(neighbors), f(ranked), f(fixed), f(ranked_forces);
     f(sizes), f(selected);
     f(split_counts), f(masks), f(mask_base), f(walk_order), f(walked), f(blocks);
     f(block_sums), f(scratch);
@@ -214,15 +215,21 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
 // count list.blocks holds (for sum_cells). With a gate (step_gate.h) both kernels return at once
 // when it is shut for gate.step; else the force kernel raises the gate's served displacement.
 // With `gathered`, the positions are in the gathered array already (a gated step's drift placed
-// them: rank_order) and the gather is left out.
+// them: rank_order) and the gather is left out. With `by_rank` (forces only), the forces go to
+// list.ranked_forces in rank order (rank p's at p * dim) instead of args.forces in user order: the
+// force kernel's stores coalesced whatever the caller's numbering (change 51).
 template <class Real, class Accum>
 void list_forces(const Switches& sw, const ListArgs<Real, Accum>& args, PairList& list, cudaStream_t stream,
-                 const GateView& gate = {}, bool gathered = false);
+                 const GateView& gate = {}, bool gathered = false, bool by_rank = false);
 
 // Where the evaluations of the list in use read the positions in rank order (the array list_forces
 // gathers into for these args, reserved; the other one released), for a gated step's drift to
-// place them (RankOrder).
+// place them (RankOrder), and with `forces_by_rank` where they leave the forces in rank order
+// (list.ranked_forces, reserved; else released).
 template <class Real, class Accum>
-RankOrder rank_order(const ListArgs<Real, Accum>& args, PairList& list);
+RankOrder rank_order(const ListArgs<Real, Accum>& args, PairList& list, bool forces_by_rank);
+
+// list.ranked_forces (n x dim, rank order) into `forces` (user order).
+void unrank_forces(const PairList& list, std::size_t n, int dim, double* forces, cudaStream_t stream);
 
 }  // namespace cellforce::cuda
