@@ -277,7 +277,10 @@ struct Placing {
 // displacement from `built` (the build's positions) into the gate, and its new position into the
 // list's rank order (Placing). The forces come from `f` in the caller's order, or, after a gated
 // evaluation that left them in rank order (change 51), from `f_ranked` at the particle's rank.
-template <int D>
+// GateFirst (change 52: a step queued past the expected rebuild, which the gate most likely shuts):
+// the gate is read before the loads, so that a shut step costs its read, not the state's (~50 us
+// at 1M particles); the other steps load first (change 28).
+template <int D, bool GateFirst>
 __global__ void __launch_bounds__(kGateParticles * 3)
     gated_kick_drift_kernel(double* __restrict__ x, double* __restrict__ v, const double* __restrict__ f,
                             const double* __restrict__ mass, double h, int kicks, double dt, DriftBox box,
@@ -286,13 +289,18 @@ __global__ void __launch_bounds__(kGateParticles * 3)
   const std::size_t k = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
   const bool in = k < n * std::size_t(D);
   const std::size_t i = k / D;
+  if constexpr (GateFirst) {
+    if (step_gate_shut(gate)) return;
+  }
   const Placing placing(to, n);
   double xa = 0, va = 0, fa = 0, m = 1, then = 0;
   if (in) {
     xa = x[k], va = v[k], m = mass[i], then = built[k];
     fa = f_ranked ? f_ranked[std::size_t(to.rank[i]) * D + (k - i * D)] : f[k];
   }
-  if (step_gate_shut(gate)) return;
+  if constexpr (!GateFirst) {
+    if (step_gate_shut(gate)) return;
+  }
   __shared__ double moved[kGateParticles * D];
   double sq = 0;
   if (in) {
@@ -309,7 +317,7 @@ __global__ void __launch_bounds__(kGateParticles * 3)
 // opening one, rounded one after the other as kick_kernel would) and the first half drift; (2) the
 // thermostat (gated_thermostat_kernel); (3) the second half drift with the wrap, and the displacement
 // into the gate. The same arithmetic, kernel for kernel, as the ungated step.
-template <int D>
+template <int D, bool GateFirst>
 __global__ void __launch_bounds__(kGateParticles * 3)
     gated_langevin_kick_drift_kernel(double* __restrict__ x, double* __restrict__ v, const double* __restrict__ f,
                                      const double* __restrict__ mass, double h, int kicks, DriftBox box,
@@ -318,12 +326,18 @@ __global__ void __launch_bounds__(kGateParticles * 3)
   const std::size_t k = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
   const bool in = k < n * std::size_t(D);
   const std::size_t i = k / D;
+  if constexpr (GateFirst) {  // as gated_kick_drift_kernel
+    if (step_gate_shut(gate)) return;
+  }
   double xa = 0, va = 0, fa = 0, m = 1;
   if (in) {
     xa = x[k], va = v[k], m = mass[i];
     fa = f_ranked ? f_ranked[std::size_t(rank[i]) * D + (k - i * D)] : f[k];  // as gated_kick_drift_kernel
   }
-  if (step_gate_shut(gate) || !in) return;
+  if constexpr (!GateFirst) {
+    if (step_gate_shut(gate)) return;
+  }
+  if (!in) return;
   va = kick_value(va, fa, m, h, kicks);
   v[k] = va;
   bool bad;
@@ -799,8 +813,9 @@ class CudaMdEngine final : public MdEngine {
   // How many of the next `most` steps to queue behind the gate: 0 when the force engine cannot
   // serve them from its list, else enough to reach the next rebuild if it comes as far after this
   // build as the last one did (interval_), and one more, so that few queued steps find the gate
-  // shut: a shut step still costs its kernels' loads (~60 us at 1M). Change 48: one step past the
-  // expected rebuild and at least 2 (two and at least 4 before: ~3.4 shut steps a build at 1M).
+  // shut: a shut step still costs its kernels' loads (~60 us at 1M), except the last, the one past
+  // the expected rebuild, whose kick-drift reads the gate first (change 52). Change 48: one step past
+  // the expected rebuild and at least 2 (two and at least 4 before: ~3.4 shut steps a build at 1M).
   // A chunk that ends before the gate closes costs one more read of the gate.
   int64_t gate_chunk(int64_t most) const {
     const int64_t allowed = std::min(most, gpu_.gate_steps(box_, n_, ff_));
@@ -833,17 +848,26 @@ class CudaMdEngine final : public MdEngine {
       view.step = first + uint64_t(j);
       const int kicks = j == 0 ? first_kicks : 2;
       const double* f_ranked = j > 0 ? to.forces : nullptr;  // the last evaluation a gated one (change 51)
+      const bool past_expected = count >= 2 && j == count - 1;  // the overshoot step: gate first (change 52)
       cuda::with_dim(box_.dim, [&](auto dim) {
         constexpr int D = decltype(dim)::value;
         if (!settings.langevin) {
-          gated_kick_drift_kernel<D><<<blocks, threads, 0, stream_>>>(
-              positions_.data(), velocities_.data(), gpu_.device_forces(), masses_.data(), 0.5 * dt, kicks, dt, box,
-              n_, flags_.data(), built, view, to, f_ranked);
+          auto kick_drift = [&](auto gate_first) {
+            gated_kick_drift_kernel<D, decltype(gate_first)::value><<<blocks, threads, 0, stream_>>>(
+                positions_.data(), velocities_.data(), gpu_.device_forces(), masses_.data(), 0.5 * dt, kicks, dt,
+                box, n_, flags_.data(), built, view, to, f_ranked);
+          };
+          if (past_expected) kick_drift(std::true_type{});
+          else kick_drift(std::false_type{});
           CF_CUDA_CHECK_LAUNCH();
         } else {
-          gated_langevin_kick_drift_kernel<D><<<blocks, threads, 0, stream_>>>(
-              positions_.data(), velocities_.data(), gpu_.device_forces(), masses_.data(), 0.5 * dt, kicks, box, n_,
-              flags_.data(), view, to.rank, f_ranked);
+          auto kick_drift = [&](auto gate_first) {
+            gated_langevin_kick_drift_kernel<D, decltype(gate_first)::value><<<blocks, threads, 0, stream_>>>(
+                positions_.data(), velocities_.data(), gpu_.device_forces(), masses_.data(), 0.5 * dt, kicks, box,
+                n_, flags_.data(), view, to.rank, f_ranked);
+          };
+          if (past_expected) kick_drift(std::true_type{});
+          else kick_drift(std::false_type{});
           CF_CUDA_CHECK_LAUNCH();
           gated_thermostat_kernel<<<blocks_for(n_ * box_.dim), kBlock, 0, stream_>>>(
               velocities_.data(), masses_.data(), c1, c2, settings.kT, settings.seed, n_, box_.dim, view);
