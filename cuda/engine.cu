@@ -310,16 +310,18 @@ struct GpuEngine::Impl {
     ++builds;
     lean = false;
     if (lists(o, sys.box, ff.cutoff)) {
-      // Lean when the fast layout's buffers (about 1,300 bytes per particle with a 0.6 skin: a
-      // staged array, the sort's arrays and the list side by side) would not fit in 90% of the
+      // Lean when the fast layout's buffers (about 1,350 bytes per particle with a 0.6 skin: a
+      // staged array, the sort's arrays, the list and the gated evaluations' forces in rank order
+      // side by side; 1,339-1,353 measured on the H100 at 1ce0be8) would not fit in 90% of the
       // device: a rule of the system and the device, and the results do not depend on it.
       if (device_bytes == 0) {  // asked once: cudaMemGetInfo at every build held the device idle ~8 us
         std::size_t free_bytes = 0;
         CF_CUDA_CHECK(cudaMemGetInfo(&free_bytes, &device_bytes));
       }
-      lean = o.lean_lists ? *o.lean_lists : double(n) * 1300.0 > 0.9 * double(device_bytes);
+      lean = o.lean_lists ? *o.lean_lists : double(n) * 1350.0 > 0.9 * double(device_bytes);
       if (lean) {
         list.neighbors.release();  // the new build makes a new list: the old one is dead
+        list.ranked_forces.release();  // lean gated evaluations store in the caller's order
         list.masks.release();      // lean builds keep no masks
         list.mask_base.release();
         staged.release();
@@ -417,6 +419,7 @@ struct GpuEngine::Impl {
     list_usable = cuda::build_pair_list<Real, Accum>(cell_args, sorted_keys.data(), control.data(), entries,
                                                      ff.cutoff + o.reuse.skin, la, list, stream);
     if (lean) collision.flags.release();
+    if (!list_usable) list.ranked_forces.release();  // no gated evaluations: the cells serve
     list_built_for = builds;
   }
 
@@ -840,7 +843,7 @@ void GpuEngine::unrank_forces(std::size_t n) {
 }
 
 void GpuEngine::evaluate_gated(const Box& box, std::size_t n, const double* positions, const uint32_t* types,
-                               const ForceField& ff, const cuda::GateView& gate, bool placed) {
+                               const ForceField& ff, const cuda::GateView& gate) {
   const DeviceScope scope(options_.device);
   Impl& s = *impl_;
   const SystemView system{box, n, nullptr, nullptr};
@@ -848,9 +851,9 @@ void GpuEngine::evaluate_gated(const Box& box, std::size_t n, const double* posi
   const Grid& g = stats_.grid;
   const Request forces_only{false, false};
   switch (options_.precision) {
-    case Precision::kSingle: s.list_forces<float, float>(g, system, ff, forces_only, gate, placed); break;
-    case Precision::kMixed: s.list_forces<float, double>(g, system, ff, forces_only, gate, placed); break;
-    case Precision::kDouble: s.list_forces<double, double>(g, system, ff, forces_only, gate, placed); break;
+    case Precision::kSingle: s.list_forces<float, float>(g, system, ff, forces_only, gate, true); break;
+    case Precision::kMixed: s.list_forces<float, double>(g, system, ff, forces_only, gate, true); break;
+    case Precision::kDouble: s.list_forces<double, double>(g, system, ff, forces_only, gate, true); break;
   }
 }
 

@@ -116,11 +116,11 @@ class GpuEngine {
   // `forces`, when not null), into device_forces() in the caller's order.
   void unrank_forces(std::size_t n);
   // One gated evaluation (forces only, from the pair list), queued; the host does not wait and
-  // nothing is counted until settle_gate(). `placed`: the step's drift placed the positions
-  // (rank_order()), so the evaluation does not gather them, and it leaves the forces where the
-  // RankOrder says (in rank order, or in device_forces()).
+  // nothing is counted until settle_gate(). The step's drift placed the positions (rank_order()),
+  // so the evaluation does not gather them, and it leaves the forces where the RankOrder says (in
+  // rank order, or in device_forces() when the build is lean).
   void evaluate_gated(const Box& box, std::size_t n, const double* positions, const uint32_t* types,
-                      const ForceField& ff, const cuda::GateView& gate, bool placed = false);
+                      const ForceField& ff, const cuda::GateView& gate);
   // After the host read the gate: `served` gated evaluations ran (the structure served them, the
   // largest squared displacement among them `served_d2`). stats() then reads as after a reused
   // evaluation.

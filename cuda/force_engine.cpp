@@ -14,6 +14,7 @@ GpuOptions options(const EngineChoice& choice) {
   o.reuse = choice.reuse;
   o.device = choice.device;
   o.grid_override = choice.grid_override;
+  o.lean_lists = choice.lean_lists;
   return o;
 }
 

@@ -126,7 +126,7 @@ __device__ __forceinline__ void flag_diverged(bool bad, std::size_t i, MdFlags* 
 }
 
 // A gated step's last drift of coordinate k (particle i, on `axis`) from xa by h va, wrapped,
-// stored (also into `moved`, for place_block) and checked. Returns its term of the particle's
+// stored (also into `moved`, for Placing::place) and checked. Returns its term of the particle's
 // squared displacement from `then` (the build's position), for the gate.
 __device__ __forceinline__ double last_drift(double* __restrict__ x, std::size_t k, std::size_t i, double xa,
                                              double va, double h, const DriftAxis& axis, double then,
@@ -243,7 +243,8 @@ __device__ __forceinline__ void raise_displacement(double sq, int dim, std::size
 
 // What a gated step's last drift kernel places in the list's rank order (change 49): the thread
 // for particle `own` of the block (threads below kGateParticles) loads its rank and type with the
-// other loads, before the gate; after raise_displacement's barriers it reads the particle's new
+// other loads (before the gate, but for change 52's GateFirst); after raise_displacement's barriers
+// it reads the particle's new
 // coordinates from `moved` (coordinate thread c's at moved[c]) and writes its entry of the gathered
 // array as the evaluation's gather would (cuda::place_ranked), so the evaluation has no gather
 // kernel (a launch and a read of the positions a step: 22 us at 1M particles on an H100).
@@ -315,8 +316,10 @@ __global__ void __launch_bounds__(kGateParticles * 3)
 // A Langevin (BAOAB) step behind the step gate, in three kernels around the thermostat: (1) the gate
 // (step_gate_shut), `kicks` half kicks (the previous step's closing one, deferred, and this step's
 // opening one, rounded one after the other as kick_kernel would) and the first half drift; (2) the
-// thermostat (gated_thermostat_kernel); (3) the second half drift with the wrap, and the displacement
-// into the gate. The same arithmetic, kernel for kernel, as the ungated step.
+// thermostat (gated_thermostat_kernel); (3) the second half drift with the wrap, the displacement
+// into the gate and the new positions into the list's rank order (Placing). The same arithmetic,
+// kernel for kernel, as the ungated step. (1) reads the forces as gated_kick_drift_kernel does (by
+// rank after a gated evaluation, change 51) and takes its GateFirst.
 template <int D, bool GateFirst>
 __global__ void __launch_bounds__(kGateParticles * 3)
     gated_langevin_kick_drift_kernel(double* __restrict__ x, double* __restrict__ v, const double* __restrict__ f,
@@ -722,8 +725,8 @@ class CudaMdEngine final : public MdEngine {
       for (int64_t k = 0; k < steps;) {
         const bool last = k + 1 == steps;
         if (!last) {
-          const int64_t chunk = gate_chunk(steps - 1 - k);
-          if (chunk > 0) {
+          const GateChunk chunk = gate_chunk(steps - 1 - k);
+          if (chunk.count > 0) {
             k += run_gated(chunk, k == 0 ? 1 : 2, settings, timed);
             continue;
           }
@@ -816,19 +819,27 @@ class CudaMdEngine final : public MdEngine {
   // shut: a shut step still costs its kernels' loads (~60 us at 1M), except the last, the one past
   // the expected rebuild, whose kick-drift reads the gate first (change 52). Change 48: one step past
   // the expected rebuild and at least 2 (two and at least 4 before: ~3.4 shut steps a build at 1M).
-  // A chunk that ends before the gate closes costs one more read of the gate.
-  int64_t gate_chunk(int64_t most) const {
+  // A chunk that ends before the gate closes costs one more read of the gate. `overshoot`: the
+  // chunk's length is the expected one (not cut short by the run's end, `every` or the gate's own
+  // bound), so its last step is the one past the expected rebuild.
+  struct GateChunk {
+    int64_t count = 0;
+    bool overshoot = false;
+  };
+  GateChunk gate_chunk(int64_t most) const {
     const int64_t allowed = std::min(most, gpu_.gate_steps(box_, n_, ff_));
-    if (allowed <= 0) return 0;
+    if (allowed <= 0) return {};
     const int64_t expected = std::clamp<int64_t>(interval_ + 1 - since_build_, 2, kMaxGated);
-    return std::min(allowed, expected);
+    return {std::min(allowed, expected), expected <= allowed};
   }
 
   // `count` steps behind the step gate (step_gate.h), then one read of the gate. Steps the structure
   // served are done; at the step where the gate closed (its drifts done, its evaluation not run),
   // the ordinary evaluation rebuilds and that step is done too. Returns the steps done. Verlet: one
   // gated kick-drift a step; Langevin: the gated kick and half drift, thermostat, half drift.
-  int64_t run_gated(int64_t count, int first_kicks, const IntegratorSettings& settings, std::size_t& timed) {
+  int64_t run_gated(const GateChunk& chunk, int first_kicks, const IntegratorSettings& settings,
+                    std::size_t& timed) {
+    const int64_t count = chunk.count;
     const double dt = settings.dt;
     resume();
     observed_ = false;  // the state moves on: thermo() must evaluate again unless a later step observes
@@ -848,7 +859,7 @@ class CudaMdEngine final : public MdEngine {
       view.step = first + uint64_t(j);
       const int kicks = j == 0 ? first_kicks : 2;
       const double* f_ranked = j > 0 ? to.forces : nullptr;  // the last evaluation a gated one (change 51)
-      const bool past_expected = count >= 2 && j == count - 1;  // the overshoot step: gate first (change 52)
+      const bool past_expected = chunk.overshoot && j == count - 1;  // gate first (change 52)
       cuda::with_dim(box_.dim, [&](auto dim) {
         constexpr int D = decltype(dim)::value;
         if (!settings.langevin) {
@@ -887,9 +898,9 @@ class CudaMdEngine final : public MdEngine {
       // forces and 3.8 of integration a step against a ~4 us kick-drift kernel).
       if (j == 0) {
         std::size_t slot = timed;  // counted below, for every step served
-        timed_evaluation(slot, [&] { gpu_.evaluate_gated(box_, n_, positions_.data(), types, ff_, view, true); });
+        timed_evaluation(slot, [&] { gpu_.evaluate_gated(box_, n_, positions_.data(), types, ff_, view); });
       } else {
-        gpu_.evaluate_gated(box_, n_, positions_.data(), types, ff_, view, true);
+        gpu_.evaluate_gated(box_, n_, positions_.data(), types, ff_, view);
       }
     }
     cuda::StepGate g{};
@@ -903,7 +914,10 @@ class CudaMdEngine final : public MdEngine {
     // Every step served: the last gated evaluation's forces are the state's, in the caller's order
     // for whatever comes next. (Where the gate closed, the closed step's kick-drift has read them and
     // its evaluation writes new ones.)
-    if (served == count && to.forces) gpu_.unrank_forces(n_);
+    if (served == count && to.forces) {
+      resume();  // integration's time, as the kicks
+      gpu_.unrank_forces(n_);
+    }
     if (served == 0) {  // the timed evaluation was shut: its slot is reused below, so read it now
       float ms = 0;
       CF_CUDA_CHECK(cudaEventElapsedTime(&ms, force_events_[2 * timed], force_events_[2 * timed + 1]));

@@ -93,8 +93,9 @@ struct PairList {
                                                  // kGroup ranks (an exclusive sum of their lengths)
   DeviceBuffer<uint32_t> neighbors;    // slots: the rank of p's k-th partner at list_entry (a list's
                                        // padding up to its group's length is never written)
-  DeviceBuffer<RankedParticle> ranked; // n: gathered at every evaluation (double pairs, an open axis)
-  DeviceBuffer<FixedParticle> fixed;   // n: gathered at every evaluation (float pairs, all periodic)
+  DeviceBuffer<RankedParticle> ranked; // n: gathered at every evaluation, placed by a gated step's
+                                       // drift (double pairs, an open axis)
+  DeviceBuffer<FixedParticle> fixed;   // n: the same (float pairs, all periodic)
   DeviceBuffer<double> ranked_forces;  // n x dim: the gated evaluations' forces in rank order (RankOrder)
   DeviceBuffer<unsigned long long> sizes;  // 4: the longest list, the sum of the lengths, the words
                                            // every unit's masks would take, the list's chunks (the
@@ -212,7 +213,7 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
 // Gathers the positions into rank order (FixedParticle for float pairs where fixed_point_serves,
 // else RankedParticle) and evaluates every listed pair with r < rc: forces (and
 // energies) to the user-order outputs, energy and virial per block into list.block_sums, whose
-// count list.blocks holds (for sum_cells). With a gate (step_gate.h) both kernels return at once
+// count list.blocks holds (for sum_cells). With a gate (step_gate.h) the kernels return at once
 // when it is shut for gate.step; else the force kernel raises the gate's served displacement.
 // With `gathered`, the positions are in the gathered array already (a gated step's drift placed
 // them: rank_order) and the gather is left out. With `by_rank` (forces only), the forces go to

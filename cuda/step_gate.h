@@ -6,8 +6,9 @@
 // the largest squared displacement since the build (the arithmetic of the engines' own check, so
 // the same number) into the gate. The step's list kernels run only while it is within (skin / 2)^2;
 // the next step's first kernel finds a step past it and closes the gate at that step, and from then
-// on every queued kernel of the chunk returns at once: positions, velocities and forces stay as they
-// were after the closed step's drifts. The host reads
+// on every queued kernel of the chunk returns at once: positions and velocities stay as they were
+// after the closed step's drifts (the forces of the last evaluation that ran are in rank order,
+// cuda/rank_order.h, until the closed step's evaluation writes new ones in the caller's order). The host reads
 // the gate once per chunk of steps and resumes at the closed step with an ordinary evaluation,
 // which rebuilds. Plain C++: engine.h includes it.
 #pragma once

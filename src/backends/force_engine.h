@@ -33,6 +33,7 @@ struct EngineChoice {
   ReuseOptions reuse;                                     // skin (or automatic), check, every, audit, list
   int device = 0;                                         // CUDA device ordinal
   std::optional<Grid> grid_override;                      // tests only: this grid, unchecked
+  std::optional<bool> lean_lists;                         // tests only (CUDA): the lists' lean memory mode on or off
 };
 
 class ForceEngine {

@@ -38,32 +38,38 @@ int fcc_cells_for(double n) {
   return c;
 }
 
-// The same particles (positions, velocities, types) numbered anew: particle i becomes the one
-// that was from[i].
+// The same particles (positions, velocities, types) numbered anew: particle i becomes the one that
+// was from[i]. One array at a time through one scratch vector (the state's size over again would
+// be ~5 GB at 100M particles). The forces are not set yet (they would need the same).
 void renumber(MdState& state, const std::vector<std::size_t>& from) {
+  if (!state.forces.empty()) throw Error("internal error: renumber() before the forces are set");
   const std::size_t n = state.config.size(), dim = std::size_t(state.config.box.dim);
-  const MdState before = state;
-  for (std::size_t i = 0; i < n; ++i) {
-    state.config.types[i] = before.config.types[from[i]];
-    for (std::size_t a = 0; a < dim; ++a) {
-      state.config.positions[i * dim + a] = before.config.positions[from[i] * dim + a];
-      state.velocities[i * dim + a] = before.velocities[from[i] * dim + a];
-    }
+  std::vector<double> scratch(n * dim);
+  for (std::vector<double>* a : {&state.config.positions, &state.velocities}) {
+    for (std::size_t i = 0; i < n; ++i)
+      for (std::size_t c = 0; c < dim; ++c) scratch[i * dim + c] = (*a)[from[i] * dim + c];
+    a->swap(scratch);
   }
+  std::vector<uint32_t> types(n);
+  for (std::size_t i = 0; i < n; ++i) types[i] = state.config.types[from[i]];
+  state.config.types.swap(types);
 }
 
 // --order shuffled: a Fisher-Yates shuffle driven by std::mt19937_64 (fully specified: the same
-// order everywhere). --order cells: by home cell on the grid planned for rc + skin (the engine's
-// for the tight rule and its skin), the lattice's order kept inside a cell.
-void apply_order(MdState& state, const std::string& order, uint64_t seed, double cutoff, double skin) {
+// order everywhere). --order cells: by home cell on the grid planned for rc + skin with the
+// engine's cell rule, the lattice's order kept inside a cell.
+void apply_numbering(MdState& state, Numbering order, uint64_t seed, double cutoff, double skin, CellRule rule) {
+  if (order == Numbering::kLattice) return;
   const std::size_t n = state.config.size();
   std::vector<std::size_t> from(n);
   for (std::size_t i = 0; i < n; ++i) from[i] = i;
-  if (order == "shuffled") {
+  if (order == Numbering::kShuffled) {
     std::mt19937_64 rng(seed ^ 0x73687566666c65ull);
     for (std::size_t i = n; i > 1; --i) std::swap(from[i - 1], from[std::size_t(rng() % i)]);
-  } else if (order == "cells") {
-    const Grid g = plan_grid(state.config.box, cutoff, state.config.positions.data(), n, GridOptions{}, skin);
+  } else {
+    GridOptions options;
+    options.rule = rule;
+    const Grid g = plan_grid(state.config.box, cutoff, state.config.positions.data(), n, options, skin);
     std::vector<uint32_t> home(n);
     for (std::size_t i = 0; i < n; ++i) {
       double x[kMaxDim] = {0, 0, 0};
@@ -73,10 +79,14 @@ void apply_order(MdState& state, const std::string& order, uint64_t seed, double
       home[i] = ids[0];
     }
     std::stable_sort(from.begin(), from.end(), [&](std::size_t a, std::size_t b) { return home[a] < home[b]; });
-  } else {
-    return;  // lattice
   }
   renumber(state, from);
+}
+
+std::string numbering_name(Numbering order) {
+  for (const auto& [name, value] : kNumberings)
+    if (value == order) return name;
+  return "?";
 }
 
 // Least-squares slope of y against x.
@@ -150,8 +160,8 @@ SizeResult bench_size(const BenchArgs& args, const EngineChoice& engine, int cel
     const std::vector<double> masses(n, scene.masses[0]);
     initialize_velocities(state, masses, scene.initial_temperature, scene.seed, !args.langevin);
     const double skin = engine.reuse.automatic ? kAutoSkinPerCutoff * scene.force_field.cutoff : engine.reuse.skin;
-    apply_order(state, args.order, scene.seed, scene.force_field.cutoff, skin);
-    row["order"] = args.order;
+    apply_numbering(state, args.order, scene.seed, scene.force_field.cutoff, skin, engine.rule);
+    row["order"] = numbering_name(args.order);
     std::vector<double> final_positions(n * dim), final_forces(n * dim);
     {
       Context ctx = make_context(state.config.box, scene.force_field, engine);

@@ -8,6 +8,7 @@
 #pragma once
 
 #include <cstdint>
+#include <map>
 #include <string>
 #include <vector>
 
@@ -15,6 +16,14 @@
 #include "core/force_field.h"       // CutoffMode
 
 namespace cellforce {
+
+// How the particles are numbered (--order): the fcc's order (in.lj's); cell by cell on the grid of
+// rc + skin, the lattice's order inside a cell (the order a list build's ranks give); or a seeded
+// random order (what diffusion leaves after a long run, where an engine that keeps the caller's
+// order finds no locality in it).
+enum class Numbering { kLattice, kCells, kShuffled };
+inline const std::map<std::string, Numbering> kNumberings = {
+    {"lattice", Numbering::kLattice}, {"cells", Numbering::kCells}, {"shuffled", Numbering::kShuffled}};
 
 struct BenchArgs {
   BenchArgs() { engine.reuse.automatic = true; }  // skin auto, as a scene without [neighbor]
@@ -36,11 +45,7 @@ struct BenchArgs {
                                   // step's positions and forces (n x 3 little-endian doubles) per
                                   // size, PREFIX gaining "-<n>"
   std::string label;              // the rows' "configuration" (default: "default" or "chapter")
-  std::string order = "lattice";  // how the particles are numbered: "lattice" (the fcc's order),
-                                  // "shuffled" (seeded random: the order diffusion leaves after a long
-                                  // run, where an engine that keeps the caller's order finds no
-                                  // locality) or "cells" (cell by cell on the grid of rc + skin, the
-                                  // lattice's order inside a cell: the order a list build's ranks give)
+  Numbering order = Numbering::kLattice;  // how the particles are numbered (the rows' "order")
 };
 
 // Returns the exit code: 0 when every size ran, 1 when one failed (its row says why).

@@ -327,8 +327,8 @@ int main(int argc, char** argv) {
                    "How the particles are numbered: lattice (the fcc's order), shuffled (seeded random: the order a "
                    "long run's diffusion leaves) or cells (cell by cell on the grid of rc + skin: the order of a "
                    "list build's ranks)")
-      ->check(CLI::IsMember({"lattice", "shuffled", "cells"}))
-      ->capture_default_str();
+      ->transform(one_of(kNumberings))
+      ->default_str("lattice");
   bench_cmd->add_option("--label", ba.label, "The rows' configuration name (default: default, or chapter)");
   bench_cmd->add_option("--save-final", ba.save_final,
                         "Write PREFIX-<n>.positions.f64 and PREFIX-<n>.forces.f64: the last step's positions and "
