@@ -155,25 +155,28 @@ struct ListStaging {
   const Control* control = nullptr;       // n: stage 1's control bits
 };
 
-// A non-finite coordinate is flagged as the device input check does (the particle and axis named
-// at the next check of the flags): a pair with it has a NaN r^2, which fails every cutoff test,
-// so the force kernel would drop its pairs without a word, and it has no fixed-point value.
+// Particle i's position v wrapped into the box on periodic axes, into x. A non-finite coordinate
+// is flagged as the device input check does (the particle and axis named at the next check of the
+// flags): a pair with it has a NaN r^2, which fails every cutoff test, so the force kernel would
+// drop its pairs without a word, and it has no fixed-point value.
 template <int D>
-__device__ __forceinline__ void flag_non_finite(const double x[3], std::size_t i, DeviceFlags* flags) {
-  for (int a = 0; a < D; ++a)
+__device__ __forceinline__ void wrap_and_check(const Grid& g, const double v[3], std::size_t i, DeviceFlags* flags,
+                                               double x[3]) {
+  for (int a = 0; a < D; ++a) {
+    x[a] = g.inv_length[a] != 0.0 ? wrap_coordinate(v[a], g.length[a]) : v[a];
     if (!isfinite(x[a])) atomicMin(&flags->bad_coordinate, static_cast<unsigned long long>(i) << 32 | unsigned(a));
+  }
 }
 
-// Particle i (position v, type t) as rank p's entry of the gathered array: wrapped into the box on
-// periodic axes, then stored in double (RankedParticle) or fixed point (FixedParticle, every axis
-// periodic: fixed_point_serves). The one arithmetic of the gather and of a gated drift's placing.
+// Particle i (position v, type t) as rank p's entry of the gathered array: wrapped and checked
+// (wrap_and_check), then stored in double (RankedParticle) or fixed point (FixedParticle, every
+// axis periodic: fixed_point_serves). The one arithmetic of the gather and of a gated drift's placing.
 template <int D>
 __device__ __forceinline__ void store_ranked(RankedParticle* __restrict__ ranked, std::size_t p, const Grid& g,
                                              const double v[3], uint32_t t, uint32_t num_types, std::size_t i,
                                              DeviceFlags* flags) {
   double x[3] = {0, 0, 0};
-  for (int a = 0; a < D; ++a) x[a] = g.inv_length[a] != 0.0 ? wrap_coordinate(v[a], g.length[a]) : v[a];
-  flag_non_finite<D>(x, i, flags);
+  wrap_and_check<D>(g, v, i, flags, x);
   ranked[p] = RankedParticle{x[0], x[1], x[2], t < num_types ? t : 0u, 0u};
 }
 template <int D>
@@ -181,8 +184,7 @@ __device__ __forceinline__ void store_ranked(FixedParticle* __restrict__ ranked,
                                              const double v[3], uint32_t t, uint32_t num_types, std::size_t i,
                                              DeviceFlags* flags) {
   double x[3] = {0, 0, 0};
-  for (int a = 0; a < D; ++a) x[a] = g.inv_length[a] != 0.0 ? wrap_coordinate(v[a], g.length[a]) : v[a];
-  flag_non_finite<D>(x, i, flags);
+  wrap_and_check<D>(g, v, i, flags, x);
   uint32_t u[3] = {0, 0, 0};
   for (int a = 0; a < D; ++a) u[a] = fixed_coordinate(x[a], g.inv_length[a]);
   ranked[p] = FixedParticle{u[0], u[1], u[2], t < num_types ? t : 0u};
