@@ -326,9 +326,18 @@ __global__ void __launch_bounds__(kBlock)
           keep[b] = tile < c1 && row_ok ? my_words[(tile - c0) + uint32_t(lane)] : 0u;
           id[b] = own < c1 ? ids[own] : ~0u;
         }
+        // Only the columns some row keeps load their rank (change 53): the rank is a dependent
+        // gather by particle index, and a cell's far column tiles pair with none of a row tile.
+        uint32_t wanted[kFillBatch], any = 0;
+#pragma unroll
+        for (uint32_t b = 0; b < kFillBatch; ++b) {
+          wanted[b] = __reduce_or_sync(0xffffffffu, keep[b]);
+          any |= wanted[b];
+        }
+        if (!any) continue;  // the whole warp: no row keeps a column of the batch
 #pragma unroll
         for (uint32_t b = 0; b < kFillBatch; ++b)
-          if (id[b] != ~0u) ranks[32u * b + uint32_t(lane)] = rank[id[b]];
+          if (id[b] != ~0u && (wanted[b] >> lane & 1u)) ranks[32u * b + uint32_t(lane)] = rank[id[b]];
         __syncwarp();
 #pragma unroll
         for (uint32_t b = 0; b < kFillBatch; ++b) {
