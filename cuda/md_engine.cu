@@ -244,10 +244,10 @@ __device__ __forceinline__ void raise_displacement(double sq, int dim, std::size
 // What a gated step's last drift kernel places in the list's rank order (change 49): the thread
 // for particle `own` of the block (threads below kGateParticles) loads its rank and type with the
 // other loads (before the gate, but for change 52's GateFirst); after raise_displacement's barriers
-// it reads the particle's new
-// coordinates from `moved` (coordinate thread c's at moved[c]) and writes its entry of the gathered
-// array as the evaluation's gather would (cuda::place_ranked), so the evaluation has no gather
-// kernel (a launch and a read of the positions a step: 22 us at 1M particles on an H100).
+// it reads the particle's new coordinates from `moved` (coordinate thread c's at moved[c]) and
+// writes its entry of the gathered array as the evaluation's gather would (cuda::place_ranked), so
+// the evaluation has no gather kernel (a launch and a read of the positions a step: 22 us at 1M
+// particles on an H100).
 struct Placing {
   std::size_t own = 0;
   bool places = false;
