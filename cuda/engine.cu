@@ -285,7 +285,6 @@ struct GpuEngine::Impl {
 
   cudaEvent_t joined = nullptr, finished = nullptr;  // the caller's stream <-> the engine's
   std::size_t device_bytes = 0;  // the device's memory (cudaMemGetInfo's total), once asked
-  bool gated_forces_by_rank = false;  // the last rank_order(): gated evaluations leave forces in rank order
 
   // Stages 1-3 on the uploaded positions: cell IDs, count, sort, collision cells (split by type
   // for Gauss-Seidel). With a skin, keeps the build's positions (and, for the audit, its keys).
@@ -444,14 +443,14 @@ struct GpuEngine::Impl {
   // step gate's evaluations, GpuEngine::evaluate_gated). Returns whether energy and virial were asked.
   template <class Real, class Accum>
   bool list_forces(const Grid& g, const SystemView& sys, const ForceField& ff, const Request& req,
-                   const cuda::GateView& gate, bool placed = false) {
+                   const cuda::GateView& gate) {
     const cuda::ListArgs<Real, Accum> la = list_args<Real, Accum>(g, sys, ff, req);
     cuda::Switches sw;
     sw.dim = g.dim;
     sw.multi_type = ff.num_types() > 1;
     sw.mode = ff.mode;
     sw.observables = req.energy || req.virial;
-    cuda::list_forces<Real, Accum>(sw, la, list, stream, gate, placed, placed && gated_forces_by_rank);
+    cuda::list_forces<Real, Accum>(sw, la, list, stream, gate, gate.gate && !lean);  // rank_order()'s rule
     return sw.observables;
   }
 
@@ -460,9 +459,7 @@ struct GpuEngine::Impl {
   // more) (GpuEngine::rank_order).
   template <class Real, class Accum>
   cuda::RankOrder rank_order(const Grid& g, const SystemView& sys, const ForceField& ff) {
-    gated_forces_by_rank = !lean;
-    return cuda::rank_order<Real, Accum>(list_args<Real, Accum>(g, sys, ff, Request{false, false}), list,
-                                         gated_forces_by_rank);
+    return cuda::rank_order<Real, Accum>(list_args<Real, Accum>(g, sys, ff, Request{false, false}), list, !lean);
   }
 
   // Every particle's list partners (user indices, list order), downloaded: the list audit's input.
@@ -838,7 +835,7 @@ cuda::RankOrder GpuEngine::rank_order(const Box& box, std::size_t n, const doubl
 void GpuEngine::unrank_forces(std::size_t n) {
   const DeviceScope scope(options_.device);
   Impl& s = *impl_;
-  if (!s.gated_forces_by_rank) return;
+  if (s.lean) return;  // lean gated evaluations stored in the caller's order (rank_order)
   cuda::unrank_forces(s.list, n, stats_.grid.dim, s.forces.data(), s.stream);
 }
 
@@ -851,9 +848,9 @@ void GpuEngine::evaluate_gated(const Box& box, std::size_t n, const double* posi
   const Grid& g = stats_.grid;
   const Request forces_only{false, false};
   switch (options_.precision) {
-    case Precision::kSingle: s.list_forces<float, float>(g, system, ff, forces_only, gate, true); break;
-    case Precision::kMixed: s.list_forces<float, double>(g, system, ff, forces_only, gate, true); break;
-    case Precision::kDouble: s.list_forces<double, double>(g, system, ff, forces_only, gate, true); break;
+    case Precision::kSingle: s.list_forces<float, float>(g, system, ff, forces_only, gate); break;
+    case Precision::kMixed: s.list_forces<float, double>(g, system, ff, forces_only, gate); break;
+    case Precision::kDouble: s.list_forces<double, double>(g, system, ff, forces_only, gate); break;
   }
 }
 

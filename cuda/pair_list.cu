@@ -130,21 +130,13 @@ class ChunkWriter {
 template <int D, class Particle>
 __global__ void gather_ranked(Grid g, const double* __restrict__ positions, const uint32_t* __restrict__ types,
                               const uint32_t* __restrict__ order, std::size_t n, uint32_t num_types,
-                              Particle* __restrict__ ranked, DeviceFlags* flags, GateView gate) {
-  // The particle's rank order, its position and type are loaded before the gate's barrier (a shut
-  // gate discards them): the gate's read, the order and the position were three round trips in a
-  // row (change 33, as change 28 for the kick-drift).
+                              Particle* __restrict__ ranked, DeviceFlags* flags) {
   const std::size_t p = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
-  const bool in = p < n;
-  const std::size_t i = in ? order[p] : 0u;
+  if (p >= n) return;
+  const std::size_t i = order[p];
   double v[3] = {0, 0, 0};
-  uint32_t t = 0;
-  if (in) {
-    for (int a = 0; a < D; ++a) v[a] = positions[i * D + a];
-    t = types ? types[i] : 0u;
-  }
-  if (gate_shut(gate) || !in) return;
-  store_ranked<D>(ranked, p, g, v, t, num_types, i, flags);
+  for (int a = 0; a < D; ++a) v[a] = positions[i * D + a];
+  store_ranked<D>(ranked, p, g, v, types ? types[i] : 0u, num_types, i, flags);
 }
 
 // The 32 x 32 bit matrix a warp holds (lane l: row l, bit k: column k) transposed (lane k gets
@@ -658,13 +650,11 @@ __global__ void __launch_bounds__(kBlock)
 unsigned blocks_for(std::size_t count) { return unsigned((count + kBlock - 1) / kBlock); }
 
 template <class Particle, class Real, class Accum>
-void gather(const ListArgs<Real, Accum>& args, PairList& list, DeviceBuffer<Particle>& ranked, cudaStream_t stream,
-            const GateView& gate) {
+void gather(const ListArgs<Real, Accum>& args, PairList& list, DeviceBuffer<Particle>& ranked, cudaStream_t stream) {
   ranked.reserve(std::max<std::size_t>(args.n, 1));
   with_dim(args.grid.dim, [&](auto d) {
     gather_ranked<decltype(d)::value><<<blocks_for(args.n), kBlock, 0, stream>>>(
-        args.grid, args.positions, args.types, list.order.data(), args.n, args.num_types, ranked.data(), args.flags,
-        gate);
+        args.grid, args.positions, args.types, list.order.data(), args.n, args.num_types, ranked.data(), args.flags);
   });
   CF_CUDA_CHECK_LAUNCH();
 }
@@ -926,7 +916,7 @@ RankOrder rank_order(const ListArgs<Real, Accum>& args, PairList& list, bool for
 
 template <class Real, class Accum>
 void list_forces(const Switches& sw, const ListArgs<Real, Accum>& given, PairList& list, cudaStream_t stream,
-                 const GateView& gate, bool gathered, bool by_rank) {
+                 const GateView& gate, bool by_rank) {
   if (given.n == 0) return;
   if (by_rank && (sw.observables || given.energies))
     throw Error("internal error: forces in rank order are for evaluations of forces only");
@@ -957,7 +947,7 @@ void list_forces(const Switches& sw, const ListArgs<Real, Accum>& given, PairLis
   }
   auto evaluate = [&](auto& ranked) {
     using Particle = typename std::remove_reference_t<decltype(ranked)>::value_type;
-    if (!gathered) gather(args, list, ranked, stream, gate);
+    if (!gate.gate) gather(args, list, ranked, stream);  // gated: the step's drift placed them
     detail::dispatch(s, [&](auto traits) {
       using T = decltype(traits);
       if constexpr (!T::kWrap) {
@@ -1022,7 +1012,7 @@ void unrank_forces(const PairList& list, std::size_t n, int dim, double* forces,
                                              std::size_t, double, const ListArgs<Real, Accum>&, PairList&,       \
                                              cudaStream_t);                                                      \
   template void list_forces<Real, Accum>(const Switches&, const ListArgs<Real, Accum>&, PairList&, cudaStream_t, \
-                                         const GateView&, bool, bool);                                          \
+                                         const GateView&, bool);                                                \
   template RankOrder rank_order<Real, Accum>(const ListArgs<Real, Accum>&, PairList&, bool);
 CF_PAIR_LIST(float, float)
 CF_PAIR_LIST(float, double)

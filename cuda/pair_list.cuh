@@ -28,6 +28,7 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <type_traits>
 
 #include "list_build.h"  // split_columns, build_splits, prefilter_bound, fixed-point coordinates
 #include "rank_order.h"
@@ -155,39 +156,29 @@ struct ListStaging {
   const Control* control = nullptr;       // n: stage 1's control bits
 };
 
-// Particle i's position v wrapped into the box on periodic axes, into x. A non-finite coordinate
-// is flagged as the device input check does (the particle and axis named at the next check of the
-// flags): a pair with it has a NaN r^2, which fails every cutoff test, so the force kernel would
-// drop its pairs without a word, and it has no fixed-point value.
-template <int D>
-__device__ __forceinline__ void wrap_and_check(const Grid& g, const double v[3], std::size_t i, DeviceFlags* flags,
-                                               double x[3]) {
+// Particle i (position v, type t) as rank p's entry of the gathered array: wrapped into the box on
+// periodic axes, then stored in double (RankedParticle) or fixed point (FixedParticle, every axis
+// periodic: fixed_point_serves). The one arithmetic of the gather and of a gated drift's placing. A
+// non-finite coordinate is flagged as the device input check does (the particle and axis named at
+// the next check of the flags): a pair with it has a NaN r^2, which fails every cutoff test, so the
+// force kernel would drop its pairs without a word, and it has no fixed-point value.
+template <int D, class Particle>
+__device__ __forceinline__ void store_ranked(Particle* __restrict__ ranked, std::size_t p, const Grid& g,
+                                             const double v[3], uint32_t t, uint32_t num_types, std::size_t i,
+                                             DeviceFlags* flags) {
+  double x[3] = {0, 0, 0};
   for (int a = 0; a < D; ++a) {
     x[a] = g.inv_length[a] != 0.0 ? wrap_coordinate(v[a], g.length[a]) : v[a];
     if (!isfinite(x[a])) atomicMin(&flags->bad_coordinate, static_cast<unsigned long long>(i) << 32 | unsigned(a));
   }
-}
-
-// Particle i (position v, type t) as rank p's entry of the gathered array: wrapped and checked
-// (wrap_and_check), then stored in double (RankedParticle) or fixed point (FixedParticle, every
-// axis periodic: fixed_point_serves). The one arithmetic of the gather and of a gated drift's placing.
-template <int D>
-__device__ __forceinline__ void store_ranked(RankedParticle* __restrict__ ranked, std::size_t p, const Grid& g,
-                                             const double v[3], uint32_t t, uint32_t num_types, std::size_t i,
-                                             DeviceFlags* flags) {
-  double x[3] = {0, 0, 0};
-  wrap_and_check<D>(g, v, i, flags, x);
-  ranked[p] = RankedParticle{x[0], x[1], x[2], t < num_types ? t : 0u, 0u};
-}
-template <int D>
-__device__ __forceinline__ void store_ranked(FixedParticle* __restrict__ ranked, std::size_t p, const Grid& g,
-                                             const double v[3], uint32_t t, uint32_t num_types, std::size_t i,
-                                             DeviceFlags* flags) {
-  double x[3] = {0, 0, 0};
-  wrap_and_check<D>(g, v, i, flags, x);
-  uint32_t u[3] = {0, 0, 0};
-  for (int a = 0; a < D; ++a) u[a] = fixed_coordinate(x[a], g.inv_length[a]);
-  ranked[p] = FixedParticle{u[0], u[1], u[2], t < num_types ? t : 0u};
+  const uint32_t type = t < num_types ? t : 0u;
+  if constexpr (std::is_same_v<Particle, FixedParticle>) {
+    uint32_t u[3] = {0, 0, 0};
+    for (int a = 0; a < D; ++a) u[a] = fixed_coordinate(x[a], g.inv_length[a]);
+    ranked[p] = FixedParticle{u[0], u[1], u[2], type};
+  } else {
+    ranked[p] = RankedParticle{x[0], x[1], x[2], type, 0u};
+  }
 }
 
 // A gated drift's placing (RankOrder): particle i, now at v, into its rank's entry.
@@ -215,15 +206,15 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
 // Gathers the positions into rank order (FixedParticle for float pairs where fixed_point_serves,
 // else RankedParticle) and evaluates every listed pair with r < rc: forces (and
 // energies) to the user-order outputs, energy and virial per block into list.block_sums, whose
-// count list.blocks holds (for sum_cells). With a gate (step_gate.h) the kernels return at once
-// when it is shut for gate.step; else the force kernel raises the gate's served displacement.
-// With `gathered`, the positions are in the gathered array already (a gated step's drift placed
-// them: rank_order) and the gather is left out. With `by_rank` (forces only), the forces go to
+// count list.blocks holds (for sum_cells). With a gate (step_gate.h) the force kernel returns at once
+// when it is shut for gate.step, else raises the gate's served displacement.
+// With a gate the evaluation is a gated MD step's, whose drift placed the positions in the gathered
+// array already (rank_order): the gather is left out. With `by_rank` (forces only), the forces go to
 // list.ranked_forces in rank order (rank p's at p * dim) instead of args.forces in user order: the
 // force kernel's stores coalesced whatever the caller's numbering (change 51).
 template <class Real, class Accum>
 void list_forces(const Switches& sw, const ListArgs<Real, Accum>& args, PairList& list, cudaStream_t stream,
-                 const GateView& gate = {}, bool gathered = false, bool by_rank = false);
+                 const GateView& gate = {}, bool by_rank = false);
 
 // Where the evaluations of the list in use read the positions in rank order (the array list_forces
 // gathers into for these args, reserved; the other one released), for a gated step's drift to

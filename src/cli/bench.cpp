@@ -159,8 +159,9 @@ SizeResult bench_size(const BenchArgs& args, const EngineChoice& engine, int cel
     const int dim = 3;
     const std::vector<double> masses(n, scene.masses[0]);
     initialize_velocities(state, masses, scene.initial_temperature, scene.seed, !args.langevin);
-    const double skin = engine.reuse.automatic ? kAutoSkinPerCutoff * scene.force_field.cutoff : engine.reuse.skin;
-    apply_numbering(state, args.order, scene.seed, scene.force_field.cutoff, skin, engine.rule);
+    const ReuseOptions reuse = resolve_reuse(engine.reuse, resolve_backend(engine.backend), engine.accumulation, true,
+                                             state.config.box, scene.force_field.cutoff);  // the skin in effect
+    apply_numbering(state, args.order, scene.seed, scene.force_field.cutoff, reuse.skin, engine.rule);
     row["order"] = numbering_name(args.order);
     std::vector<double> final_positions(n * dim), final_forces(n * dim);
     {
