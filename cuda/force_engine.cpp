@@ -15,6 +15,7 @@ GpuOptions options(const EngineChoice& choice) {
   o.device = choice.device;
   o.grid_override = choice.grid_override;
   o.lean_lists = choice.lean_lists;
+  o.list_threads = choice.list_threads;
   return o;
 }
 

@@ -9,6 +9,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <optional>
 #include <string>
 #include <tuple>
 
@@ -668,7 +669,9 @@ TEST(PairListErrors, CoincidentPairOnAReusedStepIsNamed) {
 // order and its evaluations leaving the forces in rank order, changes 49 and 51) ends bitwise where
 // the step-by-step run ends (one step a call: never gated), and so does the gated run of a lean
 // engine, whose gated evaluations store the forces in the caller's order instead; Verlet and
-// Langevin, 2,048 particles of the in.lj fluid, 300 steps with ~20 rebuilds.
+// Langevin, 2,048 particles of the in.lj fluid, 300 steps with ~20 rebuilds; in mixed precision
+// (fixed-point gathers) with 8 threads a particle (the rule's choice at this size) and 1 (the large
+// systems' force kernel), and in double precision (double gathers) with 2.
 TEST(PairListMd, GatedRunsEqualTheStepwiseRunLeanOrNot) {
   CF_SKIP_WITHOUT_DEVICE();
   cellforce::Scene scene = cellforce::default_scene();
@@ -678,45 +681,57 @@ TEST(PairListMd, GatedRunsEqualTheStepwiseRunLeanOrNot) {
   const std::size_t n = start.config.size();
   const std::vector<double> masses(n, 1.0);
   cellforce::initialize_velocities(start, masses, 1.44, 7, true);
-  for (const bool langevin : {false, true}) {
-    SCOPED_TRACE(langevin ? "Langevin" : "Verlet");
-    cellforce::IntegratorSettings settings;
-    settings.langevin = langevin;
-    settings.kT = 1.44;
-    settings.seed = 99;
-    auto run = [&](bool lean, bool one_call, cellforce::MdCounters* counters) {
-      cellforce::EngineChoice choice;
-      choice.backend = cellforce::Backend::kCuda;
-      choice.precision = Precision::kMixed;
-      choice.reuse.automatic = false;
-      choice.reuse.skin = 0.3;
-      choice.reuse.list = true;
-      choice.lean_lists = lean;
-      auto md = cellforce::make_cuda_md_engine(std::make_unique<cellforce::CudaForceEngine>(choice));
-      md->set_state(start, masses, scene.force_field);
-      if (one_call) {
-        md->advance(300, settings, false);
-      } else {
-        for (int k = 0; k < 300; ++k) md->advance(1, settings, false);
-      }
-      *counters = md->counters();
-      cellforce::MdState end;
-      md->get_state(end);
-      std::vector<double> all = end.config.positions;
-      all.insert(all.end(), end.velocities.begin(), end.velocities.end());
-      all.insert(all.end(), end.forces.begin(), end.forces.end());
-      return all;
-    };
-    cellforce::MdCounters fast, lean, stepwise;
-    const std::vector<double> a = run(false, true, &fast), b = run(true, true, &lean), c = run(false, false, &stepwise);
-    EXPECT_TRUE(a == c) << "the gated run differs from the step-by-step run";
-    EXPECT_TRUE(b == c) << "the lean gated run differs from the step-by-step run";
-    EXPECT_EQ(fast.builds, stepwise.builds);
-    EXPECT_EQ(lean.builds, stepwise.builds);
-    EXPECT_GE(stepwise.builds, 5) << "too few rebuilds to exercise the gate's closing";
-    EXPECT_EQ(stepwise.gated_steps, 0);
-    EXPECT_GT(fast.gated_steps, 200) << "the gate served few steps";
-    EXPECT_GT(lean.gated_steps, 200);
+  struct Form {
+    Precision precision;
+    std::optional<int> threads;
+    const char* name;
+  };
+  for (const Form form : {Form{Precision::kMixed, std::nullopt, "mixed, the rule's threads"},
+                          Form{Precision::kMixed, 1, "mixed, 1 thread a particle"},
+                          Form{Precision::kDouble, 2, "double, 2 threads a particle"}}) {
+    SCOPED_TRACE(form.name);
+    for (const bool langevin : {false, true}) {
+      SCOPED_TRACE(langevin ? "Langevin" : "Verlet");
+      cellforce::IntegratorSettings settings;
+      settings.langevin = langevin;
+      settings.kT = 1.44;
+      settings.seed = 99;
+      auto run = [&](bool lean, bool one_call, cellforce::MdCounters* counters) {
+        cellforce::EngineChoice choice;
+        choice.backend = cellforce::Backend::kCuda;
+        choice.precision = form.precision;
+        choice.reuse.automatic = false;
+        choice.reuse.skin = 0.3;
+        choice.reuse.list = true;
+        choice.lean_lists = lean;
+        choice.list_threads = form.threads;
+        auto md = cellforce::make_cuda_md_engine(std::make_unique<cellforce::CudaForceEngine>(choice));
+        md->set_state(start, masses, scene.force_field);
+        if (one_call) {
+          md->advance(300, settings, false);
+        } else {
+          for (int k = 0; k < 300; ++k) md->advance(1, settings, false);
+        }
+        *counters = md->counters();
+        cellforce::MdState end;
+        md->get_state(end);
+        std::vector<double> all = end.config.positions;
+        all.insert(all.end(), end.velocities.begin(), end.velocities.end());
+        all.insert(all.end(), end.forces.begin(), end.forces.end());
+        return all;
+      };
+      cellforce::MdCounters fast, lean, stepwise;
+      const std::vector<double> a = run(false, true, &fast), b = run(true, true, &lean),
+                                c = run(false, false, &stepwise);
+      EXPECT_TRUE(a == c) << "the gated run differs from the step-by-step run";
+      EXPECT_TRUE(b == c) << "the lean gated run differs from the step-by-step run";
+      EXPECT_EQ(fast.builds, stepwise.builds);
+      EXPECT_EQ(lean.builds, stepwise.builds);
+      EXPECT_GE(stepwise.builds, 5) << "too few rebuilds to exercise the gate's closing";
+      EXPECT_EQ(stepwise.gated_steps, 0);
+      EXPECT_GT(fast.gated_steps, 200) << "the gate served few steps";
+      EXPECT_GT(lean.gated_steps, 200);
+    }
   }
 }
 
