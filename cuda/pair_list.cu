@@ -1,7 +1,6 @@
 // Pair lists for a reused structure: the build (ranks, counts, the list stored as a row per rank)
 // and the force kernel of the evaluations it serves. See pair_list.cuh.
 #include <cub/device/device_partition.cuh>
-#include <cub/device/device_reduce.cuh>
 #include <cub/device/device_scan.cuh>
 #include <cub/device/device_select.cuh>
 #include <thrust/iterator/counting_iterator.h>
@@ -26,10 +25,6 @@ constexpr int kBlock = 128;  // threads per block of every list kernel (4 warps)
 struct IsHome {
   const uint32_t* keys;
   __device__ bool operator()(uint32_t e) const { return (keys[e] & 1u) == 0u; }
-};
-
-struct Widen {
-  __device__ unsigned long long operator()(uint32_t v) const { return v; }
 };
 
 __global__ void invert_order(const uint32_t* __restrict__ order, std::size_t n, uint32_t* __restrict__ rank) {
@@ -429,10 +424,14 @@ __global__ void __launch_bounds__(kBlock)
 // first chunks; group_chunks[groups] = 0, so that the scan ends with the total. A group is a warp's
 // ranks (blocks of kBlock ranks start on a group): one warp-wide max, where a scan over groups that
 // read its 32 lengths per item took ~48 us a build at 256k and at 1M alike (latency-bound).
-// Launched over n + kGroup threads, so that a warp exists for group_chunks[groups].
+// Launched over n + kGroup threads, so that a warp exists for group_chunks[groups]. Also the
+// longest list into sizes[0] and the sum of the lengths into sizes[1] (zeroed before: one atomic
+// of each per block; integers, so the order does not matter): change 57, in place of two CUB
+// reductions over the lengths, whose host-side dispatch held the device idle at small sizes.
 template <int D>
 __global__ void sum_slot_counts(const uint32_t* __restrict__ slot_counts, std::size_t n, std::size_t groups,
-                                uint32_t* __restrict__ length, unsigned long long* __restrict__ group_chunks) {
+                                uint32_t* __restrict__ length, unsigned long long* __restrict__ group_chunks,
+                                unsigned long long* __restrict__ sizes) {
   static_assert(kGroup == 32 && kBlock % kGroup == 0, "a group of ranks is one warp's");  // __reduce_max_sync: sm_80+
   const std::size_t p = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
   uint32_t s = 0;
@@ -441,8 +440,25 @@ __global__ void sum_slot_counts(const uint32_t* __restrict__ slot_counts, std::s
     length[p] = s;
   }
   const uint32_t longest = __reduce_max_sync(0xffffffffu, s);  // the whole warp: no return above
+  unsigned long long total = s;  // the warp's sum, in 64 bits (a list may be as long as n)
+  for (int offset = 16; offset > 0; offset >>= 1) total += __shfl_xor_sync(0xffffffffu, total, offset);
   const std::size_t g = p / kGroup;
-  if (threadIdx.x % 32 == 0 && g <= groups) group_chunks[g] = g < groups ? (longest + kChunk - 1) / kChunk : 0u;
+  const int warp = int(threadIdx.x / 32);
+  __shared__ uint32_t warp_longest[kBlock / 32];
+  __shared__ unsigned long long warp_total[kBlock / 32];
+  if (threadIdx.x % 32 == 0) {
+    if (g <= groups) group_chunks[g] = g < groups ? (longest + kChunk - 1) / kChunk : 0u;
+    warp_longest[warp] = longest;
+    warp_total[warp] = total;
+  }
+  __syncthreads();
+  if (threadIdx.x == 0) {
+    uint32_t most = 0;
+    unsigned long long sum = 0;
+    for (int w = 0; w < kBlock / 32; ++w) most = max(most, warp_longest[w]), sum += warp_total[w];
+    if (most) atomicMax(&sizes[0], (unsigned long long)most);
+    if (sum) atomicAdd(&sizes[1], sum);
+  }
 }
 
 // A cube's fixed-point scale folded into the pair's constants (change 39, then 40 for the kernels
@@ -649,6 +665,18 @@ __global__ void __launch_bounds__(kBlock)
 
 unsigned blocks_for(std::size_t count) { return unsigned((count + kBlock - 1) / kBlock); }
 
+// The scratch bytes of a CUB call over `items` (query(bytes): the call with no scratch, which only
+// sizes it), asked of CUB only when the count differs from the last one (PairList::CubBytes).
+template <class Query>
+std::size_t cub_bytes(PairList::CubBytes& cached, std::size_t items, Query&& query) {
+  if (cached.items != (long long)items) {
+    cached.bytes = 0;
+    CF_CUDA_CHECK(query(cached.bytes));
+    cached.items = (long long)items;
+  }
+  return cached.bytes;
+}
+
 template <class Particle, class Real, class Accum>
 void gather(const ListArgs<Real, Accum>& args, PairList& list, DeviceBuffer<Particle>& ranked, cudaStream_t stream) {
   ranked.reserve(std::max<std::size_t>(args.n, 1));
@@ -717,9 +745,10 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
 
   // Ranks: the particles of the H entries in sorted order (each particle has exactly one).
   const auto home = thrust::make_transform_iterator(thrust::counting_iterator<uint32_t>(0), IsHome{sorted_keys});
-  std::size_t bytes = 0;
-  CF_CUDA_CHECK(cub::DeviceSelect::Flagged(nullptr, bytes, cells.sorted_ids, home, list.order.data(),
-                                           list.selected.data(), int(entries), stream));
+  std::size_t bytes = cub_bytes(list.select_bytes, entries, [&](std::size_t& b) {
+    return cub::DeviceSelect::Flagged(nullptr, b, cells.sorted_ids, home, list.order.data(), list.selected.data(),
+                                      int(entries), stream);
+  });
   list.scratch.reserve(std::max<std::size_t>(bytes, 1));
   CF_CUDA_CHECK(cub::DeviceSelect::Flagged(list.scratch.data(), bytes, cells.sorted_ids, home, list.order.data(),
                                            list.selected.data(), int(entries), stream));
@@ -745,9 +774,10 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
     unit_mask_words<<<blocks_for(std::size_t(launched_units) + 1), kBlock, 0, stream>>>(
         cells, uint32_t(list.splits), launched_units, list.mask_base.data());
     CF_CUDA_CHECK_LAUNCH();
-    std::size_t base_bytes = 0;
-    CF_CUDA_CHECK(cub::DeviceScan::ExclusiveSum(nullptr, base_bytes, list.mask_base.data(), list.mask_base.data(),
-                                                int(launched_units + 1), stream));
+    std::size_t base_bytes = cub_bytes(list.base_bytes, launched_units + 1, [&](std::size_t& b) {
+      return cub::DeviceScan::ExclusiveSum(nullptr, b, list.mask_base.data(), list.mask_base.data(),
+                                           int(launched_units + 1), stream);
+    });
     list.scratch.reserve(std::max<std::size_t>(base_bytes, 1));
     CF_CUDA_CHECK(cub::DeviceScan::ExclusiveSum(list.scratch.data(), base_bytes, list.mask_base.data(),
                                                 list.mask_base.data(), int(launched_units + 1), stream));
@@ -771,9 +801,10 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
     list.walked.reserve(1);
     const CountWalks<Real, Accum> walks{cells, uint32_t(list.splits), masks};
     const thrust::counting_iterator<uint32_t> all(0);
-    std::size_t part_bytes = 0;
-    CF_CUDA_CHECK(cub::DevicePartition::If(nullptr, part_bytes, all, list.walk_order.data(), list.walked.data(),
-                                           int(launched_units), walks, stream));
+    std::size_t part_bytes = cub_bytes(list.part_bytes, launched_units, [&](std::size_t& b) {
+      return cub::DevicePartition::If(nullptr, b, all, list.walk_order.data(), list.walked.data(),
+                                      int(launched_units), walks, stream);
+    });
     list.scratch.reserve(std::max<std::size_t>(part_bytes, 1));
     CF_CUDA_CHECK(cub::DevicePartition::If(list.scratch.data(), part_bytes, all, list.walk_order.data(),
                                            list.walked.data(), int(launched_units), walks, stream));
@@ -803,18 +834,12 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
   // then (the scan below) their first chunks.
   const std::size_t groups = (n + kGroup - 1) / kGroup;
   list.group_chunks.reserve(groups + 1);
+  CF_CUDA_CHECK(cudaMemsetAsync(list.sizes.data(), 0, 2 * sizeof(unsigned long long), stream));
   with_dim(dim, [&](auto d) {
     sum_slot_counts<decltype(d)::value><<<blocks_for(n + kGroup), kBlock, 0, stream>>>(
-        list.slot_counts.data(), n, groups, list.length.data(), list.group_chunks.data());
+        list.slot_counts.data(), n, groups, list.length.data(), list.group_chunks.data(), list.sizes.data());
     CF_CUDA_CHECK_LAUNCH();
   });
-  const auto wide = thrust::make_transform_iterator(list.length.data(), Widen{});
-  std::size_t max_bytes = 0, sum_bytes = 0;
-  CF_CUDA_CHECK(cub::DeviceReduce::Max(nullptr, max_bytes, wide, list.sizes.data(), int(n), stream));
-  CF_CUDA_CHECK(cub::DeviceReduce::Sum(nullptr, sum_bytes, wide, list.sizes.data() + 1, int(n), stream));
-  list.scratch.reserve(std::max<std::size_t>({max_bytes, sum_bytes, 1}));
-  CF_CUDA_CHECK(cub::DeviceReduce::Max(list.scratch.data(), max_bytes, wide, list.sizes.data(), int(n), stream));
-  CF_CUDA_CHECK(cub::DeviceReduce::Sum(list.scratch.data(), sum_bytes, wide, list.sizes.data() + 1, int(n), stream));
   // Threads per particle: enough threads to fill half the device (1,024 per multiprocessor), at
   // most 8.
   const std::size_t wanted = std::size_t(std::max(cells.multiprocessors, 1)) * 1024;
@@ -826,9 +851,10 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
   const uint32_t blocks = blocks_for(n * std::size_t(list.threads_per_particle));
   list.blocks.reserve(1);
   CF_CUDA_CHECK(cudaMemcpyAsync(list.blocks.data(), &blocks, sizeof(blocks), cudaMemcpyHostToDevice, stream));
-  std::size_t scan_bytes = 0;
-  CF_CUDA_CHECK(cub::DeviceScan::ExclusiveSum(nullptr, scan_bytes, list.group_chunks.data(), list.group_chunks.data(),
-                                              int(groups + 1), stream));
+  std::size_t scan_bytes = cub_bytes(list.scan_bytes, groups + 1, [&](std::size_t& b) {
+    return cub::DeviceScan::ExclusiveSum(nullptr, b, list.group_chunks.data(), list.group_chunks.data(),
+                                         int(groups + 1), stream);
+  });
   list.scratch.reserve(std::max<std::size_t>(scan_bytes, 1));
   CF_CUDA_CHECK(cub::DeviceScan::ExclusiveSum(list.scratch.data(), scan_bytes, list.group_chunks.data(),
                                               list.group_chunks.data(), int(groups + 1), stream));

@@ -113,6 +113,14 @@ struct PairList {
   DeviceBuffer<uint32_t> blocks;       // 1: the force kernel's blocks (their sums' count)
   DeviceBuffer<std::byte> block_sums;  // kCellSums per block of the force kernel
   DeviceBuffer<std::byte> scratch;     // CUB
+  // CUB's scratch size for each of the build's CUB calls, asked again only when the call's item
+  // count changes (change 57: each query runs CUB's dispatch on the host, and at small sizes the
+  // device waits on the host through the build).
+  struct CubBytes {
+    long long items = -1;
+    std::size_t bytes = 0;
+  };
+  CubBytes select_bytes, base_bytes, part_bytes, scan_bytes;
   std::size_t width = 0, pairs = 0;    // of the last build (width: the longest list; pairs: the sum
   std::size_t slots = 0;               // of the lengths; slots: the entries the layout holds)
   int threads_per_particle = 1;        // the force kernel's: 1, 2, 4 or 8 (from n and the device)
