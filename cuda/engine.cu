@@ -603,6 +603,8 @@ void check_capacity(const SystemView& system, const ForceField& ff) {
 GpuEngine::GpuEngine(GpuOptions options)
     : options_(std::move(options)), reuse_(options_.reuse), impl_(std::make_unique<Impl>()) {
   validate_reuse(options_.reuse);
+  if (const std::optional<int> t = options_.list_threads; t && *t != 1 && *t != 2 && *t != 4 && *t != 8)
+    throw Error("CUDA engine: list_threads must be 1, 2, 4 or 8 threads per particle, not " + std::to_string(*t));
   const std::string why = unavailable();
   if (!why.empty()) throw DeviceError("CUDA engine: " + why);
   int count = 0;

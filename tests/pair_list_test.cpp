@@ -564,6 +564,23 @@ TEST(PairListThreads, EveryThreadCountMatchesTheBruteForce) {
     }
 }
 
+// A thread count the force kernel has no form for is refused when the engine is made, naming the
+// option and the value (before the device is looked for: no GPU needed).
+TEST(PairListThreads, AThreadCountWithNoKernelIsRefused) {
+  for (const int threads : {0, 3, 16}) {
+    GpuOptions o = list_options(Precision::kMixed);
+    o.list_threads = threads;
+    try {
+      GpuEngine e(o);
+      FAIL() << threads << " threads per particle were accepted";
+    } catch (const cellforce::Error& err) {
+      const std::string text = err.what();
+      EXPECT_NE(text.find("list_threads"), std::string::npos) << text;
+      EXPECT_TRUE(contains_number(text, std::size_t(threads))) << text;
+    }
+  }
+}
+
 // The audit of a structure the lists serve audits the lists: with the check off, after moves below
 // and well beyond skin / 2, the missed pairs are those within rc now that were not within rc + skin
 // at the build (counted here pair by pair), and none repeat.
