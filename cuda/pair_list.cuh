@@ -114,8 +114,8 @@ struct PairList {
   DeviceBuffer<std::byte> block_sums;  // kCellSums per block of the force kernel
   DeviceBuffer<std::byte> scratch;     // CUB
   // CUB's scratch size for each of the build's CUB calls, asked again only when the call's item
-  // count changes (change 57: each query runs CUB's dispatch on the host, and at small sizes the
-  // device waits on the host through the build).
+  // count changes (change 57: each query runs CUB's dispatch on the host, where at small sizes the
+  // device waits through the build; steps/s did not move, performance.md).
   struct CubBytes {
     long long items = -1;
     std::size_t bytes = 0;
