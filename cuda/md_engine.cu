@@ -266,6 +266,15 @@ struct Placing {
   }
 };
 
+// Coordinate k (particle i) of the forces a gated step's kicks read: the caller's order (`f`), or,
+// after a gated evaluation that left them in rank order (change 51), `f_ranked` at the particle's
+// rank.
+template <int D>
+__device__ __forceinline__ double step_force(const double* __restrict__ f, const double* __restrict__ f_ranked,
+                                             const uint32_t* __restrict__ rank, std::size_t k, std::size_t i) {
+  return f_ranked ? f_ranked[std::size_t(rank[i]) * D + (k - i * D)] : f[k];
+}
+
 // The gated kernels of a step load every coordinate they read before the gate's barrier, in one
 // batch, and template the dimension (a constant divisor): the kick-drift's thread waited on four
 // dependent round trips in a row (the gate, then mass, velocity and force, then the position, which
@@ -276,8 +285,7 @@ struct Placing {
 // The kick-drift of a Verlet step behind the step gate (step_gate.h): the gate (step_gate_shut: the
 // kernel returns with the state as it was), then the kick-drift, then each particle's squared
 // displacement from `built` (the build's positions) into the gate, and its new position into the
-// list's rank order (Placing). The forces come from `f` in the caller's order, or, after a gated
-// evaluation that left them in rank order (change 51), from `f_ranked` at the particle's rank.
+// list's rank order (Placing). The forces: step_force.
 // GateFirst (change 52: a step queued past the expected rebuild, which the gate most likely shuts):
 // the gate is read before the loads, so that a shut step costs its read, not the state's (~50 us
 // at 1M particles); the other steps load first (change 28).
@@ -297,7 +305,7 @@ __global__ void __launch_bounds__(kGateParticles * 3)
   double xa = 0, va = 0, fa = 0, m = 1, then = 0;
   if (in) {
     xa = x[k], va = v[k], m = mass[i], then = built[k];
-    fa = f_ranked ? f_ranked[std::size_t(to.rank[i]) * D + (k - i * D)] : f[k];
+    fa = step_force<D>(f, f_ranked, to.rank, k, i);
   }
   if constexpr (!GateFirst) {
     if (step_gate_shut(gate)) return;
@@ -318,8 +326,8 @@ __global__ void __launch_bounds__(kGateParticles * 3)
 // opening one, rounded one after the other as kick_kernel would) and the first half drift; (2) the
 // thermostat (gated_thermostat_kernel); (3) the second half drift with the wrap, the displacement
 // into the gate and the new positions into the list's rank order (Placing). The same arithmetic,
-// kernel for kernel, as the ungated step. (1) reads the forces as gated_kick_drift_kernel does (by
-// rank after a gated evaluation, change 51) and takes its GateFirst.
+// kernel for kernel, as the ungated step. (1) reads the forces by step_force and takes
+// gated_kick_drift_kernel's GateFirst.
 template <int D, bool GateFirst>
 __global__ void __launch_bounds__(kGateParticles * 3)
     gated_langevin_kick_drift_kernel(double* __restrict__ x, double* __restrict__ v, const double* __restrict__ f,
@@ -335,7 +343,7 @@ __global__ void __launch_bounds__(kGateParticles * 3)
   double xa = 0, va = 0, fa = 0, m = 1;
   if (in) {
     xa = x[k], va = v[k], m = mass[i];
-    fa = f_ranked ? f_ranked[std::size_t(rank[i]) * D + (k - i * D)] : f[k];  // as gated_kick_drift_kernel
+    fa = step_force<D>(f, f_ranked, rank, k, i);
   }
   if constexpr (!GateFirst) {
     if (step_gate_shut(gate)) return;

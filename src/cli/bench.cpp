@@ -83,12 +83,6 @@ void apply_numbering(MdState& state, Numbering order, uint64_t seed, double cuto
   renumber(state, from);
 }
 
-std::string numbering_name(Numbering order) {
-  for (const auto& [name, value] : kNumberings)
-    if (value == order) return name;
-  return "?";
-}
-
 // Least-squares slope of y against x.
 double slope(const std::vector<double>& x, const std::vector<double>& y) {
   const double n = double(x.size());
@@ -162,7 +156,7 @@ SizeResult bench_size(const BenchArgs& args, const EngineChoice& engine, int cel
     const ReuseOptions reuse = resolve_reuse(engine.reuse, resolve_backend(engine.backend), engine.accumulation, true,
                                              state.config.box, scene.force_field.cutoff);  // the skin in effect
     apply_numbering(state, args.order, scene.seed, scene.force_field.cutoff, reuse.skin, engine.rule);
-    row["order"] = numbering_name(args.order);
+    row["order"] = name_of(args.order, kNumberingNames);
     std::vector<double> final_positions(n * dim), final_forces(n * dim);
     {
       Context ctx = make_context(state.config.box, scene.force_field, engine);

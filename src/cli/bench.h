@@ -8,12 +8,12 @@
 #pragma once
 
 #include <cstdint>
-#include <map>
 #include <string>
 #include <vector>
 
 #include "backends/force_engine.h"  // EngineChoice
 #include "core/force_field.h"       // CutoffMode
+#include "core/names.h"             // Named
 
 namespace cellforce {
 
@@ -22,7 +22,7 @@ namespace cellforce {
 // random order (what diffusion leaves after a long run, where an engine that keeps the caller's
 // order finds no locality in it).
 enum class Numbering { kLattice, kCells, kShuffled };
-inline const std::map<std::string, Numbering> kNumberings = {
+inline constexpr Named<Numbering> kNumberingNames[] = {
     {"lattice", Numbering::kLattice}, {"cells", Numbering::kCells}, {"shuffled", Numbering::kShuffled}};
 
 struct BenchArgs {

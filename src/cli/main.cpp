@@ -327,7 +327,7 @@ int main(int argc, char** argv) {
                    "How the particles are numbered: lattice (the fcc's order), shuffled (seeded random: the order a "
                    "long run's diffusion leaves) or cells (cell by cell on the grid of rc + skin: the order of a "
                    "list build's ranks)")
-      ->transform(one_of(kNumberings))
+      ->transform(one_of(name_map(kNumberingNames)))
       ->default_str("lattice");
   bench_cmd->add_option("--label", ba.label, "The rows' configuration name (default: default, or chapter)");
   bench_cmd->add_option("--save-final", ba.save_final,
