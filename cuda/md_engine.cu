@@ -241,39 +241,101 @@ __device__ __forceinline__ void raise_displacement(double sq, int dim, std::size
   }
 }
 
+// Where a gated chunk's kernels find the MD state (change 58). kCaller: the caller's order, as
+// set_state() holds it (lean memory mode, whose gated evaluations leave the forces in that order
+// too). With the forces in rank order (fast mode) the chunk runs on a copy of the state in the
+// list's rank order: its first kernel (kGather) reads the caller's order at order[p] and writes
+// rank p's entries, the later ones (kRank) read and write rank order, coalesced whatever the
+// caller's numbering; the chunk's end writes the positions and velocities back (unrank_state_kernel).
+// The arithmetic is the same in every order: the same bits.
+enum class StateOrder { kCaller, kGather, kRank };
+
+// The state's arrays: the caller's order, and the chunk's rank-order copy (null in lean mode).
+struct GatedState {
+  double* x;
+  double* v;
+  const double* f;  // the last ordinary evaluation's forces (the caller's order)
+  const double* mass;
+  const double* built;  // the build's positions (n x dim)
+  double* x_ranked;
+  double* v_ranked;
+  double* mass_ranked;
+  double* built_ranked;
+  const double* f_ranked;  // the gated evaluations' forces (RankOrder::forces)
+};
+
+// Thread k's state slot (coordinate k of slot k / D): `slot` indexes the order the kernel reads
+// (the caller's index for kCaller, else the rank), `particle` is the caller's index (flags, the
+// thermostat's key, types), `from` where its state is read (the caller's index for kGather).
+template <int D, StateOrder O>
+struct StateSlot {
+  std::size_t slot = 0, particle = 0, from = 0;
+  int axis = 0;
+  __device__ StateSlot(std::size_t k, bool in, const uint32_t* __restrict__ order) {
+    slot = k / D;
+    axis = int(k - slot * D);
+    particle = slot;
+    if constexpr (O != StateOrder::kCaller) {
+      if (in) particle = order[slot];
+    }
+    from = O == StateOrder::kGather ? particle : slot;
+  }
+  __device__ std::size_t read() const { return from * D + std::size_t(axis); }   // coordinate k's source
+  __device__ std::size_t write() const { return slot * D + std::size_t(axis); }  // and destination
+};
+
+// The arrays a kernel of order O reads (kCaller, kGather: the caller's; kRank: the copy) and
+// writes (kCaller: the caller's; else the copy). The forces: the caller's order for kCaller
+// (lean) and for kGather (the chunk's first step follows an ordinary evaluation); the gated
+// evaluations' rank order for kRank.
+template <StateOrder O>
+struct StateArrays {
+  const double *x_in, *v_in, *f_in, *mass_in, *built_in;
+  double *x_out, *v_out;
+  __device__ explicit StateArrays(const GatedState& s) {
+    const bool copy = O == StateOrder::kRank;
+    x_in = copy ? s.x_ranked : s.x;
+    v_in = copy ? s.v_ranked : s.v;
+    f_in = copy ? s.f_ranked : s.f;
+    mass_in = copy ? s.mass_ranked : s.mass;
+    built_in = copy ? s.built_ranked : s.built;
+    x_out = O == StateOrder::kCaller ? s.x : s.x_ranked;
+    v_out = O == StateOrder::kCaller ? s.v : s.v_ranked;
+  }
+};
+
 // What a gated step's last drift kernel places in the list's rank order (change 49): the thread
-// for particle `own` of the block (threads below kGateParticles) loads its rank and type with the
-// other loads (before the gate, but for change 52's GateFirst); after raise_displacement's barriers
-// it reads the particle's new coordinates from `moved` (coordinate thread c's at moved[c]) and
-// writes its entry of the gathered array as the evaluation's gather would (cuda::place_ranked), so
-// the evaluation has no gather kernel (a launch and a read of the positions a step: 22 us at 1M
-// particles on an H100).
+// for slot `own` of the block (threads below kGateParticles) loads its rank, caller's index and
+// type with the other loads (before the gate, but for change 52's GateFirst); after
+// raise_displacement's barriers it reads the particle's new coordinates from `moved` (coordinate
+// thread c's at moved[c]) and writes its entry of the gathered array as the evaluation's gather
+// would (cuda::place_ranked), so the evaluation has no gather kernel (a launch and a read of the
+// positions a step: 22 us at 1M particles on an H100). In rank order (change 58) the slot is the
+// rank: the entries are written coalesced.
+template <StateOrder O>
 struct Placing {
-  std::size_t own = 0;
+  std::size_t own = 0, particle = 0;
   bool places = false;
   uint32_t rank = 0, type = 0;
   __device__ Placing(const cuda::RankOrder& to, std::size_t n) {
     own = std::size_t(blockIdx.x) * kGateParticles + threadIdx.x;
     places = threadIdx.x < kGateParticles && own < n;
-    if (places) rank = to.rank[own], type = to.types ? to.types[own] : 0u;
+    if (!places) return;
+    if constexpr (O == StateOrder::kCaller) {
+      particle = own, rank = to.rank[own];
+    } else {
+      particle = to.order[own], rank = uint32_t(own);
+    }
+    type = to.types ? to.types[particle] : 0u;
   }
   template <int D>
   __device__ void place(const cuda::RankOrder& to, const double* moved) const {
     if (!places) return;
     double v[3] = {0, 0, 0};
     for (int a = 0; a < D; ++a) v[a] = moved[threadIdx.x * D + a];
-    cuda::place_ranked<D>(to, own, rank, v, type);
+    cuda::place_ranked<D>(to, particle, rank, v, type);
   }
 };
-
-// Coordinate k (particle i) of the forces a gated step's kicks read: the caller's order (`f`), or,
-// after a gated evaluation that left them in rank order (change 51), `f_ranked` at the particle's
-// rank.
-template <int D>
-__device__ __forceinline__ double step_force(const double* __restrict__ f, const double* __restrict__ f_ranked,
-                                             const uint32_t* __restrict__ rank, std::size_t k, std::size_t i) {
-  return f_ranked ? f_ranked[std::size_t(rank[i]) * D + (k - i * D)] : f[k];
-}
 
 // The gated kernels of a step load every coordinate they read before the gate's barrier, in one
 // batch, and template the dimension (a constant divisor): the kick-drift's thread waited on four
@@ -284,28 +346,28 @@ __device__ __forceinline__ double step_force(const double* __restrict__ f, const
 
 // The kick-drift of a Verlet step behind the step gate (step_gate.h): the gate (step_gate_shut: the
 // kernel returns with the state as it was), then the kick-drift, then each particle's squared
-// displacement from `built` (the build's positions) into the gate, and its new position into the
-// list's rank order (Placing). The forces: step_force.
+// displacement from the build's positions into the gate, and its new position into the list's
+// rank order (Placing). The state: StateOrder (kGather also copies the mass and the build's
+// position into rank order).
 // GateFirst (change 52: a step queued past the expected rebuild, which the gate most likely shuts):
 // the gate is read before the loads, so that a shut step costs its read, not the state's (~50 us
 // at 1M particles); the other steps load first (change 28).
-template <int D, bool GateFirst>
+template <int D, bool GateFirst, StateOrder O>
 __global__ void __launch_bounds__(kGateParticles * 3)
-    gated_kick_drift_kernel(double* __restrict__ x, double* __restrict__ v, const double* __restrict__ f,
-                            const double* __restrict__ mass, double h, int kicks, double dt, DriftBox box,
-                            std::size_t n, MdFlags* flags, const double* __restrict__ built, cuda::GateView gate,
-                            cuda::RankOrder to, const double* __restrict__ f_ranked) {
+    gated_kick_drift_kernel(GatedState s, double h, int kicks, double dt, DriftBox box, std::size_t n,
+                            MdFlags* flags, cuda::GateView gate, cuda::RankOrder to) {
   const std::size_t k = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
   const bool in = k < n * std::size_t(D);
-  const std::size_t i = k / D;
   if constexpr (GateFirst) {
     if (step_gate_shut(gate)) return;
   }
-  const Placing placing(to, n);
+  const StateSlot<D, O> at(k, in, to.order);
+  const StateArrays<O> a(s);
+  const Placing<O> placing(to, n);
   double xa = 0, va = 0, fa = 0, m = 1, then = 0;
   if (in) {
-    xa = x[k], va = v[k], m = mass[i], then = built[k];
-    fa = step_force<D>(f, f_ranked, to.rank, k, i);
+    const std::size_t r = at.read();
+    xa = a.x_in[r], va = a.v_in[r], m = a.mass_in[at.from], then = a.built_in[r], fa = a.f_in[r];
   }
   if constexpr (!GateFirst) {
     if (step_gate_shut(gate)) return;
@@ -313,12 +375,17 @@ __global__ void __launch_bounds__(kGateParticles * 3)
   __shared__ double moved[kGateParticles * D];
   double sq = 0;
   if (in) {
+    const std::size_t w = at.write();
+    if constexpr (O == StateOrder::kGather) {
+      s.built_ranked[w] = then;
+      if (at.axis == 0) s.mass_ranked[at.slot] = m;
+    }
     va = kick_value(va, fa, m, h, kicks);
-    v[k] = va;
-    sq = last_drift(x, k, i, xa, va, dt, drift_axis(box, int(k - i * D)), then, flags, moved[threadIdx.x]);
+    a.v_out[w] = va;
+    sq = last_drift(a.x_out, w, at.particle, xa, va, dt, drift_axis(box, at.axis), then, flags, moved[threadIdx.x]);
   }
   raise_displacement(sq, D, n, gate);  // its barrier: `moved` is written
-  placing.place<D>(to, moved);
+  placing.template place<D>(to, moved);
 }
 
 // A Langevin (BAOAB) step behind the step gate, in three kernels around the thermostat: (1) the gate
@@ -326,55 +393,65 @@ __global__ void __launch_bounds__(kGateParticles * 3)
 // opening one, rounded one after the other as kick_kernel would) and the first half drift; (2) the
 // thermostat (gated_thermostat_kernel); (3) the second half drift with the wrap, the displacement
 // into the gate and the new positions into the list's rank order (Placing). The same arithmetic,
-// kernel for kernel, as the ungated step. (1) reads the forces by step_force and takes
-// gated_kick_drift_kernel's GateFirst.
-template <int D, bool GateFirst>
+// kernel for kernel, as the ungated step. (1) takes gated_kick_drift_kernel's StateOrder and
+// GateFirst; (2) and (3) follow (1) in the chunk (kCaller or kRank).
+template <int D, bool GateFirst, StateOrder O>
 __global__ void __launch_bounds__(kGateParticles * 3)
-    gated_langevin_kick_drift_kernel(double* __restrict__ x, double* __restrict__ v, const double* __restrict__ f,
-                                     const double* __restrict__ mass, double h, int kicks, DriftBox box,
-                                     std::size_t n, MdFlags* flags, cuda::GateView gate,
-                                     const uint32_t* __restrict__ rank, const double* __restrict__ f_ranked) {
+    gated_langevin_kick_drift_kernel(GatedState s, double h, int kicks, DriftBox box, std::size_t n,
+                                     MdFlags* flags, cuda::GateView gate, const uint32_t* __restrict__ order) {
   const std::size_t k = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
   const bool in = k < n * std::size_t(D);
-  const std::size_t i = k / D;
   if constexpr (GateFirst) {  // as gated_kick_drift_kernel
     if (step_gate_shut(gate)) return;
   }
-  double xa = 0, va = 0, fa = 0, m = 1;
+  const StateSlot<D, O> at(k, in, order);
+  const StateArrays<O> a(s);
+  double xa = 0, va = 0, fa = 0, m = 1, then = 0;
   if (in) {
-    xa = x[k], va = v[k], m = mass[i];
-    fa = step_force<D>(f, f_ranked, rank, k, i);
+    const std::size_t r = at.read();
+    xa = a.x_in[r], va = a.v_in[r], m = a.mass_in[at.from], fa = a.f_in[r];
+    if constexpr (O == StateOrder::kGather) then = s.built[r];
   }
   if constexpr (!GateFirst) {
     if (step_gate_shut(gate)) return;
   }
   if (!in) return;
+  const std::size_t w = at.write();
+  if constexpr (O == StateOrder::kGather) {
+    s.built_ranked[w] = then;
+    if (at.axis == 0) s.mass_ranked[at.slot] = m;
+  }
   va = kick_value(va, fa, m, h, kicks);
-  v[k] = va;
+  a.v_out[w] = va;
   bool bad;
-  x[k] = drift_value(xa, va, h, drift_axis(box, int(k - i * D)), false, bad);
-  flag_diverged(bad, i, flags);
+  a.x_out[w] = drift_value(xa, va, h, drift_axis(box, at.axis), false, bad);
+  flag_diverged(bad, at.particle, flags);
 }
 
-template <int D>
+template <int D, StateOrder O>
 __global__ void __launch_bounds__(kGateParticles * 3)
-    gated_langevin_drift_kernel(double* __restrict__ x, const double* __restrict__ v, double h, DriftBox box,
-                                std::size_t n, MdFlags* flags, const double* __restrict__ built, cuda::GateView gate,
-                                cuda::RankOrder to) {
+    gated_langevin_drift_kernel(GatedState s, double h, DriftBox box, std::size_t n, MdFlags* flags,
+                                cuda::GateView gate, cuda::RankOrder to) {
+  static_assert(O != StateOrder::kGather, "the chunk's first kernel is (1)");
   const std::size_t k = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
   const bool in = k < n * std::size_t(D);
-  const std::size_t i = k / D;
-  const Placing placing(to, n);
+  const StateSlot<D, O> at(k, in, to.order);
+  const StateArrays<O> a(s);
+  const Placing<O> placing(to, n);
   double xa = 0, va = 0, then = 0;
-  if (in) xa = x[k], va = v[k], then = built[k];
+  if (in) {
+    const std::size_t r = at.read();
+    xa = a.x_in[r], va = a.v_in[r], then = a.built_in[r];
+  }
   if (step_gate_closed(gate)) return;
   __shared__ double moved[kGateParticles * D];
   double sq = 0;
   if (in) {
-    sq = last_drift(x, k, i, xa, va, h, drift_axis(box, int(k - i * D)), then, flags, moved[threadIdx.x]);
+    sq = last_drift(a.x_out, at.write(), at.particle, xa, va, h, drift_axis(box, at.axis), then, flags,
+                    moved[threadIdx.x]);
   }
   raise_displacement(sq, D, n, gate);  // its barrier: `moved` is written
-  placing.place<D>(to, moved);
+  placing.template place<D>(to, moved);
 }
 
 // BAOAB's O step: v = c1 v + c2 sqrt(kT / m) xi, xi from counter_normal keyed by the step and the
@@ -387,16 +464,36 @@ __global__ void thermostat_kernel(double* __restrict__ v, const double* __restri
   v[k] = c1 * v[k] + sigma * counter_normal(seed, stream, k);
 }
 
-// thermostat_kernel behind the step gate (the step's first kernel decided; stream = the step).
-__global__ void gated_thermostat_kernel(double* __restrict__ v, const double* __restrict__ mass, double c1, double c2,
-                                        double kT, uint64_t seed, std::size_t n, int dim, cuda::GateView gate) {
+// thermostat_kernel behind the step gate (the step's first kernel decided; stream = the step), on
+// the state of StateOrder O (kCaller or kRank): the noise keyed by the caller's index all the same.
+template <int D, StateOrder O>
+__global__ void gated_thermostat_kernel(GatedState s, double c1, double c2, double kT, uint64_t seed, std::size_t n,
+                                        cuda::GateView gate, const uint32_t* __restrict__ order) {
+  static_assert(O != StateOrder::kGather, "the chunk's first kernel is (1)");
   if (step_gate_closed(gate)) return;
   const std::size_t k = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
-  if (k >= n * std::size_t(dim)) return;
-  const double sigma = c2 * sqrt(kT / mass[k / std::size_t(dim)]);
-  v[k] = c1 * v[k] + sigma * counter_normal(seed, gate.step, k);
+  const bool in = k < n * std::size_t(D);
+  if (!in) return;
+  const StateSlot<D, O> at(k, in, order);
+  const StateArrays<O> a(s);
+  const std::size_t w = at.write();
+  const double sigma = c2 * sqrt(kT / a.mass_in[at.slot]);
+  a.v_out[w] = c1 * a.v_in[w] + sigma * counter_normal(seed, gate.step, at.particle * D + std::size_t(at.axis));
 }
 
+// The end of a chunk that ran on the rank-order copy: rank p's positions and velocities back to the
+// caller's order (a thread per coordinate).
+template <int D>
+__global__ void unrank_state_kernel(const uint32_t* __restrict__ order, const double* __restrict__ x_ranked,
+                                    const double* __restrict__ v_ranked, std::size_t n, double* __restrict__ x,
+                                    double* __restrict__ v) {
+  const std::size_t k = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
+  if (k >= n * std::size_t(D)) return;
+  const std::size_t p = k / D;
+  const std::size_t to = std::size_t(order[p]) * D + (k - p * D);
+  x[to] = x_ranked[k];
+  v[to] = v_ranked[k];
+}
 // m v^2 / 2 of particle i (summed over axes), for the kinetic-energy reduction.
 struct KineticTerm {
   const double* v;
@@ -619,7 +716,7 @@ class CudaMdEngine final : public MdEngine {
   std::size_t state_bytes() const override {
     return positions_.bytes() + velocities_.bytes() + masses_.bytes() + types_.bytes() + flags_.bytes() +
            scratch_result_.bytes() + fire_scalars_.bytes() + fire_start_.bytes() + reduce_scratch_.bytes() +
-           gate_.bytes();
+           gate_.bytes() + ranked_state_.bytes();
   }
 
   Observables observables() override {
@@ -863,54 +960,83 @@ class CudaMdEngine final : public MdEngine {
     const uint32_t* types = ff_.num_types() > 1 ? types_.data() : nullptr;
     const cuda::RankOrder to = gpu_.rank_order(box_, n_, positions_.data(), types, ff_);  // the drifts place
     const double c1 = std::exp(-settings.friction * dt), c2 = std::sqrt(1.0 - c1 * c1);  // as run()
-    for (int64_t j = 0; j < count; ++j) {
-      view.step = first + uint64_t(j);
-      const int kicks = j == 0 ? first_kicks : 2;
-      const double* f_ranked = j > 0 ? to.forces : nullptr;  // the last evaluation a gated one (change 51)
-      const bool past_expected = chunk.overshoot && j == count - 1;  // gate first (change 52)
-      cuda::with_dim(box_.dim, [&](auto dim) {
-        constexpr int D = decltype(dim)::value;
-        if (!settings.langevin) {
-          auto kick_drift = [&](auto gate_first) {
-            gated_kick_drift_kernel<D, decltype(gate_first)::value><<<blocks, threads, 0, stream_>>>(
-                positions_.data(), velocities_.data(), gpu_.device_forces(), masses_.data(), 0.5 * dt, kicks, dt,
-                box, n_, flags_.data(), built, view, to, f_ranked);
-          };
-          if (past_expected) kick_drift(std::true_type{});
-          else kick_drift(std::false_type{});
-          CF_CUDA_CHECK_LAUNCH();
-        } else {
-          auto kick_drift = [&](auto gate_first) {
-            gated_langevin_kick_drift_kernel<D, decltype(gate_first)::value><<<blocks, threads, 0, stream_>>>(
-                positions_.data(), velocities_.data(), gpu_.device_forces(), masses_.data(), 0.5 * dt, kicks, box,
-                n_, flags_.data(), view, to.rank, f_ranked);
-          };
-          if (past_expected) kick_drift(std::true_type{});
-          else kick_drift(std::false_type{});
-          CF_CUDA_CHECK_LAUNCH();
-          gated_thermostat_kernel<<<blocks_for(n_ * box_.dim), kBlock, 0, stream_>>>(
-              velocities_.data(), masses_.data(), c1, c2, settings.kT, settings.seed, n_, box_.dim, view);
-          CF_CUDA_CHECK_LAUNCH();
-          gated_langevin_drift_kernel<D><<<blocks, threads, 0, stream_>>>(
-              positions_.data(), velocities_.data(), 0.5 * dt, box, n_, flags_.data(), built, view, to);
-          CF_CUDA_CHECK_LAUNCH();
-        }
-      });
-      // Only the chunk's first evaluation is timed (change 46): the two events around each gated
-      // evaluation held the device ~1.5 us each between the step's kernels (H100, CUPTI trace:
-      // 3.5 and 3.0 us before and after the evaluation against 1.7 between its own two kernels).
-      // The chunk's served evaluations are booked at that one's time (they run the same kernels
-      // on the same list); the untimed ones the gate shut (kernels that return at once) fall in
-      // the integration's time. The timed one is queued right after the host's read of the gate:
-      // at small sizes its window may hold a little of the host's launching (at 32k, 41.4 us of
-      // forces and 3.8 of integration a step against a ~4 us kick-drift kernel).
-      if (j == 0) {
-        std::size_t slot = timed;  // counted below, for every step served
-        timed_evaluation(slot, [&] { gpu_.evaluate_gated(box_, n_, positions_.data(), types, ff_, view); });
-      } else {
-        gpu_.evaluate_gated(box_, n_, positions_.data(), types, ff_, view);
-      }
+    // With the forces in rank order (fast mode), the chunk runs on a rank-order copy of the state
+    // (StateOrder, change 58), written back at its end.
+    const bool ranked = to.forces != nullptr;
+    GatedState state{positions_.data(), velocities_.data(), gpu_.device_forces(), masses_.data(), built,
+                     nullptr, nullptr, nullptr, nullptr, to.forces};
+    if (ranked) {
+      const std::size_t nd = n_ * std::size_t(box_.dim);
+      ranked_state_.reserve(std::max<std::size_t>(3 * nd + n_, 1));
+      state.x_ranked = ranked_state_.data();
+      state.v_ranked = state.x_ranked + nd;
+      state.built_ranked = state.v_ranked + nd;
+      state.mass_ranked = state.built_ranked + nd;
     }
+    bool gathered = false;  // the chunk's first kernel copied the state into rank order
+    auto steps = [&] {
+      for (int64_t j = 0; j < count; ++j) {
+        view.step = first + uint64_t(j);
+        const int kicks = j == 0 ? first_kicks : 2;
+        const bool past_expected = chunk.overshoot && j == count - 1;  // gate first (change 52)
+        const StateOrder order = !ranked ? StateOrder::kCaller : j == 0 ? StateOrder::kGather : StateOrder::kRank;
+        with_state_order(order, [&](auto o) {
+          constexpr StateOrder O = decltype(o)::value;
+          cuda::with_dim(box_.dim, [&](auto dim) {
+            constexpr int D = decltype(dim)::value;
+            if (!settings.langevin) {
+              auto kick_drift = [&](auto gate_first) {
+                gated_kick_drift_kernel<D, decltype(gate_first)::value, O><<<blocks, threads, 0, stream_>>>(
+                    state, 0.5 * dt, kicks, dt, box, n_, flags_.data(), view, to);
+              };
+              if (past_expected) kick_drift(std::true_type{});
+              else kick_drift(std::false_type{});
+              CF_CUDA_CHECK_LAUNCH();
+            } else {
+              auto kick_drift = [&](auto gate_first) {
+                gated_langevin_kick_drift_kernel<D, decltype(gate_first)::value, O>
+                    <<<blocks, threads, 0, stream_>>>(state, 0.5 * dt, kicks, box, n_, flags_.data(), view, to.order);
+              };
+              if (past_expected) kick_drift(std::true_type{});
+              else kick_drift(std::false_type{});
+              CF_CUDA_CHECK_LAUNCH();
+              constexpr StateOrder After = O == StateOrder::kCaller ? O : StateOrder::kRank;  // (1) gathered
+              gated_thermostat_kernel<D, After><<<blocks_for(n_ * D), kBlock, 0, stream_>>>(
+                  state, c1, c2, settings.kT, settings.seed, n_, view, to.order);
+              CF_CUDA_CHECK_LAUNCH();
+              gated_langevin_drift_kernel<D, After><<<blocks, threads, 0, stream_>>>(state, 0.5 * dt, box, n_,
+                                                                                    flags_.data(), view, to);
+              CF_CUDA_CHECK_LAUNCH();
+            }
+          });
+        });
+        gathered = ranked;
+        // Only the chunk's first evaluation is timed (change 46): the two events around each gated
+        // evaluation held the device ~1.5 us each between the step's kernels (H100, CUPTI trace:
+        // 3.5 and 3.0 us before and after the evaluation against 1.7 between its own two kernels).
+        // The chunk's served evaluations are booked at that one's time (they run the same kernels
+        // on the same list); the untimed ones the gate shut (kernels that return at once) fall in
+        // the integration's time. The timed one is queued right after the host's read of the gate:
+        // at small sizes its window may hold a little of the host's launching (at 32k, 41.4 us of
+        // forces and 3.8 of integration a step against a ~4 us kick-drift kernel).
+        if (j == 0) {
+          std::size_t slot = timed;  // counted below, for every step served
+          timed_evaluation(slot, [&] { gpu_.evaluate_gated(box_, n_, positions_.data(), types, ff_, view); });
+        } else {
+          gpu_.evaluate_gated(box_, n_, positions_.data(), types, ff_, view);
+        }
+      }
+    };
+    try {
+      steps();
+    } catch (...) {
+      try {
+        if (gathered) unrank_state(state, to.order);  // the state as the queued kernels left it, for the diagnosis
+      } catch (...) {
+      }
+      throw;
+    }
+    if (ranked) unrank_state(state, to.order);
     cuda::StepGate g{};
     pause();
     CF_CUDA_CHECK(cudaMemcpyAsync(&g, gate_.data(), sizeof g, cudaMemcpyDeviceToHost, stream_));
@@ -951,6 +1077,27 @@ class CudaMdEngine final : public MdEngine {
     std::memcpy(&closed_d2, &g.d2[closed % 3], sizeof closed_d2);
     timed_evaluation(timed, [&] { evaluate(false, closed_d2); });
     return served + 1;
+  }
+
+  // Runs f with std::integral_constant<StateOrder, o>.
+  template <class F>
+  static void with_state_order(StateOrder o, F&& f) {
+    switch (o) {
+      case StateOrder::kCaller: f(std::integral_constant<StateOrder, StateOrder::kCaller>{}); return;
+      case StateOrder::kGather: f(std::integral_constant<StateOrder, StateOrder::kGather>{}); return;
+      case StateOrder::kRank: f(std::integral_constant<StateOrder, StateOrder::kRank>{}); return;
+    }
+  }
+
+  // A rank-order chunk's positions and velocities back into the caller's order (change 58).
+  void unrank_state(const GatedState& state, const uint32_t* order) {
+    if (n_ == 0) return;
+    cuda::with_dim(box_.dim, [&](auto dim) {
+      constexpr int D = decltype(dim)::value;
+      unrank_state_kernel<D><<<blocks_for(n_ * D), kBlock, 0, stream_>>>(order, state.x_ranked, state.v_ranked,
+                                                                         n_, state.x, state.v);
+    });
+    CF_CUDA_CHECK_LAUNCH();
   }
 
   void kick(double h, int kicks) {
@@ -1144,6 +1291,7 @@ class CudaMdEngine final : public MdEngine {
   DeviceBuffer<double> scratch_result_;
   DeviceBuffer<FireScalars> fire_scalars_;
   DeviceBuffer<double> fire_start_;  // positions, then velocities, before minimize()
+  DeviceBuffer<double> ranked_state_;  // a gated chunk's state in rank order (change 58): x, v, built, mass
   DeviceBuffer<std::byte> reduce_scratch_;
   bool observed_ = false;
   DeviceBuffer<cuda::StepGate> gate_;

@@ -917,6 +917,7 @@ template <class Real, class Accum>
 RankOrder rank_order(const ListArgs<Real, Accum>& args, PairList& list, bool forces_by_rank) {
   RankOrder to;
   to.rank = list.rank.data();
+  to.order = list.order.data();
   if (forces_by_rank) {
     list.ranked_forces.reserve(std::max<std::size_t>(args.n * std::size_t(args.grid.dim), 1));
     to.forces = list.ranked_forces.data();

@@ -15,6 +15,7 @@ struct DeviceFlags;
 
 struct RankOrder {
   const uint32_t* rank = nullptr;   // n: the rank of particle i in the list in use
+  const uint32_t* order = nullptr;  // n: the particle of rank p (rank's inverse)
   void* particles = nullptr;        // n: FixedParticle (fixed) or RankedParticle, as list_forces reads them
   bool fixed = false;
   Grid grid{};                      // the structure's: the wrap and the fixed-point scale

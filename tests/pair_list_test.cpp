@@ -5,6 +5,7 @@
 // coincident pair. Skips with a message where no CUDA device exists; compiled only with CUDA.
 #ifdef CELLFORCE_HAVE_CUDA
 
+#include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -748,6 +749,47 @@ TEST(PairListMd, GatedRunsEqualTheStepwiseRunLeanOrNot) {
       EXPECT_EQ(stepwise.gated_steps, 0);
       EXPECT_GT(fast.gated_steps, 200) << "the gate served few steps";
       EXPECT_GT(lean.gated_steps, 200);
+    }
+  }
+}
+
+// A gated chunk runs on a copy of the state in the list's rank order (change 58): a particle whose
+// drift diverges there is named by the caller's index, not its rank. Particle 1234 of 2,048 (its
+// rank is another number: the lattice's numbering is not the cells') is given a speed that carries
+// it more than the box edge (Verlet) or half of it (Langevin's half drift) in the first step, which
+// the gate queues (the set_state build serves it).
+TEST(PairListMd, AGatedDivergenceNamesTheCallersParticle) {
+  CF_SKIP_WITHOUT_DEVICE();
+  cellforce::Scene scene = cellforce::default_scene();
+  scene.particles.cells = {8, 8, 8};
+  cellforce::MdState start;
+  start.config = cellforce::build_configuration(scene);
+  const std::size_t n = start.config.size(), bad = 1234;
+  ASSERT_GT(n, bad);
+  const std::vector<double> masses(n, 1.0);
+  cellforce::initialize_velocities(start, masses, 1.44, 7, true);
+  start.velocities[bad * 3 + 1] = 1e4;  // dt 0.005: 50 sigma in a step, the box edge is 13.4
+  for (const bool lean : {false, true}) {
+    for (const bool langevin : {false, true}) {
+      SCOPED_TRACE(std::string(lean ? "lean, " : "fast, ") + (langevin ? "Langevin" : "Verlet"));
+      cellforce::EngineChoice choice;
+      choice.backend = cellforce::Backend::kCuda;
+      choice.precision = Precision::kMixed;
+      choice.reuse.automatic = false;
+      choice.reuse.skin = 0.3;
+      choice.reuse.list = true;
+      choice.lean_lists = lean;
+      auto md = cellforce::make_cuda_md_engine(std::make_unique<cellforce::CudaForceEngine>(choice));
+      md->set_state(start, masses, scene.force_field);
+      cellforce::IntegratorSettings settings;
+      settings.langevin = langevin;
+      settings.kT = 1.44;
+      try {
+        md->advance(10, settings, false);
+        ADD_FAILURE() << "the run did not diverge";
+      } catch (const cellforce::Error& e) {
+        EXPECT_THAT(std::string(e.what()), ::testing::HasSubstr("particle 1234 moved too far")) << e.what();
+      }
     }
   }
 }
