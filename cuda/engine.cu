@@ -443,14 +443,14 @@ struct GpuEngine::Impl {
   // step gate's evaluations, GpuEngine::evaluate_gated). Returns whether energy and virial were asked.
   template <class Real, class Accum>
   bool list_forces(const Grid& g, const SystemView& sys, const ForceField& ff, const Request& req,
-                   const cuda::GateView& gate) {
+                   const cuda::GateView& gate, const cuda::NextKickDrift* then = nullptr) {
     const cuda::ListArgs<Real, Accum> la = list_args<Real, Accum>(g, sys, ff, req);
     cuda::Switches sw;
     sw.dim = g.dim;
     sw.multi_type = ff.num_types() > 1;
     sw.mode = ff.mode;
     sw.observables = req.energy || req.virial;
-    cuda::list_forces<Real, Accum>(sw, la, list, stream, gate, gate.gate && !lean);  // rank_order()'s rule
+    cuda::list_forces<Real, Accum>(sw, la, list, stream, gate, gate.gate && !lean, then);  // rank_order()'s rule
     return sw.observables;
   }
 
@@ -458,8 +458,9 @@ struct GpuEngine::Impl {
   // evaluations leave the forces: in rank order unless the build is lean (24 bytes a particle
   // more) (GpuEngine::rank_order).
   template <class Real, class Accum>
-  cuda::RankOrder rank_order(const Grid& g, const SystemView& sys, const ForceField& ff) {
-    return cuda::rank_order<Real, Accum>(list_args<Real, Accum>(g, sys, ff, Request{false, false}), list, !lean);
+  cuda::RankOrder rank_order(const Grid& g, const SystemView& sys, const ForceField& ff, bool fused) {
+    return cuda::rank_order<Real, Accum>(list_args<Real, Accum>(g, sys, ff, Request{false, false}), list, !lean,
+                                         fused && !lean);
   }
 
   // Every particle's list partners (user indices, list order), downloaded: the list audit's input.
@@ -818,7 +819,7 @@ unsigned long long GpuEngine::gate_limit() const {
 const double* GpuEngine::device_build_positions() const { return impl_->build_positions.data(); }
 
 cuda::RankOrder GpuEngine::rank_order(const Box& box, std::size_t n, const double* positions, const uint32_t* types,
-                                      const ForceField& ff) {
+                                      const ForceField& ff, bool fused) {
   const DeviceScope scope(options_.device);
   Impl& s = *impl_;
   if (!s.list_usable || s.list_built_for != s.builds)
@@ -827,11 +828,11 @@ cuda::RankOrder GpuEngine::rank_order(const Box& box, std::size_t n, const doubl
   const SystemView system{box, n, nullptr, nullptr};
   const Grid& g = stats_.grid;
   switch (options_.precision) {
-    case Precision::kSingle: return s.rank_order<float, float>(g, system, ff);
-    case Precision::kMixed: return s.rank_order<float, double>(g, system, ff);
+    case Precision::kSingle: return s.rank_order<float, float>(g, system, ff, fused);
+    case Precision::kMixed: return s.rank_order<float, double>(g, system, ff, fused);
     case Precision::kDouble: break;
   }
-  return s.rank_order<double, double>(g, system, ff);
+  return s.rank_order<double, double>(g, system, ff, fused);
 }
 
 void GpuEngine::unrank_forces(std::size_t n) {
@@ -842,7 +843,7 @@ void GpuEngine::unrank_forces(std::size_t n) {
 }
 
 void GpuEngine::evaluate_gated(const Box& box, std::size_t n, const double* positions, const uint32_t* types,
-                               const ForceField& ff, const cuda::GateView& gate) {
+                               const ForceField& ff, const cuda::GateView& gate, const cuda::NextKickDrift* then) {
   const DeviceScope scope(options_.device);
   Impl& s = *impl_;
   const SystemView system{box, n, nullptr, nullptr};
@@ -850,9 +851,9 @@ void GpuEngine::evaluate_gated(const Box& box, std::size_t n, const double* posi
   const Grid& g = stats_.grid;
   const Request forces_only{false, false};
   switch (options_.precision) {
-    case Precision::kSingle: s.list_forces<float, float>(g, system, ff, forces_only, gate); break;
-    case Precision::kMixed: s.list_forces<float, double>(g, system, ff, forces_only, gate); break;
-    case Precision::kDouble: s.list_forces<double, double>(g, system, ff, forces_only, gate); break;
+    case Precision::kSingle: s.list_forces<float, float>(g, system, ff, forces_only, gate, then); break;
+    case Precision::kMixed: s.list_forces<float, double>(g, system, ff, forces_only, gate, then); break;
+    case Precision::kDouble: s.list_forces<double, double>(g, system, ff, forces_only, gate, then); break;
   }
 }
 

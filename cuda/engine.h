@@ -18,6 +18,7 @@
 #include "core/system.h"
 #include "rank_order.h"
 #include "step_gate.h"
+#include "verlet_step.h"
 
 namespace cellforce {
 
@@ -109,9 +110,11 @@ class GpuEngine {
   const double* device_build_positions() const;
   // Where the gated steps' last drift kernels place the positions in the list's rank order
   // (rank_order.h: the gather's values), for gated evaluations that then leave their gather out.
-  // Valid until the structure is rebuilt (the gate's chunk).
+  // Valid until the structure is rebuilt (the gate's chunk). With `fused` (a Verlet chunk in fast
+  // mode), the list's second rank-ordered array is reserved too, for gated evaluations that run the
+  // next step's kick-drift (evaluate_gated's `then`).
   cuda::RankOrder rank_order(const Box& box, std::size_t n, const double* positions, const uint32_t* types,
-                             const ForceField& ff);
+                             const ForceField& ff, bool fused = false);
   // After a chunk whose last gated evaluation ran: its forces, left in rank order (the RankOrder's
   // `forces`, when not null), into device_forces() in the caller's order.
   void unrank_forces(std::size_t n);
@@ -119,8 +122,11 @@ class GpuEngine {
   // nothing is counted until settle_gate(). The step's drift placed the positions (rank_order()),
   // so the evaluation does not gather them, and it leaves the forces where the RankOrder says (in
   // rank order, or in device_forces() when the build is lean).
+  // With `then` (fast mode, rank_order()'s `fused`), the evaluation runs the next gated step's
+  // Verlet kick-drift on the chunk's rank-order state instead of storing its forces (change 59,
+  // cuda/pair_list.cuh list_forces); the gate's test is then the next step's.
   void evaluate_gated(const Box& box, std::size_t n, const double* positions, const uint32_t* types,
-                      const ForceField& ff, const cuda::GateView& gate);
+                      const ForceField& ff, const cuda::GateView& gate, const cuda::NextKickDrift* then = nullptr);
   // After the host read the gate: `served` gated evaluations ran (the structure served them, the
   // largest squared displacement among them `served_d2`). stats() then reads as after a reused
   // evaluation.

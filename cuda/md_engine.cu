@@ -39,34 +39,24 @@
 #include "pair_list.cuh"  // place_ranked
 #include "step_gate.cuh"
 #include "traversal.cuh"   // kCellSums
+#include "verlet_step.cuh"
 #include "with_dim.cuh"
 
 namespace cellforce {
 namespace {
 
 using cuda::DeviceBuffer;
+using cuda::drift_axis;
+using cuda::drift_value;
+using cuda::DriftAxis;
+using cuda::DriftBox;
+using cuda::flag_diverged;
+using cuda::kick_value;
+using cuda::MdFlags;
+using cuda::step_gate_shut;
 constexpr int kBlock = 256;
 
 unsigned blocks_for(std::size_t n) { return unsigned((n + kBlock - 1) / kBlock); }
-
-// What the integration kernels raise: the smallest index of a particle whose drift diverged
-// (a displacement not finite or longer than allowed on a periodic axis, or a position no longer
-// finite), ~0 when none.
-struct MdFlags {
-  unsigned long long diverged;
-};
-
-// v += (h / m) F, per coordinate (rounded product, then sum: the same bits in every kernel that kicks).
-__device__ __forceinline__ double kicked(double v, double hm, double f) { return v + mul_rn(hm, f); }
-
-// `kicks` half kicks v += (h / m) F of one velocity component va under its force component fa (two:
-// a step's closing one, deferred, and the next step's opening one, rounded one after the other as
-// two launches of one would). Returns the new component.
-__device__ __forceinline__ double kick_value(double va, double fa, double m, double h, int kicks) {
-  const double hm = h / m;
-  for (int s = 0; s < kicks; ++s) va = kicked(va, hm, fa);
-  return va;
-}
 
 // Coordinate k of kick_value, in place.
 __device__ __forceinline__ void kick_coordinate(double* __restrict__ v, const double* __restrict__ f,
@@ -80,49 +70,6 @@ __global__ void kick_kernel(double* __restrict__ v, const double* __restrict__ f
   const std::size_t k = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
   if (k >= n * std::size_t(dim)) return;
   kick_coordinate(v, f, mass, h, kicks, dim, k);
-}
-
-struct DriftBox {
-  int dim;
-  double length[kMaxDim];
-  double most[kMaxDim];  // largest displacement allowed per axis (infinite on open axes)
-  double inv_length[kMaxDim];  // 1 / length on periodic axes, 0 on open ones (minimum image)
-  bool periodic[kMaxDim];
-};
-
-// Axis a of a DriftBox, picked by comparisons: a kernel parameter indexed at run time is copied to
-// local memory first (each thread's own copy: Nsight Compute found the gated kick-drift's local
-// loads and stores at 1 useful byte of 32 a sector; without them the kernel went from 111 to 70.5
-// us at 1M particles on an H200, performance.md change 20).
-struct DriftAxis {
-  double length, most, inv_length;
-  bool periodic;
-};
-__device__ __forceinline__ DriftAxis drift_axis(const DriftBox& b, int a) {
-  static_assert(kMaxDim == 3, "three axes to pick from");
-  return a == 0   ? DriftAxis{b.length[0], b.most[0], b.inv_length[0], b.periodic[0]}
-         : a == 1 ? DriftAxis{b.length[1], b.most[1], b.inv_length[1], b.periodic[1]}
-                  : DriftAxis{b.length[2], b.most[2], b.inv_length[2], b.periodic[2]};
-}
-
-// A drift x += h v of one coordinate xa on `axis`, the displacement checked as the host's drift()
-// checks it (`bad` where it fails); with `wrap` (a step's last drift) the new position is wrapped
-// into [0, L) on a periodic axis. Returns the new coordinate.
-__device__ __forceinline__ double drift_value(double xa, double va, double h, const DriftAxis& axis, bool wrap,
-                                              bool& bad) {
-  const double dx = mul_rn(h, va);
-  bad = !(fabs(dx) <= axis.most);  // also catches NaN
-  xa += dx;
-  if (wrap) {
-    if (!isfinite(xa)) bad = true;
-    else if (axis.periodic) xa = wrap_coordinate(xa, axis.length);
-  }
-  return xa;
-}
-
-// A particle whose drift failed the check raises its index.
-__device__ __forceinline__ void flag_diverged(bool bad, std::size_t i, MdFlags* flags) {
-  if (bad) atomicMin(&flags->diverged, static_cast<unsigned long long>(i));
 }
 
 // A gated step's last drift of coordinate k (particle i, on `axis`) from xa by h va, wrapped,
@@ -182,25 +129,6 @@ __global__ void kick_drift_kernel(double* __restrict__ x, double* __restrict__ v
 }
 
 constexpr int kGateParticles = 128;  // particles per block of the gated kernels (dim threads each)
-
-// The gate at the first kernel of a gated step (step_gate.h), read by one thread per block and
-// shared: shut at an earlier step, or the previous step's displacement past the limit (its
-// evaluation did not run: the gate closes there, at step - 1). Open, block 0 zeroes the next
-// step's slot. Every thread of the block must call it (a barrier).
-__device__ __forceinline__ bool step_gate_shut(const cuda::GateView& gate) {
-  volatile cuda::StepGate* g = gate.gate;
-  __shared__ int shut;
-  if (threadIdx.x == 0) {
-    shut = g->closed != cuda::kGateOpen;
-    if (!shut && g->d2[(gate.step + 2) % 3] > gate.limit) {  // step - 1 ran past skin / 2
-      shut = 1;
-      if (blockIdx.x == 0) g->closed = gate.step - 1;
-    }
-    if (!shut && blockIdx.x == 0) g->d2[(gate.step + 1) % 3] = 0;  // the next step's slot
-  }
-  __syncthreads();
-  return shut != 0;
-}
 
 // Whether the gate closed at an earlier step (a later kernel of a gated step: the first one
 // decided). Every thread of the block must call it (a barrier).
@@ -958,7 +886,8 @@ class CudaMdEngine final : public MdEngine {
     const unsigned blocks = unsigned((n_ + kGateParticles - 1) / kGateParticles);
     const unsigned threads = unsigned(kGateParticles * box_.dim);
     const uint32_t* types = ff_.num_types() > 1 ? types_.data() : nullptr;
-    const cuda::RankOrder to = gpu_.rank_order(box_, n_, positions_.data(), types, ff_);  // the drifts place
+    // The drifts place the positions; a Verlet chunk's evaluations may run the next step's kick-drift.
+    const cuda::RankOrder to = gpu_.rank_order(box_, n_, positions_.data(), types, ff_, !settings.langevin);
     const double c1 = std::exp(-settings.friction * dt), c2 = std::sqrt(1.0 - c1 * c1);  // as run()
     // With the forces in rank order (fast mode), the chunk runs on a rank-order copy of the state
     // (StateOrder, change 58), written back at its end.
@@ -973,6 +902,11 @@ class CudaMdEngine final : public MdEngine {
       state.built_ranked = state.v_ranked + nd;
       state.mass_ranked = state.built_ranked + nd;
     }
+    // Verlet on the rank-order copy: every gated evaluation but the chunk's last runs the next step's
+    // kick-drift in its force kernel (change 59), so only the chunk's first step has a kick-drift kernel.
+    const bool fused = ranked && !settings.langevin;
+    const cuda::NextKickDrift then{state.x_ranked, state.v_ranked, state.mass_ranked, state.built_ranked,
+                                   to.order, 0.5 * dt, dt, box, flags_.data()};
     bool gathered = false;  // the chunk's first kernel copied the state into rank order
     auto steps = [&] {
       for (int64_t j = 0; j < count; ++j) {
@@ -985,6 +919,7 @@ class CudaMdEngine final : public MdEngine {
           cuda::with_dim(box_.dim, [&](auto dim) {
             constexpr int D = decltype(dim)::value;
             if (!settings.langevin) {
+              if (fused && j > 0) return;  // the previous evaluation ran it
               auto kick_drift = [&](auto gate_first) {
                 gated_kick_drift_kernel<D, decltype(gate_first)::value, O><<<blocks, threads, 0, stream_>>>(
                     state, 0.5 * dt, kicks, dt, box, n_, flags_.data(), view, to);
@@ -1019,11 +954,12 @@ class CudaMdEngine final : public MdEngine {
         // the integration's time. The timed one is queued right after the host's read of the gate:
         // at small sizes its window may hold a little of the host's launching (at 32k, 41.4 us of
         // forces and 3.8 of integration a step against a ~4 us kick-drift kernel).
+        const cuda::NextKickDrift* next = fused && j + 1 < count ? &then : nullptr;
         if (j == 0) {
           std::size_t slot = timed;  // counted below, for every step served
-          timed_evaluation(slot, [&] { gpu_.evaluate_gated(box_, n_, positions_.data(), types, ff_, view); });
+          timed_evaluation(slot, [&] { gpu_.evaluate_gated(box_, n_, positions_.data(), types, ff_, view, next); });
         } else {
-          gpu_.evaluate_gated(box_, n_, positions_.data(), types, ff_, view);
+          gpu_.evaluate_gated(box_, n_, positions_.data(), types, ff_, view, next);
         }
       }
     };

@@ -13,6 +13,7 @@
 #include "pair_list.cuh"
 #include "step_gate.cuh"
 #include "traversal_impl.cuh"  // Traits, dispatch, warp_sum, flag_bad_pair
+#include "verlet_step.cuh"
 #include "with_dim.cuh"
 
 namespace cellforce::cuda {
@@ -489,15 +490,87 @@ struct FixedFold {
 // gathers' latency otherwise), and its pairs are added in list order.
 static_assert(kChunk == 4, "a chunk is one uint4");
 
-template <class T, int S, bool Folded, class Particle, class Real, class Accum>
+//
+// The next step's kick-drift (change 59), for a gated Verlet evaluation's force kernel (Drift) on the
+// chunk's rank-order state: the block's particles are consecutive ranks, so after their forces are
+// summed the block kicks and drifts them a thread per coordinate (the separate kernel's coalesced
+// loads and stores, and no register of the force loop held for them), raises the next step's
+// displacement into the gate and places the new positions into `next` (the list's other
+// rank-ordered array: the partners' positions are read from `ranked` by the kernel's other blocks
+// meanwhile). The forces go through shared memory and are never stored. The arithmetic is
+// gated_kick_drift_kernel's (cuda/md_engine.cu), coordinate for coordinate (verlet_step.cuh).
+template <int D, int S, class Particle>
+__device__ __forceinline__ void next_kick_drift(const NextKickDrift& s, std::size_t n, std::size_t p, uint32_t part,
+                                                const double (&force)[D], uint32_t type, Particle* __restrict__ next,
+                                                const Grid& grid, uint32_t num_types, DeviceFlags* dflags,
+                                                const GateView& gate_next) {
+  constexpr int kParticles = kBlock / S;  // the block's ranks
+  __shared__ double value[kParticles * D];  // the forces, then the new positions
+  __shared__ double square[kParticles * D];
+  __shared__ uint32_t types[kParticles];
+  __shared__ double warp_worst[kBlock / 32];
+  const std::size_t first = std::size_t(blockIdx.x) * kParticles;
+  const int local = int(threadIdx.x) / S;
+  if (p < n && part == 0) {
+#pragma unroll
+    for (int c = 0; c < D; ++c) value[local * D + c] = force[c];
+    types[local] = type;
+  }
+  __syncthreads();
+  for (int c = int(threadIdx.x); c < kParticles * D; c += kBlock) {
+    const std::size_t q = first + std::size_t(c / D);
+    double term = 0;
+    if (q < n) {
+      const std::size_t k = first * D + std::size_t(c);
+      const int a = c % D;
+      const double m = s.mass[q], then = s.built[k];
+      double xa = s.x[k], va = s.v[k];
+      va = kick_value(va, value[c], m, s.h, 2);
+      s.v[k] = va;
+      const DriftAxis axis = drift_axis(s.box, a);
+      bool bad;
+      xa = drift_value(xa, va, s.dt, axis, true, bad);
+      s.x[k] = xa;
+      if (bad) flag_diverged(true, s.order[q], s.flags);
+      term = displacement_term(xa, then, axis.length, axis.inv_length);
+      value[c] = xa;  // this thread read the force at c above
+    }
+    square[c] = term;
+  }
+  __syncthreads();
+  double worst = 0;
+  if (threadIdx.x < unsigned(kParticles)) {
+    const std::size_t q = first + threadIdx.x;
+    if (q < n) {
+      double d2 = 0, moved[3] = {0, 0, 0};
+#pragma unroll
+      for (int a = 0; a < D; ++a) d2 += square[threadIdx.x * D + a], moved[a] = value[threadIdx.x * D + a];
+      worst = isnan(d2) ? INFINITY : d2;  // a diverged particle closes the gate
+      store_ranked<D>(next, q, grid, moved, types[threadIdx.x], num_types, s.order[q], dflags);
+    }
+  }
+  for (int offset = 16; offset > 0; offset >>= 1) worst = fmax(worst, __shfl_xor_sync(0xffffffffu, worst, offset));
+  if (threadIdx.x % 32 == 0) warp_worst[threadIdx.x / 32] = worst;
+  __syncthreads();
+  if (threadIdx.x == 0) {
+    worst = warp_worst[0];
+    for (int w = 1; w < kBlock / 32; ++w) worst = fmax(worst, warp_worst[w]);
+    const auto bits = static_cast<unsigned long long>(__double_as_longlong(worst));
+    volatile StepGate* g = gate_next.gate;
+    if (bits > g->d2[gate_next.step % 3]) atomicMax(&gate_next.gate->d2[gate_next.step % 3], bits);
+  }
+}
+
+template <class T, int S, bool Folded, bool Drift, class Particle, class Real, class Accum>
 __global__ void __launch_bounds__(kBlock)
     list_force_kernel(const ListArgs<Real, Accum> args, const uint32_t* __restrict__ order,
                       const Particle* __restrict__ ranked, const uint32_t* __restrict__ length,
                       const unsigned long long* __restrict__ group_chunks, const uint32_t* __restrict__ neighbors,
                       const FixedScales scale, const FixedFold fold, Accum* __restrict__ block_sums,
-                      GateView gate, bool by_rank) {
+                      GateView gate, bool by_rank, const NextKickDrift then, Particle* __restrict__ next) {
   static_assert(!Folded || (std::is_same_v<Particle, FixedParticle> && !T::kMultiType),
                 "the fold serves fixed-point pairs of one type");
+  static_assert(!Drift || !T::kObservables, "the next step's kick-drift follows an evaluation of forces only");
   constexpr int D = T::kDim;
   const std::size_t n = args.n;
   const std::size_t t = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
@@ -509,7 +582,13 @@ __global__ void __launch_bounds__(kBlock)
   uint32_t len = 0;
   unsigned long long group_chunk0 = 0;
   if (p < n) P = ranked[p], len = length[p], group_chunk0 = group_chunks[p / kGroup];
-  if (gate_shut(gate)) return;  // the whole block: before any shuffle or barrier
+  // The whole block: before any shuffle or barrier. Drift: the next step's first kernel's test, which
+  // closes the gate where this step's displacement ran past the limit.
+  if constexpr (Drift) {
+    if (step_gate_shut(GateView{gate.gate, gate.step + 1, gate.limit})) return;
+  } else {
+    if (gate_shut(gate)) return;
+  }
   if (gate.gate && t == 0) atomicMax(&gate.gate->served, gate.gate->d2[gate.step % 3]);  // served: this step's
   CellTotals<Accum, true, true> totals;
   Accum f[D] = {};
@@ -634,6 +713,14 @@ __global__ void __launch_bounds__(kBlock)
   for (int offset = S / 2; offset > 0; offset >>= 1) {
     for (int c = 0; c < D; ++c) f[c] += __shfl_xor_sync(0xffffffffu, f[c], offset);
     if constexpr (T::kObservables) ea += __shfl_xor_sync(0xffffffffu, ea, offset);
+  }
+  if constexpr (Drift) {
+    double force[D];
+#pragma unroll
+    for (int c = 0; c < D; ++c) force[c] = double(f[c]);  // the values a stored force would hold
+    next_kick_drift<D, S>(then, n, p, part, force, P.type, next, args.grid, args.num_types, args.flags,
+                          GateView{gate.gate, gate.step + 1, gate.limit});
+    return;
   }
   if (p < n && part == 0) {
     const std::size_t i = by_rank ? p : order[p];  // rank order: a gated evaluation's (change 51)
@@ -914,7 +1001,7 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
 }
 
 template <class Real, class Accum>
-RankOrder rank_order(const ListArgs<Real, Accum>& args, PairList& list, bool forces_by_rank) {
+RankOrder rank_order(const ListArgs<Real, Accum>& args, PairList& list, bool forces_by_rank, bool fused) {
   RankOrder to;
   to.rank = list.rank.data();
   to.order = list.order.data();
@@ -925,13 +1012,20 @@ RankOrder rank_order(const ListArgs<Real, Accum>& args, PairList& list, bool for
     list.ranked_forces.release();
   }
   to.fixed = gathers_fixed(args);
+  const std::size_t n = std::max<std::size_t>(args.n, 1);
   if (to.fixed) {
     list.ranked.release();
-    list.fixed.reserve(std::max<std::size_t>(args.n, 1));
+    list.ranked_next.release();
+    list.fixed.reserve(n);
+    if (fused) list.fixed_next.reserve(n);
+    else list.fixed_next.release();
     to.particles = list.fixed.data();
   } else {
     list.fixed.release();
-    list.ranked.reserve(std::max<std::size_t>(args.n, 1));
+    list.fixed_next.release();
+    list.ranked.reserve(n);
+    if (fused) list.ranked_next.reserve(n);
+    else list.ranked_next.release();
     to.particles = list.ranked.data();
   }
   to.grid = args.grid;
@@ -943,10 +1037,12 @@ RankOrder rank_order(const ListArgs<Real, Accum>& args, PairList& list, bool for
 
 template <class Real, class Accum>
 void list_forces(const Switches& sw, const ListArgs<Real, Accum>& given, PairList& list, cudaStream_t stream,
-                 const GateView& gate, bool by_rank) {
+                 const GateView& gate, bool by_rank, const NextKickDrift* then) {
   if (given.n == 0) return;
   if (by_rank && (sw.observables || given.energies))
     throw Error("internal error: forces in rank order are for evaluations of forces only");
+  if (then && (sw.observables || given.energies || !gate.gate || sw.dim != then->box.dim))
+    throw Error("internal error: the next step's kick-drift follows a gated evaluation of forces only");
   ListArgs<Real, Accum> args = given;
   if (by_rank) {
     list.ranked_forces.reserve(std::max<std::size_t>(args.n * std::size_t(args.grid.dim), 1));
@@ -972,19 +1068,28 @@ void list_forces(const Switches& sw, const ListArgs<Real, Accum>& given, PairLis
     fold.eps = g - 1.0;
     fold.rc2 = float(double(args.rc2) / (g * g));
   }
-  auto evaluate = [&](auto& ranked) {
+  auto evaluate = [&](auto& ranked, auto& next) {
     using Particle = typename std::remove_reference_t<decltype(ranked)>::value_type;
     if (!gate.gate) gather(args, list, ranked, stream);  // gated: the step's drift placed them
+    if (then && next.capacity() < args.n)
+      throw Error("internal error: the next step's kick-drift without the list's second array (rank_order)");
     detail::dispatch(s, [&](auto traits) {
       using T = decltype(traits);
       if constexpr (!T::kWrap) {
         auto go = [&](auto split) {
           auto launch = [&](auto folded) {
-            list_force_kernel<T, decltype(split)::value, decltype(folded)::value, Particle, Real, Accum>
-                <<<blocks, kBlock, 0, stream>>>(args, list.order.data(), ranked.data(), list.length.data(),
-                                                list.group_chunks.data(), list.neighbors.data(), scale, fold,
-                                                reinterpret_cast<Accum*>(list.block_sums.data()), gate,
-                                                by_rank);
+            auto with = [&](auto drift) {
+              list_force_kernel<T, decltype(split)::value, decltype(folded)::value, decltype(drift)::value,
+                                Particle, Real, Accum>
+                  <<<blocks, kBlock, 0, stream>>>(args, list.order.data(), ranked.data(), list.length.data(),
+                                                  list.group_chunks.data(), list.neighbors.data(), scale, fold,
+                                                  reinterpret_cast<Accum*>(list.block_sums.data()), gate,
+                                                  by_rank, then ? *then : NextKickDrift{}, next.data());
+            };
+            if constexpr (!T::kObservables) {
+              if (then) return with(std::true_type{});
+            }
+            with(std::false_type{});
           };
           if constexpr (std::is_same_v<Particle, FixedParticle> && !T::kMultiType) {
             if (cube) launch(std::true_type{});
@@ -1002,16 +1107,17 @@ void list_forces(const Switches& sw, const ListArgs<Real, Accum>& given, PairLis
       }
     });
     CF_CUDA_CHECK_LAUNCH();
+    if (then) std::swap(ranked, next);  // the next evaluation reads what this one placed
   };
   if constexpr (std::is_same_v<Real, float>) {
     if (gathers_fixed(args)) {
       list.ranked.release();
-      evaluate(list.fixed);
+      evaluate(list.fixed, list.fixed_next);
       return;
     }
   }
   list.fixed.release();
-  evaluate(list.ranked);
+  evaluate(list.ranked, list.ranked_next);
 }
 
 namespace {
@@ -1039,8 +1145,8 @@ void unrank_forces(const PairList& list, std::size_t n, int dim, double* forces,
                                              std::size_t, double, const ListArgs<Real, Accum>&, PairList&,       \
                                              cudaStream_t);                                                      \
   template void list_forces<Real, Accum>(const Switches&, const ListArgs<Real, Accum>&, PairList&, cudaStream_t, \
-                                         const GateView&, bool);                                                \
-  template RankOrder rank_order<Real, Accum>(const ListArgs<Real, Accum>&, PairList&, bool);
+                                         const GateView&, bool, const NextKickDrift*);                          \
+  template RankOrder rank_order<Real, Accum>(const ListArgs<Real, Accum>&, PairList&, bool, bool);
 CF_PAIR_LIST(float, float)
 CF_PAIR_LIST(float, double)
 CF_PAIR_LIST(double, double)

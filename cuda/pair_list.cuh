@@ -34,6 +34,7 @@
 #include "rank_order.h"
 #include "step_gate.h"
 #include "traversal.cuh"
+#include "verlet_step.h"
 
 namespace cellforce::cuda {
 
@@ -97,6 +98,9 @@ struct PairList {
   DeviceBuffer<RankedParticle> ranked; // n: gathered at every evaluation, placed by a gated step's
                                        // drift (double pairs, an open axis)
   DeviceBuffer<FixedParticle> fixed;   // n: the same (float pairs, all periodic)
+  DeviceBuffer<RankedParticle> ranked_next;  // n: where a force kernel that runs the next step's
+  DeviceBuffer<FixedParticle> fixed_next;    // kick-drift (change 59) places it; swapped with the
+                                             // array it read after its launch
   DeviceBuffer<double> ranked_forces;  // n x dim: the gated evaluations' forces in rank order (RankOrder)
   DeviceBuffer<unsigned long long> sizes;  // 4: the longest list, the sum of the lengths, the words
                                            // every unit's masks would take, the list's chunks (the
@@ -133,7 +137,8 @@ struct PairList {
 
   template <class F>
   void for_each_buffer(F&& f) {
-    f(order), f(rank), f(slot_counts), f(length), f(group_chunks), f(neighbors), f(ranked), f(fixed), f(ranked_forces);
+    f(order), f(rank), f(slot_counts), f(length), f(group_chunks), f(neighbors), f(ranked), f(fixed), f(ranked_next), f(fixed_next),
+        f(ranked_forces);
     f(sizes), f(selected);
     f(split_counts), f(masks), f(mask_base), f(walk_order), f(walked), f(blocks);
     f(block_sums), f(scratch);
@@ -220,16 +225,23 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
 // array already (rank_order): the gather is left out. With `by_rank` (forces only), the forces go to
 // list.ranked_forces in rank order (rank p's at p * dim) instead of args.forces in user order: the
 // force kernel's stores coalesced whatever the caller's numbering (change 51).
+// With `then` (a gate, forces only, the next array reserved: rank_order's `fused`), the force kernel
+// runs the next gated step's kick-drift with the forces it summed (change 59: NextKickDrift, on the
+// chunk's rank-order state; the gate's test is then the next step's first kernel's,
+// step_gate_shut, which closes the gate) and stores no forces: it places the new positions in the
+// next array, which then becomes the one the evaluations read.
 template <class Real, class Accum>
 void list_forces(const Switches& sw, const ListArgs<Real, Accum>& args, PairList& list, cudaStream_t stream,
-                 const GateView& gate = {}, bool by_rank = false);
+                 const GateView& gate = {}, bool by_rank = false, const NextKickDrift* then = nullptr);
 
 // Where the evaluations of the list in use read the positions in rank order (the array list_forces
 // gathers into for these args, reserved; the other one released), for a gated step's drift to
 // place them (RankOrder), and with `forces_by_rank` where they leave the forces in rank order
-// (list.ranked_forces, reserved; else released).
+// (list.ranked_forces, reserved; else released). With `fused`, the second array of that form is
+// reserved too, for evaluations that run the next step's kick-drift (list_forces' `then`); else it
+// is released.
 template <class Real, class Accum>
-RankOrder rank_order(const ListArgs<Real, Accum>& args, PairList& list, bool forces_by_rank);
+RankOrder rank_order(const ListArgs<Real, Accum>& args, PairList& list, bool forces_by_rank, bool fused);
 
 // list.ranked_forces (n x dim, rank order) into `forces` (user order).
 void unrank_forces(const PairList& list, std::size_t n, int dim, double* forces, cudaStream_t stream);

@@ -1,4 +1,4 @@
-// The step gate's device side (step_gate.h): the test every gated evaluation kernel makes first.
+// The step gate's device side (step_gate.h): the tests the gated kernels make first.
 #pragma once
 
 #include "step_gate.h"
@@ -17,6 +17,26 @@ __device__ __forceinline__ bool gate_shut(const GateView& view) {
   if (threadIdx.x == 0) {
     const volatile StepGate* g = view.gate;
     shut = g->closed != kGateOpen || g->d2[view.step % 3] > view.limit;
+  }
+  __syncthreads();
+  return shut != 0;
+}
+
+// The gate at the first kernel of a gated step (the MD engine's kick-drift, or the previous step's
+// force kernel where it runs this step's kick-drift, change 59), read by one thread per block and
+// shared: shut at an earlier step, or the previous step's displacement past the limit (its
+// evaluation did not run: the gate closes there, at step - 1). Open, block 0 zeroes the next
+// step's slot. Every thread of the block must call it (a barrier).
+__device__ __forceinline__ bool step_gate_shut(const GateView& gate) {
+  volatile StepGate* g = gate.gate;
+  __shared__ int shut;
+  if (threadIdx.x == 0) {
+    shut = g->closed != kGateOpen;
+    if (!shut && g->d2[(gate.step + 2) % 3] > gate.limit) {  // step - 1 ran past skin / 2
+      shut = 1;
+      if (blockIdx.x == 0) g->closed = gate.step - 1;
+    }
+    if (!shut && blockIdx.x == 0) g->d2[(gate.step + 1) % 3] = 0;  // the next step's slot
   }
   __syncthreads();
   return shut != 0;

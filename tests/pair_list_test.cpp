@@ -755,9 +755,11 @@ TEST(PairListMd, GatedRunsEqualTheStepwiseRunLeanOrNot) {
 
 // A gated chunk runs on a copy of the state in the list's rank order (change 58): a particle whose
 // drift diverges there is named by the caller's index, not its rank. Particle 1234 of 2,048 (its
-// rank is another number: the lattice's numbering is not the cells') is given a speed that carries
-// it more than the box edge (Verlet) or half of it (Langevin's half drift) in the first step, which
-// the gate queues (the set_state build serves it).
+// rank is another number: the lattice's numbering is not the cells') moves twice the box edge along
+// y in every step (once the edge in each of Langevin's half drifts, without friction: the speed
+// stays): more than a drift may, flagged from the first step, which the gate queues (the set_state
+// build serves it); it lands where it was (the wrap), so that no other particle is thrown out by an
+// overlap (the flag keeps the smallest index).
 TEST(PairListMd, AGatedDivergenceNamesTheCallersParticle) {
   CF_SKIP_WITHOUT_DEVICE();
   cellforce::Scene scene = cellforce::default_scene();
@@ -768,7 +770,10 @@ TEST(PairListMd, AGatedDivergenceNamesTheCallersParticle) {
   ASSERT_GT(n, bad);
   const std::vector<double> masses(n, 1.0);
   cellforce::initialize_velocities(start, masses, 1.44, 7, true);
-  start.velocities[bad * 3 + 1] = 1e4;  // dt 0.005: 50 sigma in a step, the box edge is 13.4
+  cellforce::IntegratorSettings settings;
+  settings.kT = 1.44;
+  settings.friction = 0;
+  start.velocities[bad * 3 + 1] = 2 * start.config.box.length[1] / settings.dt;
   for (const bool lean : {false, true}) {
     for (const bool langevin : {false, true}) {
       SCOPED_TRACE(std::string(lean ? "lean, " : "fast, ") + (langevin ? "Langevin" : "Verlet"));
@@ -781,9 +786,7 @@ TEST(PairListMd, AGatedDivergenceNamesTheCallersParticle) {
       choice.lean_lists = lean;
       auto md = cellforce::make_cuda_md_engine(std::make_unique<cellforce::CudaForceEngine>(choice));
       md->set_state(start, masses, scene.force_field);
-      cellforce::IntegratorSettings settings;
       settings.langevin = langevin;
-      settings.kT = 1.44;
       try {
         md->advance(10, settings, false);
         ADD_FAILURE() << "the run did not diverge";

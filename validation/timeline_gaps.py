@@ -202,19 +202,23 @@ def main() -> int:
     for c in calls:
         if steady[0]["start"] <= c["start"] <= steady[-1]["end"]:
             host[c["name"]].append(c["end"] - c["start"])
+    gpu: dict[str, list[int]] = defaultdict(list)  # the device's operations in the window, by name
+    for o in steady:
+        gpu[o["name"]].append(o["end"] - o["start"])
     idle_starved = sum(sum(v) for v in starved.values())
     idle_turn = sum(sum(v) for v in turnaround.values())
     lines = [f"N = {args.n:,}, {steps} steps in the steady window, {shut} shut (queued past a closed gate) "
              f"(`cellforce bench {args.bench_args}`): "
              f"{span * per:.1f} us per step, of which GPU operations {busy * per:.1f}, idle with the host late "
              f"{idle_starved * per:.1f}, idle between queued operations {idle_turn * per:.1f}", ""]
+    lines += table("GPU operations (time on the device)", gpu)
     lines += table("Idle with the host late (the call the host ended last before the launch)", starved)
     lines += table("Idle between queued operations", turnaround)
     lines += table("The host's runtime calls in the window (time inside them, not idle)", host)
     text = "\n".join(lines)
     (args.out / "timeline_gaps.md").write_text(text + "\n")
     (args.out / "timeline_gaps.json").write_text(json.dumps(
-        {"n": args.n, "steps": steps, "span_ns": span, "busy_ns": busy, "starved": starved,
+        {"n": args.n, "steps": steps, "span_ns": span, "busy_ns": busy, "gpu": gpu, "starved": starved,
          "turnaround": turnaround}, indent=0))
     print(text)
     return 0

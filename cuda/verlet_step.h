@@ -1,0 +1,49 @@
+// A velocity Verlet step's kick-drift on the device, as the MD engine's kernels run it
+// (cuda/md_engine.cu) and as a gated evaluation's force kernel runs the next step's (change 59:
+// cuda/pair_list.cu, the force and the kick-drift in one kernel). The device arithmetic is in
+// verlet_step.cuh; this header holds what the host passes. Plain C++: engine.h includes it.
+#pragma once
+
+#include <cstddef>
+#include <cstdint>
+
+#include "core/box.h"  // kMaxDim
+
+namespace cellforce::cuda {
+
+// What the integration kernels raise: the smallest index (the caller's) of a particle whose drift
+// diverged (a displacement not finite or longer than allowed on a periodic axis, or a position no
+// longer finite), ~0 when none.
+struct MdFlags {
+  unsigned long long diverged;
+};
+
+// The box as a drift sees it.
+struct DriftBox {
+  int dim;
+  double length[kMaxDim];
+  double most[kMaxDim];        // largest displacement allowed per axis (infinite on open axes)
+  double inv_length[kMaxDim];  // 1 / length on periodic axes, 0 on open ones (minimum image)
+  bool periodic[kMaxDim];
+};
+
+// The next gated step's Verlet kick-drift, for the force kernel of this step's gated evaluation to
+// run after its forces (change 59): the previous step's closing half kick and the next one's
+// opening half kick v += (h / m) F with the forces it just summed, the drift x += dt v with the
+// wrap and the check, the displacement from `built` into the gate's slot of the next step, and the
+// new positions into the list's other rank-ordered array, which the next evaluation reads. The
+// arrays are the gated chunk's copy of the state in the list's rank order (change 58; n x dim,
+// mass n).
+struct NextKickDrift {
+  double* x = nullptr;
+  double* v = nullptr;
+  const double* mass = nullptr;
+  const double* built = nullptr;    // the positions the structure in use was built from
+  const uint32_t* order = nullptr;  // n: the particle (the caller's index) of rank p, for the flags
+  double h = 0;                     // half the time step
+  double dt = 0;
+  DriftBox box{};
+  MdFlags* flags = nullptr;
+};
+
+}  // namespace cellforce::cuda
