@@ -179,18 +179,28 @@ __device__ __forceinline__ void raise_displacement(double sq, int dim, std::size
 enum class StateOrder { kCaller, kGather, kRank };
 
 // The state's arrays: the caller's order, and the chunk's rank-order copy (null in lean mode).
+// Change 60: with every mass the same, the masses are `mass_value` and both mass arrays null (no
+// load per coordinate); `built_is_x`: the chunk starts at the positions the structure was just
+// built from, so kGather copies them as the build's positions instead of reading those too.
 struct GatedState {
   double* x;
   double* v;
   const double* f;  // the last ordinary evaluation's forces (the caller's order)
-  const double* mass;
+  const double* mass;   // null: every mass is mass_value
   const double* built;  // the build's positions (n x dim)
   double* x_ranked;
   double* v_ranked;
-  double* mass_ranked;
+  double* mass_ranked;  // null with `mass`
   double* built_ranked;
   const double* f_ranked;  // the gated evaluations' forces (RankOrder::forces)
+  double mass_value;
+  bool built_is_x;
 };
+
+// Particle slot `at`'s mass: from `mass` (the order's array), or the one mass of all (GatedState).
+__device__ __forceinline__ double mass_of(const double* __restrict__ mass, std::size_t at, double value) {
+  return mass ? mass[at] : value;
+}
 
 // Thread k's state slot (coordinate k of slot k / D): `slot` indexes the order the kernel reads
 // (the caller's index for kCaller, else the rank), `particle` is the caller's index (flags, the
@@ -295,7 +305,8 @@ __global__ void __launch_bounds__(kGateParticles * 3)
   double xa = 0, va = 0, fa = 0, m = 1, then = 0;
   if (in) {
     const std::size_t r = at.read();
-    xa = a.x_in[r], va = a.v_in[r], m = a.mass_in[at.from], then = a.built_in[r], fa = a.f_in[r];
+    xa = a.x_in[r], va = a.v_in[r], m = mass_of(a.mass_in, at.from, s.mass_value), fa = a.f_in[r];
+    then = O == StateOrder::kGather && s.built_is_x ? xa : a.built_in[r];
   }
   if constexpr (!GateFirst) {
     if (step_gate_shut(gate)) return;
@@ -306,7 +317,7 @@ __global__ void __launch_bounds__(kGateParticles * 3)
     const std::size_t w = at.write();
     if constexpr (O == StateOrder::kGather) {
       s.built_ranked[w] = then;
-      if (at.axis == 0) s.mass_ranked[at.slot] = m;
+      if (at.axis == 0 && s.mass_ranked) s.mass_ranked[at.slot] = m;
     }
     va = kick_value(va, fa, m, h, kicks);
     a.v_out[w] = va;
@@ -337,8 +348,8 @@ __global__ void __launch_bounds__(kGateParticles * 3)
   double xa = 0, va = 0, fa = 0, m = 1, then = 0;
   if (in) {
     const std::size_t r = at.read();
-    xa = a.x_in[r], va = a.v_in[r], m = a.mass_in[at.from], fa = a.f_in[r];
-    if constexpr (O == StateOrder::kGather) then = s.built[r];
+    xa = a.x_in[r], va = a.v_in[r], m = mass_of(a.mass_in, at.from, s.mass_value), fa = a.f_in[r];
+    if constexpr (O == StateOrder::kGather) then = s.built_is_x ? xa : s.built[r];
   }
   if constexpr (!GateFirst) {
     if (step_gate_shut(gate)) return;
@@ -347,7 +358,7 @@ __global__ void __launch_bounds__(kGateParticles * 3)
   const std::size_t w = at.write();
   if constexpr (O == StateOrder::kGather) {
     s.built_ranked[w] = then;
-    if (at.axis == 0) s.mass_ranked[at.slot] = m;
+    if (at.axis == 0 && s.mass_ranked) s.mass_ranked[at.slot] = m;
   }
   va = kick_value(va, fa, m, h, kicks);
   a.v_out[w] = va;
@@ -405,7 +416,7 @@ __global__ void gated_thermostat_kernel(GatedState s, double c1, double c2, doub
   const StateSlot<D, O> at(k, in, order);
   const StateArrays<O> a(s);
   const std::size_t w = at.write();
-  const double sigma = c2 * sqrt(kT / a.mass_in[at.slot]);
+  const double sigma = c2 * sqrt(kT / mass_of(a.mass_in, at.slot, s.mass_value));
   a.v_out[w] = c1 * a.v_in[w] + sigma * counter_normal(seed, gate.step, at.particle * D + std::size_t(at.axis));
 }
 
@@ -594,6 +605,7 @@ class CudaMdEngine final : public MdEngine {
     if (ff.num_types() > 1 && state.config.types.size() != state.config.size())
       throw Error("the state has " + std::to_string(state.config.types.size()) + " types for " +
                   std::to_string(state.config.size()) + " particles");
+    at_build_ = false;  // the positions change
     box_ = state.config.box;
     n_ = state.config.size();
     ff_ = ff;
@@ -604,6 +616,11 @@ class CudaMdEngine final : public MdEngine {
     upload(velocities_, state.velocities.empty() ? std::vector<double>(n_ * box_.dim, 0.0) : state.velocities,
            stream_);
     upload(masses_, masses, stream_);
+    uniform_mass_.reset();  // change 60: one mass for all, bit for bit, is passed as a number
+    if (!masses.empty() && std::all_of(masses.begin(), masses.end(), [&](double m) {
+          return std::memcmp(&m, &masses[0], sizeof m) == 0;
+        }))
+      uniform_mass_ = masses[0];
     upload(types_, state.config.types, stream_);
     counters_.bytes_to_device += (2 * n_ * box_.dim + n_) * sizeof(double) + n_ * sizeof(uint32_t);
     flags_.reserve(1);
@@ -708,6 +725,7 @@ class CudaMdEngine final : public MdEngine {
           gpu_.check_flags(box_, n_, positions_.data(), ff_);  // clears what the failed evaluation raised
         } catch (const Error&) {
         }
+        at_build_ = false;  // the positions change
         if (nd) {
           CF_CUDA_CHECK(cudaMemcpyAsync(positions_.data(), fire_start_.data(), nd * sizeof(double),
                                         cudaMemcpyDeviceToDevice, stream_));
@@ -892,21 +910,23 @@ class CudaMdEngine final : public MdEngine {
     // With the forces in rank order (fast mode), the chunk runs on a rank-order copy of the state
     // (StateOrder, change 58), written back at its end.
     const bool ranked = to.forces != nullptr;
-    GatedState state{positions_.data(), velocities_.data(), gpu_.device_forces(), masses_.data(), built,
-                     nullptr, nullptr, nullptr, nullptr, to.forces};
+    GatedState state{positions_.data(), velocities_.data(), gpu_.device_forces(),
+                     uniform_mass_ ? nullptr : masses_.data(), built, nullptr, nullptr, nullptr, nullptr, to.forces,
+                     uniform_mass_.value_or(0.0), at_build_};
+    at_build_ = false;  // the chunk's drifts move the positions
     if (ranked) {
       const std::size_t nd = n_ * std::size_t(box_.dim);
       ranked_state_.reserve(std::max<std::size_t>(3 * nd + n_, 1));
       state.x_ranked = ranked_state_.data();
       state.v_ranked = state.x_ranked + nd;
       state.built_ranked = state.v_ranked + nd;
-      state.mass_ranked = state.built_ranked + nd;
+      if (!uniform_mass_) state.mass_ranked = state.built_ranked + nd;
     }
     // Verlet on the rank-order copy: every gated evaluation but the chunk's last runs the next step's
     // kick-drift in its force kernel (change 59), so only the chunk's first step has a kick-drift kernel.
     const bool fused = ranked && !settings.langevin;
     const cuda::NextKickDrift then{state.x_ranked, state.v_ranked, state.mass_ranked, state.built_ranked,
-                                   to.order, 0.5 * dt, dt, box, flags_.data()};
+                                   to.order, 0.5 * dt, dt, box, flags_.data(), state.mass_value};
     bool gathered = false;  // the chunk's first kernel copied the state into rank order
     auto steps = [&] {
       for (int64_t j = 0; j < count; ++j) {
@@ -1044,6 +1064,7 @@ class CudaMdEngine final : public MdEngine {
   }
 
   void kick_drift(double h, int kicks, double dt) {
+    at_build_ = false;
     if (n_ == 0) return;
     kick_drift_kernel<<<blocks_for(n_ * box_.dim), kBlock, 0, stream_>>>(positions_.data(), velocities_.data(),
                                                               gpu_.device_forces(), masses_.data(), h, kicks, dt,
@@ -1064,6 +1085,7 @@ class CudaMdEngine final : public MdEngine {
   }
 
   void drift(double h, double limit, bool wrap) {
+    at_build_ = false;
     if (n_ == 0) return;
     drift_kernel<<<blocks_for(n_), kBlock, 0, stream_>>>(positions_.data(), velocities_.data(), h, drift_box(limit),
                                                          wrap, n_, flags_.data());
@@ -1075,6 +1097,7 @@ class CudaMdEngine final : public MdEngine {
     gpu_.evaluate_resident(box_, n_, positions_.data(), ff_.num_types() > 1 ? types_.data() : nullptr, ff_,
                            Request{observe, observe}, known_d2);
     observed_ = observe;
+    at_build_ = gpu_.stats().rebuilt;  // the build's positions are the positions now
     ++counters_.evaluations;
     add_reuse(counters_, gpu_.stats());
     if (gpu_.stats().rebuilt) {
@@ -1101,6 +1124,7 @@ class CudaMdEngine final : public MdEngine {
     }
 
     const FireResult result = run_fire(settings, fire_evaluate(), [&](bool uphill, double dt, double alpha) {
+      at_build_ = false;  // the step's drift moves the positions
       // n_ > 0 here: without particles the largest force is 0, converged.
       fire_kick_kernel<<<blocks_for(n_), kBlock, 0, stream_>>>(positions_.data(), velocities_.data(),
                                                                gpu_.device_forces(), masses_.data(), dt, 0.5 * dt,
@@ -1230,6 +1254,8 @@ class CudaMdEngine final : public MdEngine {
   DeviceBuffer<double> ranked_state_;  // a gated chunk's state in rank order (change 58): x, v, built, mass
   DeviceBuffer<std::byte> reduce_scratch_;
   bool observed_ = false;
+  std::optional<double> uniform_mass_;  // every particle's mass, where they are all the same (change 60)
+  bool at_build_ = false;  // the positions are those the structure in use was built from (change 60)
   DeviceBuffer<cuda::StepGate> gate_;
   int64_t interval_ = 16;    // steps between the last two builds (a guess before there were two)
   int64_t since_build_ = 0;  // evaluations served since the last build

@@ -523,7 +523,7 @@ __device__ __forceinline__ void next_kick_drift(const NextKickDrift& s, std::siz
     if (q < n) {
       const std::size_t k = first * D + std::size_t(c);
       const int a = c % D;
-      const double m = s.mass[q], then = s.built[k];
+      const double m = s.mass ? s.mass[q] : s.mass_value, then = s.built[k];
       double xa = s.x[k], va = s.v[k];
       va = kick_value(va, value[c], m, s.h, 2);
       s.v[k] = va;

@@ -37,13 +37,14 @@ struct DriftBox {
 struct NextKickDrift {
   double* x = nullptr;
   double* v = nullptr;
-  const double* mass = nullptr;
+  const double* mass = nullptr;     // n, or null: every mass is mass_value
   const double* built = nullptr;    // the positions the structure in use was built from
   const uint32_t* order = nullptr;  // n: the particle (the caller's index) of rank p, for the flags
   double h = 0;                     // half the time step
   double dt = 0;
   DriftBox box{};
   MdFlags* flags = nullptr;
+  double mass_value = 0;  // every particle's mass where `mass` is null (change 60)
 };
 
 }  // namespace cellforce::cuda

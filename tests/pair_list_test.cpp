@@ -684,30 +684,36 @@ TEST(PairListErrors, CoincidentPairOnAReusedStepIsNamed) {
 }
 
 // A gated MD run (many steps in one call: the step gate, its drifts placing the positions in rank
-// order and its evaluations leaving the forces in rank order, changes 49 and 51) ends bitwise where
+// order and its evaluations leaving the forces in rank order, changes 49 and 51; the chunk on a
+// rank-order copy of the state, Verlet's next kick-drift in the force kernel, 58 and 59) ends bitwise where
 // the step-by-step run ends (one step a call: never gated), and so does the gated run of a lean
 // engine, whose gated evaluations store the forces in the caller's order instead; Verlet and
 // Langevin, 2,048 particles of the in.lj fluid, 300 steps with ~20 rebuilds; in mixed precision
 // (fixed-point gathers) with 8 threads a particle (the rule's choice at this size) and 1 (the large
-// systems' force kernel), and in double precision (double gathers) with 2.
+// systems' force kernel), and in double precision (double gathers) with 2; all masses 1 (passed
+// as one number), and in mixed precision also with masses that differ.
 TEST(PairListMd, GatedRunsEqualTheStepwiseRunLeanOrNot) {
   CF_SKIP_WITHOUT_DEVICE();
   cellforce::Scene scene = cellforce::default_scene();
   scene.particles.cells = {8, 8, 8};
-  cellforce::MdState start;
-  start.config = cellforce::build_configuration(scene);
-  const std::size_t n = start.config.size();
-  const std::vector<double> masses(n, 1.0);
-  cellforce::initialize_velocities(start, masses, 1.44, 7, true);
   struct Form {
     Precision precision;
     std::optional<int> threads;
     const char* name;
+    bool varied_masses = false;  // 1, 1.5 and 2 in turn (one mass for all: a number, change 60)
   };
   for (const Form form : {Form{Precision::kMixed, std::nullopt, "mixed, the rule's threads"},
                           Form{Precision::kMixed, 1, "mixed, 1 thread a particle"},
-                          Form{Precision::kDouble, 2, "double, 2 threads a particle"}}) {
+                          Form{Precision::kDouble, 2, "double, 2 threads a particle"},
+                          Form{Precision::kMixed, std::nullopt, "mixed, masses 1, 1.5 and 2", true}}) {
     SCOPED_TRACE(form.name);
+    cellforce::MdState start;
+    start.config = cellforce::build_configuration(scene);
+    const std::size_t n = start.config.size();
+    std::vector<double> masses(n, 1.0);
+    if (form.varied_masses)
+      for (std::size_t i = 0; i < n; ++i) masses[i] = 1.0 + 0.5 * double(i % 3);
+    cellforce::initialize_velocities(start, masses, 1.44, 7, true);
     for (const bool langevin : {false, true}) {
       SCOPED_TRACE(langevin ? "Langevin" : "Verlet");
       cellforce::IntegratorSettings settings;
