@@ -916,7 +916,7 @@ class CudaMdEngine final : public MdEngine {
     at_build_ = false;  // the chunk's drifts move the positions
     if (ranked) {
       const std::size_t nd = n_ * std::size_t(box_.dim);
-      ranked_state_.reserve(std::max<std::size_t>(3 * nd + n_, 1));
+      ranked_state_.reserve(std::max<std::size_t>(3 * nd + (uniform_mass_ ? 0 : n_), 1));  // mass: change 60
       state.x_ranked = ranked_state_.data();
       state.v_ranked = state.x_ranked + nd;
       state.built_ranked = state.v_ranked + nd;
