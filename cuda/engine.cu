@@ -309,18 +309,21 @@ struct GpuEngine::Impl {
     ++builds;
     lean = false;
     if (lists(o, sys.box, ff.cutoff)) {
-      // Lean when the fast layout's buffers (about 1,350 bytes per particle with a 0.6 skin: a
-      // staged array, the sort's arrays, the list and the gated evaluations' forces in rank order
-      // side by side; 1,339-1,353 measured on the H100 at 1ce0be8) would not fit in 90% of the
+      // Lean when the fast layout's buffers (about 1,440 bytes per particle with a 0.6 skin and the
+      // MD state: a staged array, the sort's arrays, the list, the gated evaluations' forces, a
+      // second rank-ordered array and the MD engine's rank-order copy of the state side by side;
+      // 1,433-1,441 measured on the H100 at bac0539 from 256k up) would not fit in 90% of the
       // device: a rule of the system and the device, and the results do not depend on it.
       if (device_bytes == 0) {  // asked once: cudaMemGetInfo at every build held the device idle ~8 us
         std::size_t free_bytes = 0;
         CF_CUDA_CHECK(cudaMemGetInfo(&free_bytes, &device_bytes));
       }
-      lean = o.lean_lists ? *o.lean_lists : double(n) * 1350.0 > 0.9 * double(device_bytes);
+      lean = o.lean_lists ? *o.lean_lists : double(n) * 1440.0 > 0.9 * double(device_bytes);
       if (lean) {
         list.neighbors.release();  // the new build makes a new list: the old one is dead
         list.ranked_forces.release();  // lean gated evaluations store in the caller's order
+        list.fixed_next.release();     // and run no kick-drift (change 59)
+        list.ranked_next.release();
         list.masks.release();      // lean builds keep no masks
         list.mask_base.release();
         staged.release();

@@ -110,7 +110,8 @@ class GpuEngine {
   const double* device_build_positions() const;
   // Where the gated steps' last drift kernels place the positions in the list's rank order
   // (rank_order.h: the gather's values), for gated evaluations that then leave their gather out.
-  // Valid until the structure is rebuilt (the gate's chunk). With `fused` (a Verlet chunk in fast
+  // Valid until the structure is rebuilt (the gate's chunk); `particles` is the array the chunk's
+  // first evaluation reads (a fused evaluation swaps it with the second one). With `fused` (a Verlet chunk in fast
   // mode), the list's second rank-ordered array is reserved too, for gated evaluations that run the
   // next step's kick-drift (evaluate_gated's `then`).
   cuda::RankOrder rank_order(const Box& box, std::size_t n, const double* positions, const uint32_t* types,

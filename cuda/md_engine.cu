@@ -224,8 +224,9 @@ struct StateSlot {
 
 // The arrays a kernel of order O reads (kCaller, kGather: the caller's; kRank: the copy) and
 // writes (kCaller: the caller's; else the copy). The forces: the caller's order for kCaller
-// (lean) and for kGather (the chunk's first step follows an ordinary evaluation); the gated
-// evaluations' rank order for kRank.
+// (lean) and for kGather (the chunk's first step follows an ordinary evaluation, or a chunk whose
+// last forces unrank_forces put back in the caller's order); the gated evaluations' rank order for
+// kRank.
 template <StateOrder O>
 struct StateArrays {
   const double *x_in, *v_in, *f_in, *mass_in, *built_in;
@@ -702,6 +703,7 @@ class CudaMdEngine final : public MdEngine {
 
   void reevaluate() override {
     const OnDevice on(gpu_.options().device);
+    at_build_ = false;  // the structure may have been restored from other positions (restore_reuse)
     evaluate(true);
     check(step_, step_);
   }
@@ -887,7 +889,9 @@ class CudaMdEngine final : public MdEngine {
   // `count` steps behind the step gate (step_gate.h), then one read of the gate. Steps the structure
   // served are done; at the step where the gate closed (its drifts done, its evaluation not run),
   // the ordinary evaluation rebuilds and that step is done too. Returns the steps done. Verlet: one
-  // gated kick-drift a step; Langevin: the gated kick and half drift, thermostat, half drift.
+  // gated kick-drift a step (fast mode: the chunk's first step only, the later ones in the previous
+  // evaluation's force kernel, change 59); Langevin: the gated kick and half drift, thermostat, half
+  // drift. Fast mode runs the chunk on a rank-order copy of the state (StateOrder, change 58).
   int64_t run_gated(const GateChunk& chunk, int first_kicks, const IntegratorSettings& settings,
                     std::size_t& timed) {
     const int64_t count = chunk.count;
@@ -921,6 +925,8 @@ class CudaMdEngine final : public MdEngine {
       state.v_ranked = state.x_ranked + nd;
       state.built_ranked = state.v_ranked + nd;
       if (!uniform_mass_) state.mass_ranked = state.built_ranked + nd;
+    } else {
+      ranked_state_.release();  // lean: none (a fast-mode system before may have left it)
     }
     // Verlet on the rank-order copy: every gated evaluation but the chunk's last runs the next step's
     // kick-drift in its force kernel (change 59), so only the chunk's first step has a kick-drift kernel.

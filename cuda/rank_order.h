@@ -23,8 +23,9 @@ struct RankOrder {
   uint32_t num_types = 1;
   DeviceFlags* flags = nullptr;     // a coordinate that is not finite is flagged here
   // n x dim or null: where the gated evaluations leave the forces, rank p's at p * dim (change 51:
-  // the force kernel's stores coalesced whatever the caller's numbering; the next step's kick reads
-  // particle i's at rank[i]). Null (lean memory): they go to the user-order forces as before.
+  // the force kernel's stores coalesced whatever the caller's numbering; the next step's kick, on
+  // the chunk's rank-order copy of the state, reads rank p's, change 58; a Verlet chunk's fused
+  // evaluations store none, change 59). Null (lean memory): they go to the user-order forces.
   const double* forces = nullptr;
 };
 

@@ -2,15 +2,16 @@
 // host wait per step for the skin's rebuild decision (core/reuse.h), and still rebuilds on exactly
 // the steps that decision names.
 //
-// Each gated step's last drift kernel (Verlet's kick-drift, Langevin's second half drift) measures
-// the largest squared displacement since the build (the arithmetic of the engines' own check, so
-// the same number) into the gate. The step's list kernels run only while it is within (skin / 2)^2;
-// the next step's first kernel finds a step past it and closes the gate at that step, and from then
-// on every queued kernel of the chunk returns at once: positions and velocities stay as they were
-// after the closed step's drifts (the forces of the last evaluation that ran are in rank order,
-// cuda/rank_order.h, until the closed step's evaluation writes new ones in the caller's order). The host reads
-// the gate once per chunk of steps and resumes at the closed step with an ordinary evaluation,
-// which rebuilds. Plain C++: engine.h includes it.
+// Each gated step's last drift (Verlet's kick-drift, Langevin's second half drift; in fast mode a
+// Verlet step's kick-drift after the chunk's first runs in the previous step's force kernel,
+// change 59) measures the largest squared displacement since the build (the arithmetic of the
+// engines' own check, so the same number) into the gate. The step's list kernels run only while it
+// is within (skin / 2)^2; the next step's first kernel (or that force kernel) finds a step past it
+// and closes the gate at that step, and from then on every queued kernel of the chunk returns at
+// once: positions and velocities stay as they were after the closed step's drifts (in fast mode in
+// the chunk's rank-order copy, written back at the chunk's end; change 58). The host reads the gate
+// once per chunk of steps and resumes at the closed step with an ordinary evaluation, which
+// rebuilds. Plain C++: engine.h includes it.
 #pragma once
 
 #include <cstdint>

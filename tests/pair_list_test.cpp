@@ -691,22 +691,69 @@ TEST(PairListErrors, CoincidentPairOnAReusedStepIsNamed) {
 // Langevin, 2,048 particles of the in.lj fluid, 300 steps with ~20 rebuilds; in mixed precision
 // (fixed-point gathers) with 8 threads a particle (the rule's choice at this size) and 1 (the large
 // systems' force kernel), and in double precision (double gathers) with 2; all masses 1 (passed
-// as one number), and in mixed precision also with masses that differ.
+// as one number), and in mixed precision also with masses that differ, in 2D and with two types.
+// The 2D form: systems/lj_2d.toml's liquid (1,152 particles); the two-type form: the Kob-Andersen
+// mixture of systems/kob_andersen.toml (2,048 particles, 80:20).
+constexpr const char* kGated2d = R"(
+[system]
+dimension = 2
+periodic = [true, true]
+[particles]
+source = "lattice"
+lattice = "hexagonal"
+cells = [32, 18]
+density = 0.7
+[[types]]
+name = "A"
+[interactions]
+cutoff = 2.5
+mode = "truncate"
+)";
+constexpr const char* kGatedTwoTypes = R"(
+[system]
+dimension = 3
+[particles]
+source = "lattice"
+lattice = "fcc"
+cells = [8, 8, 8]
+density = 1.2
+composition = { A = 0.8, B = 0.2 }
+[[types]]
+name = "A"
+sigma = 1.0
+epsilon = 1.0
+[[types]]
+name = "B"
+sigma = 0.88
+epsilon = 0.5
+[interactions]
+cutoff = 2.5
+mode = "shift"
+[[interactions.pairs]]
+types = ["A", "B"]
+sigma = 0.8
+epsilon = 1.5
+)";
+
 TEST(PairListMd, GatedRunsEqualTheStepwiseRunLeanOrNot) {
   CF_SKIP_WITHOUT_DEVICE();
-  cellforce::Scene scene = cellforce::default_scene();
-  scene.particles.cells = {8, 8, 8};
+  cellforce::Scene fluid = cellforce::default_scene();
+  fluid.particles.cells = {8, 8, 8};
   struct Form {
     Precision precision;
     std::optional<int> threads;
     const char* name;
-    bool varied_masses = false;  // 1, 1.5 and 2 in turn (one mass for all: a number, change 60)
+    bool varied_masses = false;    // 1, 1.5 and 2 in turn (one mass for all: a number, change 60)
+    const char* scene = nullptr;  // a scene file's text instead of the in.lj fluid
   };
   for (const Form form : {Form{Precision::kMixed, std::nullopt, "mixed, the rule's threads"},
                           Form{Precision::kMixed, 1, "mixed, 1 thread a particle"},
                           Form{Precision::kDouble, 2, "double, 2 threads a particle"},
-                          Form{Precision::kMixed, std::nullopt, "mixed, masses 1, 1.5 and 2", true}}) {
+                          Form{Precision::kMixed, std::nullopt, "mixed, masses 1, 1.5 and 2", true},
+                          Form{Precision::kMixed, std::nullopt, "mixed, 2D", false, kGated2d},
+                          Form{Precision::kMixed, std::nullopt, "mixed, two types", false, kGatedTwoTypes}}) {
     SCOPED_TRACE(form.name);
+    const cellforce::Scene scene = form.scene ? cellforce::parse_scene(form.scene, form.name) : fluid;
     cellforce::MdState start;
     start.config = cellforce::build_configuration(scene);
     const std::size_t n = start.config.size();
