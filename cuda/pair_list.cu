@@ -490,7 +490,6 @@ struct FixedFold {
 // gathers' latency otherwise), and its pairs are added in list order.
 static_assert(kChunk == 4, "a chunk is one uint4");
 
-//
 // The next step's kick-drift (change 59), for a gated Verlet evaluation's force kernel (Drift) on the
 // chunk's rank-order state: the block's particles are consecutive ranks, so after their forces are
 // summed the block kicks and drifts them a thread per coordinate (the separate kernel's coalesced
