@@ -142,31 +142,19 @@ __device__ __forceinline__ bool step_gate_closed(const cuda::GateView& gate) {
 // Raises the block's largest squared displacement into the gate's slot for this step: `sq`, one
 // coordinate's term per thread (dim threads a particle, kGateParticles particles a block), summed
 // over axes as cuda/reuse.cu sums it (rounded squares, in axis order: the same bits as the host's
-// check). A particle whose displacement is not a number closes the gate.
+// check). A particle whose displacement is not a number closes the gate (step_gate.cuh).
 __device__ __forceinline__ void raise_displacement(double sq, int dim, std::size_t n, const cuda::GateView& gate) {
   __shared__ double square[kGateParticles * kMaxDim];
-  __shared__ double warp_worst[kGateParticles / 32];
   square[threadIdx.x] = sq;
   __syncthreads();
-  if (threadIdx.x < kGateParticles) {
-    double worst = 0;
-    const std::size_t i = std::size_t(blockIdx.x) * kGateParticles + threadIdx.x;
-    if (i < n) {
-      double d2 = 0;
-      for (int a = 0; a < dim; ++a) d2 += square[threadIdx.x * dim + a];
-      worst = isnan(d2) ? INFINITY : d2;  // a diverged particle closes the gate
-    }
-    for (int offset = 16; offset > 0; offset >>= 1) worst = fmax(worst, __shfl_xor_sync(0xffffffffu, worst, offset));
-    if (threadIdx.x % 32 == 0) warp_worst[threadIdx.x / 32] = worst;
+  double worst = 0;
+  const std::size_t i = std::size_t(blockIdx.x) * kGateParticles + threadIdx.x;
+  if (threadIdx.x < kGateParticles && i < n) {
+    double d2 = 0;
+    for (int a = 0; a < dim; ++a) d2 += square[threadIdx.x * dim + a];
+    worst = cuda::gate_displacement(d2);
   }
-  __syncthreads();
-  if (threadIdx.x == 0) {
-    double worst = warp_worst[0];
-    for (int w = 1; w < kGateParticles / 32; ++w) worst = fmax(worst, warp_worst[w]);
-    const auto bits = static_cast<unsigned long long>(__double_as_longlong(worst));
-    volatile cuda::StepGate* g = gate.gate;
-    if (bits > g->d2[gate.step % 3]) atomicMax(&gate.gate->d2[gate.step % 3], bits);  // few blocks raise it
-  }
+  cuda::raise_block_displacement(worst, gate);
 }
 
 // Where a gated chunk's kernels find the MD state (change 58). kCaller: the caller's order, as
@@ -174,7 +162,7 @@ __device__ __forceinline__ void raise_displacement(double sq, int dim, std::size
 // too). With the forces in rank order (fast mode) the chunk runs on a copy of the state in the
 // list's rank order: its first kernel (kGather) reads the caller's order at order[p] and writes
 // rank p's entries, the later ones (kRank) read and write rank order, coalesced whatever the
-// caller's numbering; the chunk's end writes the positions and velocities back (unrank_state_kernel).
+// caller's numbering; the chunk's end writes the positions and velocities back (unrank_state).
 // The arithmetic is the same in every order: the same bits.
 enum class StateOrder { kCaller, kGather, kRank };
 
@@ -421,19 +409,6 @@ __global__ void gated_thermostat_kernel(GatedState s, double c1, double c2, doub
   a.v_out[w] = c1 * a.v_in[w] + sigma * counter_normal(seed, gate.step, at.particle * D + std::size_t(at.axis));
 }
 
-// The end of a chunk that ran on the rank-order copy: rank p's positions and velocities back to the
-// caller's order (a thread per coordinate).
-template <int D>
-__global__ void unrank_state_kernel(const uint32_t* __restrict__ order, const double* __restrict__ x_ranked,
-                                    const double* __restrict__ v_ranked, std::size_t n, double* __restrict__ x,
-                                    double* __restrict__ v) {
-  const std::size_t k = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
-  if (k >= n * std::size_t(D)) return;
-  const std::size_t p = k / D;
-  const std::size_t to = std::size_t(order[p]) * D + (k - p * D);
-  x[to] = x_ranked[k];
-  v[to] = v_ranked[k];
-}
 // m v^2 / 2 of particle i (summed over axes), for the kinetic-energy reduction.
 struct KineticTerm {
   const double* v;
@@ -1053,13 +1028,8 @@ class CudaMdEngine final : public MdEngine {
 
   // A rank-order chunk's positions and velocities back into the caller's order (change 58).
   void unrank_state(const GatedState& state, const uint32_t* order) {
-    if (n_ == 0) return;
-    cuda::with_dim(box_.dim, [&](auto dim) {
-      constexpr int D = decltype(dim)::value;
-      unrank_state_kernel<D><<<blocks_for(n_ * D), kBlock, 0, stream_>>>(order, state.x_ranked, state.v_ranked,
-                                                                         n_, state.x, state.v);
-    });
-    CF_CUDA_CHECK_LAUNCH();
+    cuda::unrank(order, state.x_ranked, n_, box_.dim, state.x, stream_);
+    cuda::unrank(order, state.v_ranked, n_, box_.dim, state.v, stream_);
   }
 
   void kick(double h, int kicks) {

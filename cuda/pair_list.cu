@@ -507,7 +507,6 @@ __device__ __forceinline__ void next_kick_drift(const NextKickDrift& s, std::siz
   __shared__ double value[kParticles * D];  // the forces, then the new positions
   __shared__ double square[kParticles * D];
   __shared__ uint32_t types[kParticles];
-  __shared__ double warp_worst[kBlock / 32];
   const std::size_t first = std::size_t(blockIdx.x) * kParticles;
   const int local = int(threadIdx.x) / S;
   if (p < n && part == 0) {
@@ -544,20 +543,11 @@ __device__ __forceinline__ void next_kick_drift(const NextKickDrift& s, std::siz
       double d2 = 0, moved[3] = {0, 0, 0};
 #pragma unroll
       for (int a = 0; a < D; ++a) d2 += square[threadIdx.x * D + a], moved[a] = value[threadIdx.x * D + a];
-      worst = isnan(d2) ? INFINITY : d2;  // a diverged particle closes the gate
+      worst = gate_displacement(d2);
       store_ranked<D>(next, q, grid, moved, types[threadIdx.x], num_types, s.order[q], dflags);
     }
   }
-  for (int offset = 16; offset > 0; offset >>= 1) worst = fmax(worst, __shfl_xor_sync(0xffffffffu, worst, offset));
-  if (threadIdx.x % 32 == 0) warp_worst[threadIdx.x / 32] = worst;
-  __syncthreads();
-  if (threadIdx.x == 0) {
-    worst = warp_worst[0];
-    for (int w = 1; w < kBlock / 32; ++w) worst = fmax(worst, warp_worst[w]);
-    const auto bits = static_cast<unsigned long long>(__double_as_longlong(worst));
-    volatile StepGate* g = gate_next.gate;
-    if (bits > g->d2[gate_next.step % 3]) atomicMax(&gate_next.gate->d2[gate_next.step % 3], bits);
-  }
+  raise_block_displacement(worst, gate_next);
 }
 
 template <class T, int S, bool Folded, bool Drift, class Particle, class Real, class Accum>
@@ -1121,22 +1111,25 @@ void list_forces(const Switches& sw, const ListArgs<Real, Accum>& given, PairLis
 
 namespace {
 template <int D>
-__global__ void unrank_forces_kernel(const uint32_t* __restrict__ order, const double* __restrict__ ranked,
-                                     std::size_t n, double* __restrict__ forces) {
+__global__ void unrank_kernel(const uint32_t* __restrict__ order, const double* __restrict__ ranked, std::size_t n,
+                              double* __restrict__ out) {
   const std::size_t p = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
   if (p >= n) return;
   const std::size_t i = order[p];
-  for (int a = 0; a < D; ++a) forces[i * D + a] = ranked[p * D + a];
+  for (int a = 0; a < D; ++a) out[i * D + a] = ranked[p * D + a];
 }
 }  // namespace
 
-void unrank_forces(const PairList& list, std::size_t n, int dim, double* forces, cudaStream_t stream) {
+void unrank(const uint32_t* order, const double* ranked, std::size_t n, int dim, double* out, cudaStream_t stream) {
   if (n == 0) return;
   with_dim(dim, [&](auto d) {
-    unrank_forces_kernel<decltype(d)::value>
-        <<<blocks_for(n), kBlock, 0, stream>>>(list.order.data(), list.ranked_forces.data(), n, forces);
+    unrank_kernel<decltype(d)::value><<<blocks_for(n), kBlock, 0, stream>>>(order, ranked, n, out);
   });
   CF_CUDA_CHECK_LAUNCH();
+}
+
+void unrank_forces(const PairList& list, std::size_t n, int dim, double* forces, cudaStream_t stream) {
+  unrank(list.order.data(), list.ranked_forces.data(), n, dim, forces, stream);
 }
 
 #define CF_PAIR_LIST(Real, Accum)                                                                              \

@@ -1,6 +1,8 @@
 // The step gate's device side (step_gate.h): the tests the gated kernels make first.
 #pragma once
 
+#include <cmath>
+
 #include "step_gate.h"
 
 namespace cellforce::cuda {
@@ -20,6 +22,27 @@ __device__ __forceinline__ bool gate_shut(const GateView& view) {
   }
   __syncthreads();
   return shut != 0;
+}
+
+// A particle's squared displacement as the gate takes it: a NaN (a diverged particle) is +inf,
+// which closes the gate.
+__device__ __forceinline__ double gate_displacement(double d2) { return isnan(d2) ? INFINITY : d2; }
+
+// Raises the block's largest squared displacement into the gate's slot for gate.step: `worst`,
+// each thread's (0 for a thread with no particle). Every thread of the block must call it (a
+// barrier; blocks of whole warps). The slot is read before the atomic: few blocks raise it.
+__device__ __forceinline__ void raise_block_displacement(double worst, const GateView& gate) {
+  __shared__ double warp_worst[32];
+  for (int offset = 16; offset > 0; offset >>= 1) worst = fmax(worst, __shfl_xor_sync(0xffffffffu, worst, offset));
+  if (threadIdx.x % 32 == 0) warp_worst[threadIdx.x / 32] = worst;
+  __syncthreads();
+  if (threadIdx.x == 0) {
+    worst = warp_worst[0];
+    for (unsigned w = 1; w < blockDim.x / 32; ++w) worst = fmax(worst, warp_worst[w]);
+    const auto bits = static_cast<unsigned long long>(__double_as_longlong(worst));
+    volatile StepGate* g = gate.gate;
+    if (bits > g->d2[gate.step % 3]) atomicMax(&gate.gate->d2[gate.step % 3], bits);
+  }
 }
 
 // The gate at the first kernel of a gated step (the MD engine's kick-drift, or the previous step's
