@@ -149,8 +149,8 @@ __device__ __forceinline__ uint32_t transpose_bits(uint32_t x, int lane) {
 }
 
 // The build's passes over the work units (list_rows): count (every unit but the P tiles whose
-// masks are kept, which their H rows write), mirrored (those P tiles' counts, from their masks),
-// fill.
+// masks are kept, which their H rows write), mirrored (with several column splits: those P tiles'
+// counts, from their masks; with one, the count pass adds them itself: change 62), fill.
 enum class ListPass { kCount, kMirrored, kFill };
 
 // The mask words of each work unit (BuildMasks): a word per column tile of its range and lane; 0
@@ -173,7 +173,7 @@ __global__ void unit_mask_words(const TraversalArgs<Real, Accum> args, uint32_t 
 }
 
 // Whether the count pass walks a unit (change 41): a row tile of the range, but not a P tile whose
-// masks are kept (its H rows write them; the mirrored pass counts it). The units are partitioned by
+// masks are kept (its H rows write them, and count it: change 62). The units are partitioned by
 // this before the count pass so that its warps are those that walk, side by side: in launch order
 // each cell's few H tiles came with its many P tiles (~70% of the units at 1M), which return at
 // once but held their block's room until its H tiles were done (26% of the warps active against
@@ -202,8 +202,10 @@ struct CountWalks {
 // writes them, after the partners the row's particle found in cells of lower type and in the
 // ranges before this one (so the list does not depend on the splits). With masks (BuildMasks, fast
 // memory mode), the count pass keeps each decision as a bit, writes the bits of the P-only tiles
-// that keep masks from their H rows' side (those tiles are not walked; the mirrored pass counts
-// them), and the fill of a unit that keeps masks writes the list from its bits. Per tile of 32 columns, the
+// that keep masks from their H rows' side (those tiles are not walked; with one column split, the
+// later H row tiles' bits for the earlier ones' columns too, and their counts: change 62, below;
+// with several, the mirrored pass counts the P tiles), and the fill of a unit that keeps masks
+// writes the list from its bits. Per tile of 32 columns, the
 // distance test of every column comes first, as a bit mask, then the rule for those within. With
 // compensated coordinates (float) and no wrap inside a cell, that first test reads the hi parts
 // alone: hi-part r^2 >= pre2 (prefilter_bound) implies the compensated r^2 >= out2, so it drops
@@ -232,18 +234,16 @@ __global__ void __launch_bounds__(kBlock)
   Column* column = columns[warp];
   uint32_t* column_ranks = column_rank[warp];
   const uint32_t first_cell = args.cell_range[0], end_cell = args.cell_range[1];
-  // This warp's unit (row tile x column range): the fill takes the units in order; the count pass
-  // the ones it walks and the mirrored pass the others, from walk_order (CountWalks) where the build
-  // partitioned them, or in order (then the early returns below skip the units a pass leaves).
+  // This warp's unit (row tile x column range): the fill and the mirrored pass take the units in
+  // order; the count pass the ones it walks, from walk_order (CountWalks) where the build
+  // partitioned them (splits = 1, with masks), or in order (then the early returns below skip the
+  // units a pass leaves).
   const uint32_t slot = blockIdx.x * (kBlock / 32) + uint32_t(warp);
   uint32_t unit = slot;
-  if constexpr (!Fill) {
+  if constexpr (Pass == ListPass::kCount) {
     if (walk_order) {
-      const uint32_t first = *walked;
-      const uint32_t launched = gridDim.x * (kBlock / 32);  // walk_order's length
-      const uint32_t at = Mirrored ? first + slot : slot;
-      if (at >= (Mirrored ? launched : first)) return;  // the whole warp
-      unit = walk_order[at];
+      if (slot >= *walked) return;  // the whole warp
+      unit = walk_order[slot];
     }
   }
   const uint32_t w = args.tile_start[first_cell] + unit / splits, split = unit % splits;
@@ -288,9 +288,18 @@ __global__ void __launch_bounds__(kBlock)
   const uint32_t* my_words = kept ? masks.words + masks.base[unit] : nullptr;
   const bool p_tile = row >= h;  // P rows only (a multiple of 32: no H row in it)
   uint32_t count = 0;
+  // Change 62: with one column range per row tile (splits = 1) and masks, a row tile that holds H
+  // rows tests only the column tiles from its own on; the cell's earlier H row tiles test it (their
+  // columns) and write its words for their column tiles, transposed, as they do for the P tiles;
+  // and the count pass adds the counts of those words to the rows they belong to itself (integer
+  // atomic adds: the sums do not depend on their order), so there is no mirrored pass. A pair's
+  // decision is the same from either side (the control-bit rule is symmetric, the separations
+  // change sign exactly). A unit whose words are not kept tests all its columns, and gets no
+  // mirrored words or counts.
+  const bool mirror_h = !Fill && splits == 1u && masks.words != nullptr;
   if constexpr (Mirrored) {
-    // A P tile whose words its H rows wrote: its counts, from the words. Every other unit counted
-    // in the count pass.
+    // A P tile whose words its H rows wrote: its counts, from the words (several column splits
+    // only). Every other unit counted in the count pass.
     if (!(p_tile && kept)) return;
     for (uint32_t col = c0; col < c1; col += 32u)
       if (row_ok) count += __popc(my_words[(col - c0) + uint32_t(lane)]);
@@ -349,11 +358,19 @@ __global__ void __launch_bounds__(kBlock)
   const uint32_t tile0 = args.tile_start[cell_index] - args.tile_start[first_cell];  // the cell's first unit / splits
   const StagedEntry<Real> A = Mirrored || !row_ok ? StagedEntry<Real>{} : stage(a);
   const Control ca = detail::control_of(A.meta);
-  for (uint32_t col = c0; col < (Mirrored ? c0 : c1); col += 32u) {
+  // The first column tile this unit tests: its own with mirror_h (the ones before are mirrored
+  // into it), else its range's first.
+  const uint32_t walk0 = mirror_h && kept && !p_tile ? row : c0;
+  for (uint32_t col = walk0; col < (Mirrored ? c0 : c1); col += 32u) {
     const uint32_t own = col + uint32_t(lane);
+    // Whether this column tile's rows get their words for this unit's rows from here (the whole
+    // warp: uniform): the P-only tiles', and with mirror_h every later tile's.
+    const bool mirrors = masks.words && !p_tile && (mirror_h ? col > row : col >= p_end);
+    uint32_t own_rank = 0;  // mirror_h: the rank of column `own`, whose count the mirror adds to
     if (own < c1) {
       column[lane] = stage(own);
       if constexpr (Fill) column_ranks[lane] = rank[ids[own]];
+      if (mirror_h && mirrors) own_rank = rank[ids[own]];  // used after the tests: its latency hidden
     }
     __syncwarp();
     const uint32_t cnt = min(c1 - col, 32u);
@@ -400,18 +417,23 @@ __global__ void __launch_bounds__(kBlock)
     }
     if constexpr (!Fill) {
       if (kept) masks.words[masks.base[unit] + (col - c0) + uint32_t(lane)] = keep;
-      if (masks.words && !p_tile && col >= p_end) {  // the whole warp (uniform)
+      if (mirrors) {  // the whole warp (uniform)
         const uint32_t mirror = transpose_bits(keep, lane);  // column col + lane's bits, row by row
         const uint32_t p_unit = (tile0 + col / 32u) * splits + h_split;
-        if (masks.kept(p_unit) && col + uint32_t(lane) < c1)
+        if (masks.kept(p_unit) && own < c1) {
           masks.words[masks.base[p_unit] + (row - h_begin) + uint32_t(lane)] = mirror;
+          const uint32_t found = __popc(mirror);
+          if (mirror_h && found) atomicAdd(&slot_counts[std::size_t(own_rank) * kSlots + type], found);
+        }
       }
     }
     __syncwarp();
   }
   if constexpr (Fill) out.finish();
   if constexpr (!Fill) {
-    if (splits == 1) {
+    if (mirror_h) {  // mirrored counts may come to these rows' slots meanwhile
+      if (row_ok && count) atomicAdd(&slot_counts[std::size_t(pa) * kSlots + type], count);
+    } else if (splits == 1) {
       if (row_ok) slot_counts[std::size_t(pa) * kSlots + type] = count;
     } else {
       split_counts[std::size_t(unit) * 32u + lane] = count;  // 0 for rows beyond the cell
@@ -905,7 +927,8 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
     CF_CUDA_CHECK_LAUNCH();
   };
   if (row_blocks) walk_rows(std::integral_constant<ListPass, ListPass::kCount>{});
-  if (masks.words) walk_rows(std::integral_constant<ListPass, ListPass::kMirrored>{});
+  // With one column split the count pass added the mirrored counts itself (change 62).
+  if (masks.words && list.splits > 1) walk_rows(std::integral_constant<ListPass, ListPass::kMirrored>{});
   // Each group of kGroup ranks is as long as its longest list, in whole chunks: the groups' lengths,
   // then (the scan below) their first chunks.
   const std::size_t groups = (n + kGroup - 1) / kGroup;

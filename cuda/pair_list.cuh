@@ -77,8 +77,9 @@ CF_HD std::size_t list_entry(unsigned long long group_chunk0, std::size_t p, uin
 // the units), and one that does not walks its columns again in the fill, so the list is the same
 // whatever the buffer holds. base[units], the words all units would take, sizes the buffer for the
 // next build. A tile of P rows only whose words are kept is not tested at all: the H rows that
-// pair with it write its words (build_pair_list's mirrored pass), since a pair's decision is the
-// same from either side.
+// pair with it write its words, since a pair's decision is the same from either side (and with one
+// column split per row tile, an H row tile's words for the columns of the cell's earlier H row
+// tiles: those tiles write them; cuda/pair_list.cu list_rows, change 62).
 struct BuildMasks {
   uint32_t* words = nullptr;                  // capacity words, or null: no room (every unit walks again)
   unsigned long long capacity = 0;
@@ -111,7 +112,7 @@ struct PairList {
   DeviceBuffer<uint32_t> masks;        // BuildMasks::words (fast memory mode), sized by the build before
   DeviceBuffer<unsigned long long> mask_base;  // BuildMasks::base, units + 1
   DeviceBuffer<uint32_t> walk_order;   // launched units: the count pass's (in order), then the rest
-                                       // (reversed: the mirrored pass's among them); held only while
+                                       // (reversed); held only while
                                        // the build keeps masks (empty in lean mode)
   DeviceBuffer<uint32_t> walked;       // 1: how many units the count pass walks
   DeviceBuffer<uint32_t> blocks;       // 1: the force kernel's blocks (their sums' count)
