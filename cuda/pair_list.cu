@@ -357,7 +357,15 @@ __global__ void __launch_bounds__(kBlock)
   const uint32_t h_split = h_chunk ? row / h_chunk : 0u, h_begin = h_split * h_chunk;
   const uint32_t tile0 = args.tile_start[cell_index] - args.tile_start[first_cell];  // the cell's first unit / splits
   const StagedEntry<Real> A = Mirrored || !row_ok ? StagedEntry<Real>{} : stage(a);
-  const Control ca = detail::control_of(A.meta);
+  // The walk's survivors, decided by the whole warp (below): the rows as staged, the queue of
+  // (row, column) survivors of a column tile (at most 32 x 32), and each row's decided columns.
+  __shared__ Column row_entries[kBlock / 32][32];
+  __shared__ uint16_t survivors[kBlock / 32][32 * 32];
+  __shared__ uint32_t decided_words[kBlock / 32][32];
+  Column* rows = row_entries[warp];
+  uint16_t* queue = survivors[warp];
+  uint32_t* decided = decided_words[warp];
+  rows[lane] = A;
   // The first column tile this unit tests: its own with mirror_h (the ones before are mirrored
   // into it), else its range's first.
   const uint32_t walk0 = mirror_h && kept && !p_tile ? row : c0;
@@ -394,26 +402,52 @@ __global__ void __launch_bounds__(kBlock)
     } else {
       for (uint32_t k = 0; k < cnt; ++k) near |= uint32_t(within(k)) << k;
     }
-    // Then the columns that passed, in column order: the candidate rule, and the double decision
-    // for the few within the staged coordinates' rounding of the cutoff. `keep`: the partners.
-    uint32_t keep = 0;
-    while (near) {
-      const uint32_t k = uint32_t(__ffs(int(near)) - 1);
+    // Then the columns that passed, decided by the whole warp (change 63): the candidate rule, and
+    // the double decision for the few within the staged coordinates' rounding of the cutoff.
+    // Each lane queues its survivors (row lane << 5 | column k, ~3 a lane at 1M), and the warp
+    // takes the queue 32 at a time; a lane that decides a pair sets the column's bit in its row's
+    // word. A lane walking its own survivors ran as many rounds as the fullest lane (~10, with ~10
+    // lanes active: half the count pass's instructions, which is issue-bound). `keep`: the
+    // partners. Rows beyond the cell, columns past the row's (row_cols) and the row itself are
+    // dropped before the queue.
+    if (row_cols <= col) near = 0;  // rows beyond the cell too (row_cols 0)
+    else if (row_cols - col < 32u) near &= (1u << (row_cols - col)) - 1u;
+    if (a >= col && a - col < 32u) near &= ~(1u << (a - col));
+    const uint32_t survived = __popc(near);
+    uint32_t before = survived;  // inclusive scan over the lanes, then exclusive
+#pragma unroll
+    for (int step = 1; step < 32; step <<= 1) {
+      const uint32_t v = __shfl_up_sync(0xffffffffu, before, step);
+      if (lane >= step) before += v;
+    }
+    const uint32_t queued = __shfl_sync(0xffffffffu, before, 31);
+    before -= survived;
+    for (uint32_t q = before; near; ++q) {
+      queue[q] = uint16_t(uint32_t(lane) << 5 | uint32_t(__ffs(int(near)) - 1));
       near &= near - 1u;
-      const uint32_t b = col + k;
-      if (b >= row_cols || b == a) continue;
+    }
+    decided[lane] = 0u;
+    __syncwarp();
+    for (uint32_t q = uint32_t(lane); q < queued; q += 32u) {
+      const uint32_t e = queue[q], l = e >> 5, k = e & 31u;
+      const uint32_t al = row + l, b = col + k;
+      const Column& R = rows[l];
       const Column& B = column[k];
       // H x H; H x P (either way round) unless the control-bit rule gives it to another cell.
-      if (!(a_home && b < h) && skip_pair(type, ca, detail::control_of(B.meta))) continue;
+      if (!(al < h && b < h) && skip_pair(type, detail::control_of(R.meta), detail::control_of(B.meta))) continue;
       Real d[3];
-      const Real r2 = detail::separation<T>(A, B, args.length, args.inv_length, d);
+      const Real r2 = detail::separation<T>(R, B, args.length, args.inv_length, d);
       if (!(r2 < out2)) continue;  // the prefilter's survivors: the compensated test
       if (!(r2 < in2) &&
-          !(distance2<D>(args.grid, staging.positions, ids[a], ids[b]) < cutoff2))
+          !(distance2<D>(args.grid, staging.positions, ids[al], ids[b]) < cutoff2))
         continue;
-      if constexpr (Fill) out.put(column_ranks[k]);
-      else keep |= 1u << k;
-      ++count;
+      atomicOr(&decided[l], 1u << k);
+    }
+    __syncwarp();
+    const uint32_t keep = decided[lane];
+    count += __popc(keep);
+    if constexpr (Fill) {
+      for (uint32_t left = keep; left; left &= left - 1u) out.put(column_ranks[__ffs(int(left)) - 1]);
     }
     if constexpr (!Fill) {
       if (kept) masks.words[masks.base[unit] + (col - c0) + uint32_t(lane)] = keep;
