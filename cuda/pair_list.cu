@@ -221,7 +221,8 @@ __global__ void __launch_bounds__(kBlock)
               Real pre2, double cutoff2, uint32_t splits, uint32_t* __restrict__ slot_counts,
               uint32_t* __restrict__ split_counts, const unsigned long long* __restrict__ group_chunks,
               uint32_t* __restrict__ neighbors, const BuildMasks masks, const uint32_t* __restrict__ walk_order,
-              const uint32_t* __restrict__ walked) {
+              const uint32_t* __restrict__ walked, const unsigned long long* __restrict__ fill_chunks,
+              unsigned long long fill_room) {
   constexpr int D = T::kDim;
   constexpr uint32_t kSlots = 1u << D;
   constexpr bool Fill = Pass == ListPass::kFill, Mirrored = Pass == ListPass::kMirrored;
@@ -238,6 +239,10 @@ __global__ void __launch_bounds__(kBlock)
   // order; the count pass the ones it walks, from walk_order (CountWalks) where the build
   // partitioned them (splits = 1, with masks), or in order (then the early returns below skip the
   // units a pass leaves).
+  // A fill queued before the host knew the list's size (change 65): nothing, where the list needs
+  // more chunks than its array holds (the host then makes room and fills again).
+  if constexpr (Fill)
+    if (fill_chunks && *fill_chunks > fill_room) return;  // the whole warp
   const uint32_t slot = blockIdx.x * (kBlock / 32) + uint32_t(warp);
   uint32_t unit = slot;
   if constexpr (Pass == ListPass::kCount) {
@@ -943,7 +948,9 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
   }
   const ListStaging staging{sorted_keys, args.positions, args.types, args.num_types, control};
   // The rows' walk, counting or filling, in the geometry's instantiation (2D/3D, wrap in a cell).
-  auto walk_rows = [&](auto pass_constant) {
+  // fill_chunks, fill_room: a fill's guard (list_rows), or none.
+  auto walk_rows = [&](auto pass_constant, const unsigned long long* fill_chunks = nullptr,
+                       unsigned long long fill_room = 0) {
     constexpr ListPass kPass = decltype(pass_constant)::value;
     constexpr bool kFill = kPass == ListPass::kFill;
     Switches sw;
@@ -956,7 +963,7 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
             cells, staging, list.rank.data(), in2, out2, pre2, cutoff2, uint32_t(list.splits),
             list.slot_counts.data(), list.splits > 1 ? list.split_counts.data() : nullptr, list.group_chunks.data(),
             kFill ? list.neighbors.data() : nullptr, masks, partitioned ? list.walk_order.data() : nullptr,
-            list.walked.data());
+            list.walked.data(), fill_chunks, fill_room);
     });
     CF_CUDA_CHECK_LAUNCH();
   };
@@ -998,9 +1005,20 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
                                   cudaMemcpyDeviceToDevice, stream));
   CF_CUDA_CHECK(cudaMemcpyAsync(list.sizes.data() + 3, list.group_chunks.data() + groups, sizeof(unsigned long long),
                                 cudaMemcpyDeviceToDevice, stream));
-  unsigned long long sizes[4] = {0, 0, 0, 0};
-  CF_CUDA_CHECK(cudaMemcpyAsync(sizes, list.sizes.data(), sizeof(sizes), cudaMemcpyDeviceToHost, stream));
-  CF_CUDA_CHECK(cudaStreamSynchronize(stream));
+  unsigned long long* sizes = list.readback.values();
+  CF_CUDA_CHECK(cudaMemcpyAsync(sizes, list.sizes.data(), 4 * sizeof(unsigned long long), cudaMemcpyDeviceToHost,
+                                stream));
+  CF_CUDA_CHECK(cudaEventRecord(list.readback.arrived(), stream));
+  // Where the list has an array already, the fill is queued behind the sizes' copy before the host
+  // reads them (change 65), so that the device fills while the host waits, decides and queues
+  // what follows, instead of waiting for the host's launch (~17-23 us a build at 256k-1M). It
+  // writes nothing where the list needs more chunks than the array holds (its guard reads the
+  // total); the host then fills again after making room, as before. A list the host then drops
+  // (the cells serve) was written in vain, and its array is freed in stream order.
+  const unsigned long long room = list.neighbors.capacity() / (std::size_t(kGroup) * kChunk);
+  const bool early = row_blocks && room > 0;
+  if (early) walk_rows(std::integral_constant<ListPass, ListPass::kFill>{}, list.group_chunks.data() + groups, room);
+  CF_CUDA_CHECK(cudaEventSynchronize(list.readback.arrived()));
   const std::size_t width = std::size_t(sizes[0]), pairs = std::size_t(sizes[1]);
   const std::size_t mask_words = masks.base ? std::size_t(sizes[2]) : 0;  // what every unit's masks would take
   const std::size_t entries_total = std::size_t(sizes[3]) * kGroup * kChunk;  // the list's slots, padding included
@@ -1036,7 +1054,7 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
     const bool roomy = cells.staged && need + headroom * sizeof(uint32_t) + 2 * spare <= free_bytes;
     list.neighbors.reserve(roomy ? entries_total + headroom : entries_total);
   }
-  if (row_blocks && width) walk_rows(std::integral_constant<ListPass, ListPass::kFill>{});
+  if (row_blocks && width && !(early && held)) walk_rows(std::integral_constant<ListPass, ListPass::kFill>{});
   if (row_blocks && width && masks.words && mask_words <= masks.capacity) ++list.masked_fills;
   list.width = width;
   list.pairs = pairs;

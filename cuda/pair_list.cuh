@@ -87,6 +87,36 @@ struct BuildMasks {
   __device__ bool kept(uint32_t unit) const { return words && base[unit + 1] <= capacity; }
 };
 
+// Pinned host memory for the build's four sizes, and the event of their copy's arrival (change 65:
+// the host waits for the sizes, not for the stream, so the device can fill meanwhile). Made when
+// first asked for, on the current device.
+class SizesReadback {
+ public:
+  SizesReadback() = default;
+  SizesReadback(const SizesReadback&) = delete;
+  SizesReadback& operator=(const SizesReadback&) = delete;
+  ~SizesReadback() {  // a destructor cannot throw: errors are ignored
+    if (values_) cudaFreeHost(values_);
+    if (arrived_) cudaEventDestroy(arrived_);
+  }
+  unsigned long long* values() {
+    if (!values_) {
+      void* p = nullptr;
+      CF_CUDA_CHECK(cudaHostAlloc(&p, 4 * sizeof(unsigned long long), cudaHostAllocDefault));
+      values_ = static_cast<unsigned long long*>(p);
+    }
+    return values_;
+  }
+  cudaEvent_t arrived() {
+    if (!arrived_) CF_CUDA_CHECK(cudaEventCreateWithFlags(&arrived_, cudaEventDisableTiming));
+    return arrived_;
+  }
+
+ private:
+  unsigned long long* values_ = nullptr;
+  cudaEvent_t arrived_ = nullptr;
+};
+
 struct PairList {
   DeviceBuffer<uint32_t> order;        // n: the particle of rank p
   DeviceBuffer<uint32_t> rank;         // n: the rank of particle i
@@ -105,7 +135,8 @@ struct PairList {
   DeviceBuffer<double> ranked_forces;  // n x dim: the gated evaluations' forces in rank order (RankOrder)
   DeviceBuffer<unsigned long long> sizes;  // 4: the longest list, the sum of the lengths, the words
                                            // every unit's masks would take, the list's chunks (the
-                                           // host reads them in one copy)
+                                           // host reads them in one copy, into `readback`)
+  SizesReadback readback;
   DeviceBuffer<uint32_t> selected;     // 1: CUB's count of H entries (n)
   DeviceBuffer<uint32_t> split_counts; // splits > 1: the count pass's partners per work unit (row
                                        // tile x column split) and lane, for the fill's offsets
