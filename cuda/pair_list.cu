@@ -194,11 +194,13 @@ struct CountWalks {
 
 // One warp per work unit: a row tile of a collision cell (the tile form's work units and candidate
 // rule) and one of `splits` contiguous ranges of its columns (build_splits): lane l holds row
-// occupant a, and every lane walks the same columns. The occupants come from the staged array, or,
+// occupant a, and every lane walks the same columns (from its own column tile on for an H row tile
+// with change 62's mirror, below). The occupants come from the staged array, or,
 // without one (lean memory), are staged as they are loaded (detail::stage_entry, the values
 // stage_kernel would write). Count: the partners of each row within the list cutoff, into
-// slot_counts[rank * 2^d + cell type] (a store with one split; with several, each range's count is
-// added there, an integer sum, and kept per unit and lane in split_counts). Fill: the same walk
+// slot_counts[rank * 2^d + cell type] (a store with one split and no masks, an integer atomic add with
+// masks, change 62; with several splits, each range's count is added there, an integer sum, and
+// kept per unit and lane in split_counts). Fill: the same walk
 // writes them, after the partners the row's particle found in cells of lower type and in the
 // ranges before this one (so the list does not depend on the splits). With masks (BuildMasks, fast
 // memory mode), the count pass keeps each decision as a bit, writes the bits of the P-only tiles
@@ -235,14 +237,14 @@ __global__ void __launch_bounds__(kBlock)
   Column* column = columns[warp];
   uint32_t* column_ranks = column_rank[warp];
   const uint32_t first_cell = args.cell_range[0], end_cell = args.cell_range[1];
-  // This warp's unit (row tile x column range): the fill and the mirrored pass take the units in
-  // order; the count pass the ones it walks, from walk_order (CountWalks) where the build
-  // partitioned them (splits = 1, with masks), or in order (then the early returns below skip the
-  // units a pass leaves).
   // A fill queued before the host knew the list's size (change 65): nothing, where the list needs
   // more chunks than its array holds (the host then makes room and fills again).
   if constexpr (Fill)
     if (fill_chunks && *fill_chunks > fill_room) return;  // the whole warp
+  // This warp's unit (row tile x column range): the fill and the mirrored pass take the units in
+  // order; the count pass the ones it walks, from walk_order (CountWalks) where the build
+  // partitioned them (splits = 1, with masks), or in order (then the early returns below skip the
+  // units a pass leaves).
   const uint32_t slot = blockIdx.x * (kBlock / 32) + uint32_t(warp);
   uint32_t unit = slot;
   if constexpr (Pass == ListPass::kCount) {
@@ -288,7 +290,8 @@ __global__ void __launch_bounds__(kBlock)
   }
   ChunkWriter out(chunk0, written);
   // The unit's masks (BuildMasks), when it keeps them: the count pass writes them (a tile of P rows
-  // only gets them from the H rows it pairs with: mirrored), the fill reads them.
+  // only gets them from the H rows it pairs with, and with change 62 an H row tile gets those for
+  // the column tiles of the cell's earlier H row tiles from them: mirrored), the fill reads them.
   const bool kept = masks.base && masks.kept(unit);
   const uint32_t* my_words = kept ? masks.words + masks.base[unit] : nullptr;
   const bool p_tile = row >= h;  // P rows only (a multiple of 32: no H row in it)
@@ -310,7 +313,7 @@ __global__ void __launch_bounds__(kBlock)
       if (row_ok) count += __popc(my_words[(col - c0) + uint32_t(lane)]);
   }
   if constexpr (Pass == ListPass::kCount) {
-    if (p_tile && kept) return;  // mirrored: counted in the next pass
+    if (p_tile && kept) return;  // mirrored: counted by the H rows' atomics (one split) or the mirrored pass
   }
   if constexpr (Fill) {
     if (kept) {
@@ -355,8 +358,9 @@ __global__ void __launch_bounds__(kBlock)
       return;
     }
   }
-  // A P tile's mirror: for a column tile of P-only tiles (past p_end), the words of those P rows
-  // for this tile's columns (its H rows), in the P tile's unit for the range that holds them.
+  // A row tile's mirror: for a column tile of P-only tiles (past p_end), or with change 62's mirror
+  // any later column tile, the words of that tile's rows for this tile's columns (its rows), in
+  // that tile's unit for the range that holds them.
   const uint32_t p_end = (h + 31u) & ~31u;  // the first row of the cell's P-only tiles
   const uint32_t h_chunk = split_columns(h, splits, 0).end;  // a P tile's range length (whole tiles)
   const uint32_t h_split = h_chunk ? row / h_chunk : 0u, h_begin = h_split * h_chunk;
@@ -1026,7 +1030,7 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
   // free memory with 1/16 of it (at least 512 MiB) to spare (a dense cluster: n^2 partners): the
   // cells serve this structure. The list in use counts as free: it is replaced. A list that fits the
   // array it has takes no memory, and the free memory is not asked for (cudaMemGetInfo, ~8 us
-  // between the wait above and the fill's launch, the device idle).
+  // with the device idle before a fill that waits for the host: the one after making room).
   const bool held = entries_total <= list.neighbors.capacity();
   std::size_t free_bytes = 0, total_bytes = 0;
   if (!held) {

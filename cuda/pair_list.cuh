@@ -142,8 +142,8 @@ struct PairList {
                                        // tile x column split) and lane, for the fill's offsets
   DeviceBuffer<uint32_t> masks;        // BuildMasks::words (fast memory mode), sized by the build before
   DeviceBuffer<unsigned long long> mask_base;  // BuildMasks::base, units + 1
-  DeviceBuffer<uint32_t> walk_order;   // launched units: the count pass's (in order), then the rest
-                                       // (reversed); held only while
+  DeviceBuffer<uint32_t> walk_order;   // launched units: the count pass's (in order) first, then
+                                       // the rest (not read); held only while
                                        // the build keeps masks (empty in lean mode)
   DeviceBuffer<uint32_t> walked;       // 1: how many units the count pass walks
   DeviceBuffer<uint32_t> blocks;       // 1: the force kernel's blocks (their sums' count)
