@@ -86,8 +86,10 @@ __device__ __forceinline__ void pair_separation(const Grid&, const FixedParticle
 // A walk's entries of one rank's list, from entry `first` on (the partners found before this walk),
 // one after the other: each chunk the walk fills whole is one 16-byte store, and the chunks it
 // shares with the walks before and after it (its first and last) are written entry by entry. The
-// list's 4-byte stores, each its own L2 transaction, held the fill to ~25% of its issue rate at 1M
-// particles (Nsight Compute: L2 69% busy, 4.4 useful bytes per stored sector).
+// list's 4-byte stores, each lane at its own row's place, held the fill to ~25% of its issue rate
+// at 1M particles (Nsight Compute: L2 69% busy, 4.4 useful bytes per stored sector). The walked
+// fill (units without masks) uses it; the fill from masks writes a warp's entries 32 at a time,
+// neighbouring lanes at neighbouring places of a row (change 66).
 class ChunkWriter {
  public:
   // chunk0: the rank's chunk 0 (chunk c at chunk0 + c * kGroup: list_entry's layout), or null for a
@@ -121,6 +123,14 @@ class ChunkWriter {
   uint32_t* chunk0_;
   uint32_t first_, next_;
   uint32_t v0_ = 0, v1_ = 0, v2_ = 0, v3_ = 0;
+};
+
+// Where a row's entries go in the fill from masks (change 66): its list's chunk 0 (as an index into
+// the list, so that the store is a global one), and its next entry's place less the row's first place in the warp's queue, so that
+// queue entry q goes to place base + q.
+struct alignas(16) FillRow {
+  std::size_t chunk0;  // list_entry(group's first chunk, rank, 0)
+  uint32_t base;
 };
 
 template <int D, class Particle>
@@ -315,14 +325,21 @@ __global__ void __launch_bounds__(kBlock)
   if constexpr (Pass == ListPass::kCount) {
     if (p_tile && kept) return;  // mirrored: counted by the H rows' atomics (one split) or the mirrored pass
   }
+  // The walk's survivors' queue (below), which the fill from masks uses for its entries.
+  __shared__ uint16_t survivors[kBlock / 32][32 * 32];
+  uint16_t* queue = survivors[warp];
   if constexpr (Fill) {
     if (kept) {
       // The whole warp: the count pass's decisions, kFillBatch column tiles at a time (their words,
       // IDs and ranks loaded together: one tile at a time, the walk waited on three dependent
       // loads per tile), the columns' ranks shared through `batch_ranks`.
       constexpr uint32_t kFillBatch = 4;
+      constexpr uint32_t kQueue = 32 * 32;  // entries the queue holds: a tile's at most
+      static_assert(32 * kFillBatch <= 128, "an entry's column in the batch fits the queue's 7 bits");
       __shared__ uint32_t batch_ranks[kBlock / 32][32 * kFillBatch];
+      __shared__ FillRow fill_rows[kBlock / 32][32];
       uint32_t* ranks = batch_ranks[warp];
+      FillRow* places = fill_rows[warp];
       for (uint32_t col = c0; col < c1; col += 32u * kFillBatch) {
         uint32_t keep[kFillBatch], id[kFillBatch];
 #pragma unroll
@@ -343,18 +360,52 @@ __global__ void __launch_bounds__(kBlock)
 #pragma unroll
         for (uint32_t b = 0; b < kFillBatch; ++b)
           if (id[b] != ~0u && (wanted[b] >> lane & 1u)) ranks[32u * b + uint32_t(lane)] = rank[id[b]];
-        __syncwarp();
+        // Change 66: the batch's entries are written by the whole warp, 32 at a time. Each lane
+        // queues its row's entries (row << 7 | the column in the batch, in list order) after the
+        // rows before it; lane q of a round writes queue entry q to its row's list, at the row's
+        // next place plus q's place among the row's entries. A lane that put its own row's
+        // entries ran as many rounds as the fullest row, ~25 instructions a round, each waiting on
+        // its rank's shared load (Nsight Compute at 1M: 478M warp instructions for ~110M entries,
+        // ~6 lanes a round). Neighbouring lanes write neighbouring entries of a row: the
+        // 4-byte stores of a round fill the rows' 16-byte chunks as the chunk stores did, and never
+        // touch an entry of another walk. A batch whose entries overflow the queue takes its tiles
+        // one at a time (each at most 32 x 32 entries).
+        uint32_t found = 0;
 #pragma unroll
-        for (uint32_t b = 0; b < kFillBatch; ++b) {
-          while (keep[b]) {
-            const uint32_t k = uint32_t(__ffs(int(keep[b])) - 1);
-            keep[b] &= keep[b] - 1u;
-            out.put(ranks[32u * b + k]);
+        for (uint32_t b = 0; b < kFillBatch; ++b) found += __popc(keep[b]);
+        const bool whole = __reduce_add_sync(0xffffffffu, found) <= kQueue;
+        for (uint32_t g = 0; g < (whole ? 1u : kFillBatch); ++g) {  // the whole warp
+          uint32_t mine = 0;  // this row's entries in group g
+#pragma unroll
+          for (uint32_t b = 0; b < kFillBatch; ++b)
+            if (whole || b == g) mine += __popc(keep[b]);
+          uint32_t first = mine;  // inclusive scan over the lanes, then exclusive
+#pragma unroll
+          for (int step = 1; step < 32; step <<= 1) {
+            const uint32_t v = __shfl_up_sync(0xffffffffu, first, step);
+            if (lane >= step) first += v;
           }
+          const uint32_t total = __shfl_sync(0xffffffffu, first, 31);
+          first -= mine;
+          uint32_t q = first;
+#pragma unroll
+          for (uint32_t b = 0; b < kFillBatch; ++b) {
+            if (!(whole || b == g)) continue;
+            for (uint32_t left = keep[b]; left; left &= left - 1u, ++q)
+              queue[q] = uint16_t(uint32_t(lane) << 7 | (32u * b + uint32_t(__ffs(int(left)) - 1)));
+          }
+          places[lane] = FillRow{chunk0 ? std::size_t(chunk0 - neighbors) : 0u, written - first};  // queue entry q: place base + q
+          __syncwarp();
+          for (uint32_t r = uint32_t(lane); r < total; r += 32u) {
+            const uint32_t e = queue[r];
+            const FillRow place = places[e >> 7];
+            const uint32_t k = place.base + r;
+            neighbors[place.chunk0 + std::size_t(k / kChunk) * kGroup * kChunk + k % kChunk] = ranks[e & 127u];
+          }
+          written += mine;
+          __syncwarp();
         }
-        __syncwarp();
       }
-      out.finish();
       return;
     }
   }
@@ -369,10 +420,8 @@ __global__ void __launch_bounds__(kBlock)
   // The walk's survivors, decided by the whole warp (below): the rows as staged, the queue of
   // (row, column) survivors of a column tile (at most 32 x 32), and each row's decided columns.
   __shared__ Column row_entries[kBlock / 32][32];
-  __shared__ uint16_t survivors[kBlock / 32][32 * 32];
   __shared__ uint32_t decided_words[kBlock / 32][32];
   Column* rows = row_entries[warp];
-  uint16_t* queue = survivors[warp];
   uint32_t* decided = decided_words[warp];
   rows[lane] = A;
   // The first column tile this unit tests: its own with mirror_h (the ones before are mirrored
