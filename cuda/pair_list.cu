@@ -86,10 +86,10 @@ __device__ __forceinline__ void pair_separation(const Grid&, const FixedParticle
 // A walk's entries of one rank's list, from entry `first` on (the partners found before this walk),
 // one after the other: each chunk the walk fills whole is one 16-byte store, and the chunks it
 // shares with the walks before and after it (its first and last) are written entry by entry. The
-// list's 4-byte stores, each lane at its own row's place, held the fill to ~25% of its issue rate
-// at 1M particles (Nsight Compute: L2 69% busy, 4.4 useful bytes per stored sector). The walked
-// fill (units without masks) uses it; the fill from masks writes a warp's entries 32 at a time,
-// neighbouring lanes at neighbouring places of a row (change 66).
+// list's 4-byte stores, each lane at its own row's place (each its own L2 transaction), held the
+// fill to ~25% of its issue rate at 1M particles (Nsight Compute: L2 69% busy, 4.4 useful bytes
+// per stored sector). The walked fill (units without masks) uses it; the fill from masks writes a
+// warp's entries 32 at a time, neighbouring lanes at neighbouring places of a row (change 66).
 class ChunkWriter {
  public:
   // chunk0: the rank's chunk 0 (chunk c at chunk0 + c * kGroup: list_entry's layout), or null for a
@@ -125,9 +125,22 @@ class ChunkWriter {
   uint32_t v0_ = 0, v1_ = 0, v2_ = 0, v3_ = 0;
 };
 
-// Where a row's entries go in the fill from masks (change 66): its list's chunk 0 (as an index into
-// the list, so that the store is a global one), and its next entry's place less the row's first place in the warp's queue, so that
-// queue entry q goes to place base + q.
+// The sum of `value` over the warp's lanes before this one (the whole warp calls it), and the
+// warp's total into `total`.
+__device__ __forceinline__ uint32_t warp_exclusive_sum(uint32_t value, int lane, uint32_t& total) {
+  uint32_t sum = value;  // inclusive, then exclusive
+#pragma unroll
+  for (int step = 1; step < 32; step <<= 1) {
+    const uint32_t v = __shfl_up_sync(0xffffffffu, sum, step);
+    if (lane >= step) sum += v;
+  }
+  total = __shfl_sync(0xffffffffu, sum, 31);
+  return sum - value;
+}
+
+// Where a row's entries go in the fill from masks (change 66): its list's chunk 0 (an index into the
+// list, so that the store is a global one), and its next entry's place less the row's first place
+// in the warp's queue, so that queue entry q goes to place base + q.
 struct alignas(16) FillRow {
   std::size_t chunk0;  // list_entry(group's first chunk, rank, 0)
   uint32_t base;
@@ -335,6 +348,7 @@ __global__ void __launch_bounds__(kBlock)
       // loads per tile), the columns' ranks shared through `batch_ranks`.
       constexpr uint32_t kFillBatch = 4;
       constexpr uint32_t kQueue = 32 * 32;  // entries the queue holds: a tile's at most
+      static_assert(kQueue <= sizeof(survivors[0]) / sizeof(survivors[0][0]), "the queue is the walk's");
       static_assert(32 * kFillBatch <= 128, "an entry's column in the batch fits the queue's 7 bits");
       __shared__ uint32_t batch_ranks[kBlock / 32][32 * kFillBatch];
       __shared__ FillRow fill_rows[kBlock / 32][32];
@@ -361,32 +375,26 @@ __global__ void __launch_bounds__(kBlock)
         for (uint32_t b = 0; b < kFillBatch; ++b)
           if (id[b] != ~0u && (wanted[b] >> lane & 1u)) ranks[32u * b + uint32_t(lane)] = rank[id[b]];
         // Change 66: the batch's entries are written by the whole warp, 32 at a time. Each lane
-        // queues its row's entries (row << 7 | the column in the batch, in list order) after the
-        // rows before it; lane q of a round writes queue entry q to its row's list, at the row's
-        // next place plus q's place among the row's entries. A lane that put its own row's
-        // entries ran as many rounds as the fullest row, ~25 instructions a round, each waiting on
-        // its rank's shared load (Nsight Compute at 1M: 478M warp instructions for ~110M entries,
-        // ~6 lanes a round). Neighbouring lanes write neighbouring entries of a row: the
-        // 4-byte stores of a round fill the rows' 16-byte chunks as the chunk stores did, and never
-        // touch an entry of another walk. A batch whose entries overflow the queue takes its tiles
-        // one at a time (each at most 32 x 32 entries).
+        // queues its row's entries (lane << 7 | the column in the batch, in list order) after the
+        // rows before it; in each round lane l writes the next queue entry 32 j + l to its row's
+        // list, at the row's next place plus the entry's place among the row's entries. A lane
+        // that put its own row's entries ran as many rounds as the fullest row, ~25 instructions
+        // a round, each waiting on its rank's shared load (Nsight Compute at 1M: 479M warp
+        // instructions for a list of ~110M entries). Neighbouring lanes write neighbouring entries
+        // of a row, so the 4-byte stores of a round mostly fill the rows' 16-byte chunks whole, as
+        // the chunk stores did, and never touch an entry of another walk. A batch whose entries
+        // overflow the queue takes its tiles one at a time (each at most 32 x 32 entries).
         uint32_t found = 0;
 #pragma unroll
         for (uint32_t b = 0; b < kFillBatch; ++b) found += __popc(keep[b]);
         const bool whole = __reduce_add_sync(0xffffffffu, found) <= kQueue;
         for (uint32_t g = 0; g < (whole ? 1u : kFillBatch); ++g) {  // the whole warp
-          uint32_t mine = 0;  // this row's entries in group g
+          uint32_t mine = 0;  // this row's entries in pass g's tiles (the whole batch, or tile g)
 #pragma unroll
           for (uint32_t b = 0; b < kFillBatch; ++b)
             if (whole || b == g) mine += __popc(keep[b]);
-          uint32_t first = mine;  // inclusive scan over the lanes, then exclusive
-#pragma unroll
-          for (int step = 1; step < 32; step <<= 1) {
-            const uint32_t v = __shfl_up_sync(0xffffffffu, first, step);
-            if (lane >= step) first += v;
-          }
-          const uint32_t total = __shfl_sync(0xffffffffu, first, 31);
-          first -= mine;
+          uint32_t total = 0;
+          const uint32_t first = warp_exclusive_sum(mine, lane, total);
           uint32_t q = first;
 #pragma unroll
           for (uint32_t b = 0; b < kFillBatch; ++b) {
@@ -394,7 +402,8 @@ __global__ void __launch_bounds__(kBlock)
             for (uint32_t left = keep[b]; left; left &= left - 1u, ++q)
               queue[q] = uint16_t(uint32_t(lane) << 7 | (32u * b + uint32_t(__ffs(int(left)) - 1)));
           }
-          places[lane] = FillRow{chunk0 ? std::size_t(chunk0 - neighbors) : 0u, written - first};  // queue entry q: place base + q
+          // Queue entry q of this row: place written - first + q.
+          places[lane] = FillRow{chunk0 ? std::size_t(chunk0 - neighbors) : 0u, written - first};
           __syncwarp();
           for (uint32_t r = uint32_t(lane); r < total; r += 32u) {
             const uint32_t e = queue[r];
@@ -418,7 +427,8 @@ __global__ void __launch_bounds__(kBlock)
   const uint32_t tile0 = args.tile_start[cell_index] - args.tile_start[first_cell];  // the cell's first unit / splits
   const StagedEntry<Real> A = Mirrored || !row_ok ? StagedEntry<Real>{} : stage(a);
   // The walk's survivors, decided by the whole warp (below): the rows as staged, the queue of
-  // (row, column) survivors of a column tile (at most 32 x 32), and each row's decided columns.
+  // (row, column) survivors of a column tile (`survivors`, above: at most 32 x 32), and each row's
+  // decided columns.
   __shared__ Column row_entries[kBlock / 32][32];
   __shared__ uint32_t decided_words[kBlock / 32][32];
   Column* rows = row_entries[warp];
@@ -472,14 +482,8 @@ __global__ void __launch_bounds__(kBlock)
     else if (row_cols - col < 32u) near &= (1u << (row_cols - col)) - 1u;
     if (a >= col && a - col < 32u) near &= ~(1u << (a - col));
     const uint32_t survived = __popc(near);
-    uint32_t before = survived;  // inclusive scan over the lanes, then exclusive
-#pragma unroll
-    for (int step = 1; step < 32; step <<= 1) {
-      const uint32_t v = __shfl_up_sync(0xffffffffu, before, step);
-      if (lane >= step) before += v;
-    }
-    const uint32_t queued = __shfl_sync(0xffffffffu, before, 31);
-    before -= survived;
+    uint32_t queued = 0;
+    const uint32_t before = warp_exclusive_sum(survived, lane, queued);
     for (uint32_t q = before; near; ++q) {
       queue[q] = uint16_t(uint32_t(lane) << 5 | uint32_t(__ffs(int(near)) - 1));
       near &= near - 1u;
