@@ -525,6 +525,27 @@ TEST(PairListMasks, FillFromMasksIsTheWalkedFill) {
     }
 }
 
+// The same for a dense cluster: 200 particles in a cube of edge 2 in one cell, nearly every pair
+// within rc + skin (2.8; the cube's diagonal is 3.5), so a row tile keeps ~32 x 100 entries in a
+// batch of 4 column tiles, more than the fill's queue holds (1,024): the fill from masks takes
+// those batches a tile at a time (change 66). A build, and two rebuilds (moves past skin / 2) that
+// read the masks.
+TEST(PairListMasks, FillFromMasksIsTheWalkedFillInADenseCluster) {
+  CF_SKIP_WITHOUT_DEVICE();
+  const Scene s = make_scene("clustered3d_one_cell");
+  ASSERT_TRUE(lists_fit(s, kSkin));
+  const Configuration far = moved(s.config, 0.2, 17);
+  for (Precision p : {Precision::kSingle, Precision::kMixed, Precision::kDouble})
+    for (const int splits : {1, 4}) {
+      SCOPED_TRACE(cellforce::to_string(p) + std::string(", ") + std::to_string(splits) + " splits");
+      const auto [masked, walked] = masked_and_walked(p, splits);
+      GpuEngine x(masked), y(walked);
+      for (const Configuration* c : {&s.config, &far, &s.config}) expect_same_lists(x, y, *c, s);
+      EXPECT_GE(x.list_masked_fills(), 1u);
+      EXPECT_GT(x.listed_pairs(), 200u * 199u * 3u / 4u);  // the cluster's pairs, counted from both sides
+    }
+}
+
 // The same in two dimensions (4 cell types): a build, a reused step, and a rebuild that reads the
 // masks.
 TEST(PairListMasks, FillFromMasksIsTheWalkedFillIn2D) {
