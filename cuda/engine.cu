@@ -320,7 +320,12 @@ struct GpuEngine::Impl {
       }
       lean = o.lean_lists ? *o.lean_lists : double(n) * 1440.0 > 0.9 * double(device_bytes);
       if (lean) {
-        list.neighbors.release();  // the new build makes a new list: the old one is dead
+        // The new build makes a new list: the old one is dead. Its array holds the unsorted keys and
+        // IDs and the sort's scratch where it can (lent below), and then the new list where it fits
+        // (build_pair_list): no device allocation of the list's size at every build (at 100M
+        // particles ~45 GB, ~129 ms with the device idle: performance.md, change 69). Else freed here,
+        // so that the sort's arrays have its room.
+        if (o.sort != SortMethod::kCub || list.neighbors.capacity() < 2 * lent_words(cap)) list.neighbors.release();
         list.ranked_forces.release();  // lean gated evaluations store in the caller's order
         list.fixed_next.release();     // and run no kick-drift (change 59)
         list.ranked_next.release();
@@ -329,33 +334,48 @@ struct GpuEngine::Impl {
         staged.release();
       }
     }
-    keys.reserve(cap);
-    object_ids.reserve(cap);
+    // The unsorted keys and IDs: their own arrays, or (lean, a list array kept above) the dead list's
+    // first words, the sort's scratch after them.
+    uint32_t *unsorted_keys = nullptr, *unsorted_ids = nullptr;
+    cuda::ScratchLoan loan;
+    if (lean && list.neighbors.capacity() >= 2 * lent_words(cap)) {
+      keys.release();
+      object_ids.release();
+      unsorted_keys = list.neighbors.data();
+      unsorted_ids = unsorted_keys + lent_words(cap);
+      loan.data = reinterpret_cast<std::byte*>(unsorted_ids + lent_words(cap));
+      loan.bytes = (list.neighbors.capacity() - 2 * lent_words(cap)) * sizeof(uint32_t);
+    } else {
+      keys.reserve(cap);
+      object_ids.reserve(cap);
+      unsorted_keys = keys.data();
+      unsorted_ids = object_ids.data();
+    }
     sorted_keys.reserve(cap);
     sorted_ids.reserve(cap);
     control.reserve(std::max<std::size_t>(n, 1));
-    cuda::build_cell_ids(g, pos, n, keys.data(), object_ids.data(), control.data(), stream);
+    cuda::build_cell_ids(g, pos, n, unsorted_keys, unsorted_ids, control.data(), stream);
     if (skin > 0) {
       build_positions.reserve(std::max<std::size_t>(n * std::size_t(g.dim), 1));
       if (n)
         CF_CUDA_CHECK(cudaMemcpyAsync(build_positions.data(), pos, n * g.dim * sizeof(double),
                                       cudaMemcpyDeviceToDevice, stream));
       if (o.reuse.audit) {  // before the sort (the chapter's may reuse the input); read after a sync
-        download(build_keys, keys.data(), entries, stream);
+        download(build_keys, unsorted_keys, entries, stream);
         download(build_control, control.data(), n, stream);
       }
     }
     record(kCellIds);
-    cuda::count_valid(keys.data(), entries, counts.data(), cub, stream);
+    cuda::count_valid(unsorted_keys, entries, counts.data(), cub, stream);
     record(kCounted);
     switch (o.sort) {
       case SortMethod::kCub:
-        cuda::radix_sort_cub(keys.data(), object_ids.data(), sorted_keys.data(), sorted_ids.data(),
-                             entries, g.key_bits, cub, stream);
+        cuda::radix_sort_cub(unsorted_keys, unsorted_ids, sorted_keys.data(), sorted_ids.data(), entries,
+                             g.key_bits, cub, stream, loan);
         break;
       case SortMethod::kChapter:
-        cuda::radix_sort_chapter(keys.data(), object_ids.data(), sorted_keys.data(),
-                                 sorted_ids.data(), entries, g.key_bits, chapter_sort, stream);
+        cuda::radix_sort_chapter(unsorted_keys, unsorted_ids, sorted_keys.data(), sorted_ids.data(), entries,
+                                 g.key_bits, chapter_sort, stream);
         break;
     }
     record(kSorted);
@@ -376,6 +396,10 @@ struct GpuEngine::Impl {
     st.entries = entries;
     st.valid_entries = st.collision_cells = 0;  // on the device until read_counts()
   }
+
+  // Words of a dead list's array lent to an unsorted array of `cap` entries: whole 256-byte blocks
+  // (the keys' kernel stores 16 bytes at a time; CUB's scratch wants 256-byte alignment).
+  static std::size_t lent_words(std::size_t cap) { return (cap + 63) / 64 * 64; }
 
   // Whether evaluations walk pair lists (core/reuse.h states the condition).
   static bool lists(const GpuOptions& o, const Box& box, double cutoff) {

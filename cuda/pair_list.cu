@@ -1101,14 +1101,15 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
   if (entries_total > list.neighbors.capacity()) {
     // The largest buffer: the old one is freed and the pool it came from (the device's current
     // one, which cudaMallocAsync uses) trimmed before the new one is taken (in stream order alone
-    // the pool could hold both). With a staged build (fast mode), 1/16 to spare for the next
-    // builds where that still leaves the spare free; lean mode takes the exact size.
+    // the pool could hold both). Room to spare for the next builds where that still leaves the
+    // spare free: 1/16 with a staged build (fast mode), 1/64 in lean mode, whose next builds
+    // also hold their sort's arrays in it (engine.cu).
     list.neighbors.release();
     list.masks.release();  // counted as free above: this fill walks every unit again (the same list)
     masks.words = nullptr;
     trim_pool(stream);
-    const std::size_t headroom = entries_total / 16;
-    const bool roomy = cells.staged && need + headroom * sizeof(uint32_t) + 2 * spare <= free_bytes;
+    const std::size_t headroom = entries_total / (cells.staged ? 16 : 64);
+    const bool roomy = need + headroom * sizeof(uint32_t) + 2 * spare <= free_bytes;
     list.neighbors.reserve(roomy ? entries_total + headroom : entries_total);
   }
   if (row_blocks && width && !(early && held)) walk_rows(std::integral_constant<ListPass, ListPass::kFill>{});

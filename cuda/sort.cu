@@ -22,15 +22,19 @@ namespace cellforce::cuda {
 
 void radix_sort_cub(const uint32_t* keys_in, const uint32_t* values_in, uint32_t* keys_out,
                     uint32_t* values_out, std::size_t entries, int key_bits,
-                    DeviceBuffer<std::byte>& scratch, cudaStream_t stream) {
+                    DeviceBuffer<std::byte>& scratch, cudaStream_t stream, ScratchLoan loan) {
   if (entries == 0) return;
   if (entries > std::size_t(INT32_MAX)) throw Error("sort of more than 2^31 entries");
   const int n = int(entries);
   std::size_t bytes = 0;
   CF_CUDA_CHECK(cub::DeviceRadixSort::SortPairs(nullptr, bytes, keys_in, keys_out, values_in,
                                                 values_out, n, 0, key_bits, stream));
-  scratch.reserve(bytes);
-  CF_CUDA_CHECK(cub::DeviceRadixSort::SortPairs(scratch.data(), bytes, keys_in, keys_out, values_in,
+  std::byte* room = loan.data;
+  if (bytes > loan.bytes) {
+    scratch.reserve(bytes);
+    room = scratch.data();
+  }
+  CF_CUDA_CHECK(cub::DeviceRadixSort::SortPairs(room, bytes, keys_in, keys_out, values_in,
                                                 values_out, n, 0, key_bits, stream));
 }
 

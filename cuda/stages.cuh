@@ -42,12 +42,19 @@ void build_cell_ids(const Grid& grid, const double* positions, std::size_t n, ui
 void count_valid(const uint32_t* keys, std::size_t entries, PipelineCounts* counts,
                  DeviceBuffer<std::byte>& scratch, cudaStream_t stream);
 
+// Device memory lent for a call's scratch (a dead buffer's room): used where it is large enough.
+struct ScratchLoan {
+  std::byte* data = nullptr;  // 256-byte aligned
+  std::size_t bytes = 0;
+};
+
 // Stage 2 with CUB's device radix sort: stable, on bits [0, key_bits) only, so that invalid
 // entries (all ones in the window) sort last and each cell's H entries precede its P entries.
-// Sorts (keys_in, values_in) into (keys_out, values_out).
+// Sorts (keys_in, values_in) into (keys_out, values_out). Its scratch: `loan` where it is large
+// enough, else `scratch`, grown as CUB asks.
 void radix_sort_cub(const uint32_t* keys_in, const uint32_t* values_in, uint32_t* keys_out,
                     uint32_t* values_out, std::size_t entries, int key_bits,
-                    DeviceBuffer<std::byte>& scratch, cudaStream_t stream);
+                    DeviceBuffer<std::byte>& scratch, cudaStream_t stream, ScratchLoan loan = {});
 
 // Stage 2 with the chapter's own three-phase radix sort (section 32.2.3): the same contract as
 // radix_sort_cub (stable, bits [0, key_bits) only, key_bits in 1..32, else cellforce::Error) and

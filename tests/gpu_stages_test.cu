@@ -62,6 +62,32 @@ void expect_stages_equal(const Configuration& c, double cutoff) {
   EXPECT_EQ(download(d_keys_sorted, entries), host.keys) << "sorted keys";
   EXPECT_EQ(download(d_ids_sorted, entries), host.object_ids) << "sorted object IDs (stability)";
 
+  // CUB's sort with its scratch lent from another buffer (a lean build lends the dead list's
+  // array): the same result, and the lent room is what it used (its own scratch stays empty).
+  {
+    cuda::DeviceBuffer<std::byte> probe;  // takes exactly what the sort asks for
+    cuda::radix_sort_cub(d_keys.data(), d_ids.data(), d_keys_sorted.data(), d_ids_sorted.data(), entries,
+                         g.key_bits, probe, 0);
+    const std::size_t bytes = probe.capacity();
+    cuda::DeviceBuffer<std::byte> lent(bytes + 256), own;
+    CF_CUDA_CHECK(cudaMemset(lent.data(), 0xa5, bytes + 256));
+    cuda::DeviceBuffer<uint32_t> k2(std::max<std::size_t>(entries, 1)), i2(std::max<std::size_t>(entries, 1));
+    cuda::radix_sort_cub(d_keys.data(), d_ids.data(), k2.data(), i2.data(), entries, g.key_bits, own, 0,
+                         cuda::ScratchLoan{lent.data(), bytes});
+    CF_CUDA_CHECK(cudaDeviceSynchronize());
+    EXPECT_EQ(own.capacity(), 0u) << "the sort took its own scratch despite the loan";
+    EXPECT_EQ(download(k2, entries), host.keys) << "sorted keys, lent scratch";
+    EXPECT_EQ(download(i2, entries), host.object_ids) << "sorted object IDs, lent scratch";
+    // A loan too small: the sort's own scratch instead, the same result.
+    if (bytes > 0) {
+      cuda::radix_sort_cub(d_keys.data(), d_ids.data(), k2.data(), i2.data(), entries, g.key_bits, own, 0,
+                           cuda::ScratchLoan{lent.data(), bytes - 1});
+      CF_CUDA_CHECK(cudaDeviceSynchronize());
+      EXPECT_GE(own.capacity(), bytes);
+      EXPECT_EQ(download(k2, entries), host.keys) << "sorted keys, loan too small";
+    }
+  }
+
   // The chapter's sort on the same arrays: CUB's result element for element.
   cuda::DeviceBuffer<uint32_t> d_keys_chapter(std::max<std::size_t>(entries, 1)),
       d_ids_chapter(std::max<std::size_t>(entries, 1));

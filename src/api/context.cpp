@@ -310,10 +310,15 @@ void Context::set_option(std::string_view key, std::string_view value) {
   } else if (key == "sort") {
     c.sort = parse_option(key, value, kSortNames);
     impl_->engine_changed();
+  } else if (key == "memory") {
+    if (value == "auto") c.lean_lists.reset();
+    else if (value == "fast" || value == "lean") c.lean_lists = value == "lean";
+    else throw Error("option memory: " + quote_excerpt(std::string(value)) + " is not auto, fast or lean");
+    impl_->engine_changed();
   } else {
     throw Error("unknown option " + quote_excerpt(std::string(key)) +
                 "; options: backend, device, precision, mixing, cutoff-mode, skin, neighbor-check, "
-                "neighbor-every, neighbor-audit, neighbor-list, accumulation, cell-rule, traversal, sort");
+                "neighbor-every, neighbor-audit, neighbor-list, accumulation, cell-rule, traversal, sort, memory");
   }
 }
 

@@ -329,6 +329,17 @@ int main(int argc, char** argv) {
                    "list build's ranks)")
       ->transform(one_of(name_map(kNumberingNames)))
       ->default_str("lattice");
+  bench_cmd
+      ->add_option_function<std::string>(
+          "--memory",
+          [&ba](const std::string& m) {
+            if (m == "auto") ba.engine.lean_lists.reset();
+            else ba.engine.lean_lists = (m == "lean");
+          },
+          "CUDA pair lists' memory: auto (lean where the fast layout's ~1,440 bytes a particle would not fit in "
+          "90% of the device; the default), fast, or lean (the build frees the last list, keeps no masks and "
+          "stages occupants as it loads them: ~690 bytes a particle, slower builds)")
+      ->check(CLI::IsMember({"auto", "fast", "lean"}));
   bench_cmd->add_option("--label", ba.label, "The rows' configuration name (default: default, or chapter)");
   bench_cmd->add_option("--save-final", ba.save_final,
                         "Write PREFIX-<n>.positions.f64 and PREFIX-<n>.forces.f64: the last step's positions and "
