@@ -4,7 +4,7 @@
 // knows from n and the grid, so that no stage waits for the host. Device buffers live in Impl,
 // grow in the stream's order (DeviceBuffer::bind) and are reused, so repeated evaluations
 // allocate nothing (except pair lists in lean memory, whose builds free and take again what is
-// dead between builds).
+// dead between builds where the dead list's array cannot hold it).
 #include "engine.h"
 
 #include <cuda_runtime.h>
@@ -121,9 +121,10 @@ struct GpuEngine::Impl {
   std::size_t builds = 0, list_built_for = ~std::size_t(0);
   bool list_usable = false;
   // Lean memory (pair lists on a system whose buffers would not fit beside each other): the build
-  // frees what is dead before the list is taken (the last list, the unsorted keys and IDs, the sort's
-  // scratch) and stages occupants as it loads them; the same list, bit for bit.
-  bool lean = false;
+  // keeps no masks and no staged occupants (it stages them as it loads them), puts the unsorted keys
+  // and IDs and the sort's scratch in the dead list's array where they fit (lend; else it frees the
+  // last list first, and them after the sort); the same list, bit for bit.
+  bool lean = false, lend = false;
   int multiprocessors = 1;  // of the engine's device, read once
   bool has_types = false;
 
@@ -307,7 +308,7 @@ struct GpuEngine::Impl {
     counts.reserve(1);
     form = resolve_traversal(o.traversal, max_cells, multiprocessors);
     ++builds;
-    lean = false;
+    lean = lend = false;
     if (lists(o, sys.box, ff.cutoff)) {
       // Lean when the fast layout's buffers (about 1,440 bytes per particle with a 0.6 skin and the
       // MD state: a staged array, the sort's arrays, the list, the gated evaluations' forces, a
@@ -321,11 +322,14 @@ struct GpuEngine::Impl {
       lean = o.lean_lists ? *o.lean_lists : double(n) * 1440.0 > 0.9 * double(device_bytes);
       if (lean) {
         // The new build makes a new list: the old one is dead. Its array holds the unsorted keys and
-        // IDs and the sort's scratch where it can (lent below), and then the new list where it fits
-        // (build_pair_list): no device allocation of the list's size at every build (at 100M
-        // particles ~45 GB, ~129 ms with the device idle: performance.md, change 69). Else freed here,
-        // so that the sort's arrays have its room.
-        if (o.sort != SortMethod::kCub || list.neighbors.capacity() < 2 * lent_words(cap)) list.neighbors.release();
+        // IDs and the sort's scratch where all three fit in it (lent below), and then the new list
+        // where that fits (build_pair_list): no device allocation of the list's size at every build
+        // (at 100M particles ~45 GB, ~129 ms with the device idle: performance.md, change 69). Else
+        // freed here, so that the sort's arrays have its room. Kept, the array does not shrink: a
+        // lean engine holds its longest list, as a fast one does.
+        lend = o.sort == SortMethod::kCub &&
+               list.neighbors.capacity() >= 2 * lent_words(cap) + (cuda::radix_sort_cub_bytes(entries, g.key_bits) + 3) / 4;
+        if (!lend) list.neighbors.release();
         list.ranked_forces.release();  // lean gated evaluations store in the caller's order
         list.fixed_next.release();     // and run no kick-drift (change 59)
         list.ranked_next.release();
@@ -338,7 +342,7 @@ struct GpuEngine::Impl {
     // first words, the sort's scratch after them.
     uint32_t *unsorted_keys = nullptr, *unsorted_ids = nullptr;
     cuda::ScratchLoan loan;
-    if (lean && list.neighbors.capacity() >= 2 * lent_words(cap)) {
+    if (lend) {
       keys.release();
       object_ids.release();
       unsorted_keys = list.neighbors.data();

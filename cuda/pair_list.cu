@@ -1101,9 +1101,9 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
   if (entries_total > list.neighbors.capacity()) {
     // The largest buffer: the old one is freed and the pool it came from (the device's current
     // one, which cudaMallocAsync uses) trimmed before the new one is taken (in stream order alone
-    // the pool could hold both). Room to spare for the next builds where that still leaves the
-    // spare free: 1/16 with a staged build (fast mode), 1/64 in lean mode, whose next builds
-    // also hold their sort's arrays in it (engine.cu).
+    // the pool could hold both). Room to spare, so that the next builds' lists rarely outgrow it,
+    // where that still leaves the spare free: 1/16 with a staged build (fast mode), 1/64 in lean
+    // mode (whose array the next builds also lend to their sort first, engine.cu).
     list.neighbors.release();
     list.masks.release();  // counted as free above: this fill walks every unit again (the same list)
     masks.words = nullptr;

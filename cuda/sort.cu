@@ -30,12 +30,22 @@ void radix_sort_cub(const uint32_t* keys_in, const uint32_t* values_in, uint32_t
   CF_CUDA_CHECK(cub::DeviceRadixSort::SortPairs(nullptr, bytes, keys_in, keys_out, values_in,
                                                 values_out, n, 0, key_bits, stream));
   std::byte* room = loan.data;
-  if (bytes > loan.bytes) {
+  if (bytes > loan.bytes || !loan.data) {
     scratch.reserve(bytes);
     room = scratch.data();
   }
   CF_CUDA_CHECK(cub::DeviceRadixSort::SortPairs(room, bytes, keys_in, keys_out, values_in,
                                                 values_out, n, 0, key_bits, stream));
+}
+
+std::size_t radix_sort_cub_bytes(std::size_t entries, int key_bits) {
+  if (entries == 0) return 0;
+  if (entries > std::size_t(INT32_MAX)) throw Error("sort of more than 2^31 entries");
+  std::size_t bytes = 0;
+  CF_CUDA_CHECK(cub::DeviceRadixSort::SortPairs(nullptr, bytes, static_cast<const uint32_t*>(nullptr),
+                                                static_cast<uint32_t*>(nullptr), static_cast<const uint32_t*>(nullptr),
+                                                static_cast<uint32_t*>(nullptr), int(entries), 0, key_bits));
+  return bytes;
 }
 
 namespace {

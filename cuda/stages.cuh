@@ -56,6 +56,10 @@ void radix_sort_cub(const uint32_t* keys_in, const uint32_t* values_in, uint32_t
                     uint32_t* values_out, std::size_t entries, int key_bits,
                     DeviceBuffer<std::byte>& scratch, cudaStream_t stream, ScratchLoan loan = {});
 
+// The scratch bytes radix_sort_cub asks for, for `entries` keys of `key_bits` bits (CUB's query:
+// no device work).
+std::size_t radix_sort_cub_bytes(std::size_t entries, int key_bits);
+
 // Stage 2 with the chapter's own three-phase radix sort (section 32.2.3): the same contract as
 // radix_sort_cub (stable, bits [0, key_bits) only, key_bits in 1..32, else cellforce::Error) and
 // the same result element for element. The inputs are only read; outputs must not overlap them.

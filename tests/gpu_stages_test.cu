@@ -76,6 +76,13 @@ void expect_stages_equal(const Configuration& c, double cutoff) {
                          cuda::ScratchLoan{lent.data(), bytes});
     CF_CUDA_CHECK(cudaDeviceSynchronize());
     EXPECT_EQ(own.capacity(), 0u) << "the sort took its own scratch despite the loan";
+    {
+      std::vector<std::byte> after(bytes + 256);
+      CF_CUDA_CHECK(cudaMemcpy(after.data(), lent.data(), bytes + 256, cudaMemcpyDeviceToHost));
+      const auto pattern = std::byte{0xa5};
+      EXPECT_TRUE(std::all_of(after.begin() + std::ptrdiff_t(bytes), after.end(), [&](std::byte b) { return b == pattern; }))
+          << "the sort wrote past the lent bytes";
+    }
     EXPECT_EQ(download(k2, entries), host.keys) << "sorted keys, lent scratch";
     EXPECT_EQ(download(i2, entries), host.object_ids) << "sorted object IDs, lent scratch";
     // A loan too small: the sort's own scratch instead, the same result.

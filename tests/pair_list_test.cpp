@@ -312,8 +312,8 @@ TEST(PairListRequests, ForcesDoNotDependOnTheObservablesAsked) {
 // The lean memory mode (the build stages occupants as it loads them and frees what is dead first,
 // chosen for systems near the device's memory) makes the same list as the staged build: the same
 // results, bit for bit, at a build, on a reused step, and at rebuilds (another system, then the
-// first again: the lean engine frees its live list, keys and scratch and takes them again), in
-// every precision.
+// first again: the lean engine frees or lends its list's array and takes the sort's arrays
+// again), in every precision.
 TEST(PairListLean, LeanBuildIsBitwiseTheStagedOne) {
   CF_SKIP_WITHOUT_DEVICE();
   const Scene a = make_scene("multitype3d_lb"), b = make_scene("random3d_periodic");
