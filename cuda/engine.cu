@@ -443,11 +443,20 @@ struct GpuEngine::Impl {
     // bytes less); otherwise staged once, which the build's two passes read faster.
     const cuda::TraversalArgs<Real, Accum> cell_args =
         lean ? traversal_args<Real, Accum>(g, sys, ff, ff.mode) : prepare<Real, Accum>(g, sys, ff, ff.mode);
+    // Lean, with the last list's array kept (build): its room holds the occupants staged for the
+    // count pass, which the fill then writes over (change 70; the fill stages as it loads).
+    const cuda::StagedEntry<Real>* count_staged = nullptr;
+    if (lean && list.neighbors.capacity() * sizeof(uint32_t) >= entries * sizeof(cuda::StagedEntry<Real>)) {
+      auto* into = reinterpret_cast<cuda::StagedEntry<Real>*>(list.neighbors.data());
+      cuda::stage_occupants<Real>(g, sorted_keys.data(), sorted_ids.data(), entries, &counts.data()->valid, pos, typ,
+                                  uint32_t(ff.num_types()), control.data(), into, stream);
+      count_staged = into;
+    }
     list.forced_splits = o.list_splits.value_or(0);
     list.use_masks = o.list_masks.value_or(true);
     list.forced_threads = o.list_threads.value_or(0);
     list_usable = cuda::build_pair_list<Real, Accum>(cell_args, sorted_keys.data(), control.data(), entries,
-                                                     ff.cutoff + o.reuse.skin, la, list, stream);
+                                                     ff.cutoff + o.reuse.skin, la, list, stream, count_staged);
     if (lean) collision.flags.release();
     if (!list_usable) list.ranked_forces.release();  // no gated evaluations: the cells serve
     list_built_for = builds;

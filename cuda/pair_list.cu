@@ -924,7 +924,7 @@ bool gathers_fixed(const ListArgs<Real, Accum>& args) {
 template <class Real, class Accum>
 bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* sorted_keys, const Control* control,
                      std::size_t entries, double list_cutoff, const ListArgs<Real, Accum>& args, PairList& list,
-                     cudaStream_t stream) {
+                     cudaStream_t stream, const StagedEntry<Real>* count_staged) {
   const std::size_t n = args.n;
   const int dim = args.grid.dim;
   const std::size_t slots = std::size_t(1) << dim;
@@ -1006,6 +1006,10 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
   const ListStaging staging{sorted_keys, args.positions, args.types, args.num_types, control};
   // The rows' walk, counting or filling, in the geometry's instantiation (2D/3D, wrap in a cell).
   // fill_chunks, fill_room: a fill's guard (list_rows), or none.
+  // The count pass reads count_staged where the cells have no staged occupants (lean memory, change
+  // 70): they lie in the list's array, which the fill then writes, so only the count pass reads them.
+  TraversalArgs<Real, Accum> count_cells = cells;
+  if (!cells.staged && count_staged) count_cells.staged = count_staged;
   auto walk_rows = [&](auto pass_constant, const unsigned long long* fill_chunks = nullptr,
                        unsigned long long fill_room = 0) {
     constexpr ListPass kPass = decltype(pass_constant)::value;
@@ -1017,7 +1021,7 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
       using T = decltype(traits);
       if constexpr (!T::kMultiType && T::kMode == CutoffMode::kTruncate && !T::kObservables)
         list_rows<T, kPass><<<row_blocks, kBlock, 0, stream>>>(
-            cells, staging, list.rank.data(), in2, out2, pre2, cutoff2, uint32_t(list.splits),
+            kPass == ListPass::kCount ? count_cells : cells, staging, list.rank.data(), in2, out2, pre2, cutoff2, uint32_t(list.splits),
             list.slot_counts.data(), list.splits > 1 ? list.split_counts.data() : nullptr, list.group_chunks.data(),
             kFill ? list.neighbors.data() : nullptr, masks, partitioned ? list.walk_order.data() : nullptr,
             list.walked.data(), fill_chunks, fill_room);
@@ -1268,7 +1272,7 @@ void unrank_forces(const PairList& list, std::size_t n, int dim, double* forces,
 #define CF_PAIR_LIST(Real, Accum)                                                                              \
   template bool build_pair_list<Real, Accum>(const TraversalArgs<Real, Accum>&, const uint32_t*, const Control*, \
                                              std::size_t, double, const ListArgs<Real, Accum>&, PairList&,       \
-                                             cudaStream_t);                                                      \
+                                             cudaStream_t, const StagedEntry<Real>*);                            \
   template void list_forces<Real, Accum>(const Switches&, const ListArgs<Real, Accum>&, PairList&, cudaStream_t, \
                                          const GateView&, bool, const NextKickDrift*);                          \
   template RankOrder rank_order<Real, Accum>(const ListArgs<Real, Accum>&, PairList&, bool, bool);

@@ -242,11 +242,13 @@ __device__ __forceinline__ void place_ranked(const RankOrder& to, std::size_t i,
 // Returns false, leaving no list (its array freed), when the grouped array would hold more than
 // twice the pairs plus 64 per particle (a few very crowded particles), or would not fit in the
 // device's free memory with 1/16 of it (at least 512 MiB) to spare: the caller then traverses the
-// cells.
+// cells. count_staged (lean memory, cells without staged occupants): the occupants staged for the
+// count pass alone, in the list's own array (the fill writes over them), or null.
 template <class Real, class Accum>
 bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* sorted_keys, const Control* control,
                      std::size_t entries, double list_cutoff,
-                     const ListArgs<Real, Accum>& list_args, PairList& list, cudaStream_t stream);
+                     const ListArgs<Real, Accum>& list_args, PairList& list, cudaStream_t stream,
+                     const StagedEntry<Real>* count_staged = nullptr);
 
 // Gathers the positions into rank order (FixedParticle for float pairs where fixed_point_serves,
 // else RankedParticle) and evaluates every listed pair with r < rc: forces (and
