@@ -322,7 +322,8 @@ struct GpuEngine::Impl {
       lean = o.lean_lists ? *o.lean_lists : double(n) * 1440.0 > 0.9 * double(device_bytes);
       if (lean) {
         // The new build makes a new list: the old one is dead. Its array holds the unsorted keys and
-        // IDs and the sort's scratch where all three fit in it (lent below), and then the new list
+        // IDs and the sort's scratch where all three fit in it (lent below), then the occupants
+        // staged for the count pass where they fit (build_list, change 70), and then the new list
         // where that fits (build_pair_list): no device allocation of the list's size at every build
         // (at 100M particles ~45 GB, ~129 ms with the device idle: performance.md, change 69). Else
         // freed here, so that the sort's arrays have its room. Kept, the array does not shrink: a
@@ -439,8 +440,9 @@ struct GpuEngine::Impl {
   template <class Real, class Accum>
   void build_list(const GpuOptions& o, const Grid& g, const SystemView& sys, const ForceField& ff) {
     const cuda::ListArgs<Real, Accum> la = list_args<Real, Accum>(g, sys, ff, Request{false, false});
-    // Lean: the cells without staging (the build stages each occupant as it loads it: n x 2^d x 32
-    // bytes less); otherwise staged once, which the build's two passes read faster.
+    // Lean: the cells without a staged array of their own (n x 2^d x 32 bytes less: the fill stages
+    // each occupant as it loads it, the count pass too unless the last list's array holds them,
+    // below); otherwise staged once, which the build's two passes read faster.
     const cuda::TraversalArgs<Real, Accum> cell_args =
         lean ? traversal_args<Real, Accum>(g, sys, ff, ff.mode) : prepare<Real, Accum>(g, sys, ff, ff.mode);
     // Lean, with the last list's array kept (build): its room holds the occupants staged for the
@@ -914,6 +916,7 @@ std::size_t GpuEngine::listed_pairs() const {
   return s.list_usable && s.list_built_for == s.builds ? s.list.pairs : 0;
 }
 std::size_t GpuEngine::list_masked_fills() const { return impl_->list.masked_fills; }
+std::size_t GpuEngine::list_staged_counts() const { return impl_->list.staged_counts; }
 const double* GpuEngine::device_totals() const { return impl_->totals.data(); }
 void* GpuEngine::stream() const { return impl_->stream; }
 void GpuEngine::collect_timing() {

@@ -164,6 +164,8 @@ class GpuEngine {
   // Builds whose list fill read the count pass's decisions for every pair (cuda/pair_list.cuh
   // BuildMasks: the fast memory mode, once the room they ask for is there).
   std::size_t list_masked_fills() const;
+  // Lean builds whose count pass read occupants staged in the last list's array (change 70).
+  std::size_t list_staged_counts() const;
   const GpuOptions& options() const { return options_; }
   // The traversal form in use: options().traversal, or what kAuto chose at the last build (kAuto
   // before the first).

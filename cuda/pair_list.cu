@@ -218,14 +218,15 @@ struct CountWalks {
 // One warp per work unit: a row tile of a collision cell (the tile form's work units and candidate
 // rule) and one of `splits` contiguous ranges of its columns (build_splits): lane l holds row
 // occupant a, and every lane walks the same columns (from its own column tile on for an H row tile
-// with change 62's mirror, below). The occupants come from the staged array, or,
-// without one (lean memory), are staged as they are loaded (detail::stage_entry, the values
-// stage_kernel would write). Count: the partners of each row within the list cutoff, into
-// slot_counts[rank * 2^d + cell type] (a store with one split and no masks, an integer atomic add with
-// masks, change 62; with several splits, each range's count is added there, an integer sum, and
-// kept per unit and lane in split_counts). Fill: the same walk
-// writes them, after the partners the row's particle found in cells of lower type and in the
-// ranges before this one (so the list does not depend on the splits). With masks (BuildMasks, fast
+// with change 62's mirror, below). The occupants come from the staged array (fast memory, and a
+// lean build's count pass where the last list's array holds them, change 70), or, without one,
+// are staged as they are loaded (detail::stage_entry, the values stage_kernel would write).
+// Count: the partners of each row within the list cutoff, into slot_counts[rank * 2^d + cell
+// type] (a store with one split and no masks, an integer atomic add with masks, change 62; with
+// several splits, each range's count is added there, an integer sum, and kept per unit and lane
+// in split_counts). Fill: the same walk writes them, after the partners the row's particle found
+// in cells of lower type and in the ranges before this one (so the list does not depend on the
+// splits). With masks (BuildMasks, fast
 // memory mode), the count pass keeps each decision as a bit, writes the bits of the P-only tiles
 // that keep masks from their H rows' side (those tiles are not walked; with one column split, the
 // later H row tiles' bits for the earlier ones' columns too, and their counts: change 62, below;
@@ -959,7 +960,7 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
   const std::size_t units = std::size_t(cells.max_tiles) * std::size_t(list.splits);
   const unsigned row_blocks = unsigned((units + kBlock / 32 - 1) / (kBlock / 32));
   if (list.splits > 1) list.split_counts.reserve(std::size_t(row_blocks) * kBlock);  // a word per warp lane
-  // The count pass's masks for the fill: with a staged build (fast memory mode), in the room the
+  // The count pass's masks for the fill: with staged cells (fast memory mode), in the room the
   // previous builds asked for (none at the first: it walks twice). Lean mode walks twice.
   const uint32_t launched_units = row_blocks * (kBlock / 32);
   BuildMasks masks;
@@ -1008,8 +1009,13 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
   // fill_chunks, fill_room: a fill's guard (list_rows), or none.
   // The count pass reads count_staged where the cells have no staged occupants (lean memory, change
   // 70): they lie in the list's array, which the fill then writes, so only the count pass reads them.
+  // `cells` keeps staged null: the masks, the partition and the headroom above and below take a null
+  // cells.staged for lean mode.
   TraversalArgs<Real, Accum> count_cells = cells;
-  if (!cells.staged && count_staged) count_cells.staged = count_staged;
+  if (!cells.staged && count_staged) {
+    count_cells.staged = count_staged;
+    if (row_blocks) ++list.staged_counts;
+  }
   auto walk_rows = [&](auto pass_constant, const unsigned long long* fill_chunks = nullptr,
                        unsigned long long fill_room = 0) {
     constexpr ListPass kPass = decltype(pass_constant)::value;
@@ -1019,12 +1025,14 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
     sw.wrap = cells.grid.any_wrap_inside_cell();
     detail::dispatch(sw, [&](auto traits) {
       using T = decltype(traits);
-      if constexpr (!T::kMultiType && T::kMode == CutoffMode::kTruncate && !T::kObservables)
+      if constexpr (!T::kMultiType && T::kMode == CutoffMode::kTruncate && !T::kObservables) {
+        const TraversalArgs<Real, Accum>& walked_cells = kPass == ListPass::kCount ? count_cells : cells;
         list_rows<T, kPass><<<row_blocks, kBlock, 0, stream>>>(
-            kPass == ListPass::kCount ? count_cells : cells, staging, list.rank.data(), in2, out2, pre2, cutoff2, uint32_t(list.splits),
+            walked_cells, staging, list.rank.data(), in2, out2, pre2, cutoff2, uint32_t(list.splits),
             list.slot_counts.data(), list.splits > 1 ? list.split_counts.data() : nullptr, list.group_chunks.data(),
             kFill ? list.neighbors.data() : nullptr, masks, partitioned ? list.walk_order.data() : nullptr,
             list.walked.data(), fill_chunks, fill_room);
+      }
     });
     CF_CUDA_CHECK_LAUNCH();
   };

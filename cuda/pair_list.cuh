@@ -165,6 +165,7 @@ struct PairList {
   int forced_threads = 0;              // tests only: this many threads per particle (1, 2, 4 or 8)
   bool use_masks = true;               // tests only (false): every fill walks the columns again
   std::size_t masked_fills = 0;        // builds whose fill read every unit's masks
+  std::size_t staged_counts = 0;       // builds whose count pass alone read staged occupants (count_staged)
   std::size_t masks_refused = 0;       // the smallest mask demand the device had no room for (0: none)
 
   template <class F>
