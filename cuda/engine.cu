@@ -329,7 +329,8 @@ struct GpuEngine::Impl {
         // freed here, so that the sort's arrays have its room. Kept, the array does not shrink: a
         // lean engine holds its longest list, as a fast one does.
         lend = o.sort == SortMethod::kCub &&
-               list.neighbors.capacity() >= 2 * lent_words(cap) + (cuda::radix_sort_cub_bytes(entries, g.key_bits) + 3) / 4;
+               list.neighbors.capacity() >=
+                   2 * lent_words(cap) + (cuda::radix_sort_cub_bytes(entries, g.key_bits) + 3) / 4;
         if (!lend) list.neighbors.release();
         list.ranked_forces.release();  // lean gated evaluations store in the caller's order
         list.fixed_next.release();     // and run no kick-drift (change 59)

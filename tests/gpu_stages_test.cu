@@ -69,7 +69,7 @@ void expect_stages_equal(const Configuration& c, double cutoff) {
     cuda::radix_sort_cub(d_keys.data(), d_ids.data(), d_keys_sorted.data(), d_ids_sorted.data(), entries,
                          g.key_bits, probe, 0);
     const std::size_t bytes = probe.capacity();
-    EXPECT_EQ(cuda::radix_sort_cub_bytes(entries, g.key_bits), bytes) << "the lean build's lend decision asks this";
+    EXPECT_EQ(cuda::radix_sort_cub_bytes(entries, g.key_bits), bytes) << "what a lean build's lend decision asks";
     cuda::DeviceBuffer<std::byte> lent(bytes + 256), own;
     CF_CUDA_CHECK(cudaMemset(lent.data(), 0xa5, bytes + 256));
     cuda::DeviceBuffer<uint32_t> k2(std::max<std::size_t>(entries, 1)), i2(std::max<std::size_t>(entries, 1));
@@ -81,7 +81,8 @@ void expect_stages_equal(const Configuration& c, double cutoff) {
       std::vector<std::byte> after(bytes + 256);
       CF_CUDA_CHECK(cudaMemcpy(after.data(), lent.data(), bytes + 256, cudaMemcpyDeviceToHost));
       const auto pattern = std::byte{0xa5};
-      EXPECT_TRUE(std::all_of(after.begin() + std::ptrdiff_t(bytes), after.end(), [&](std::byte b) { return b == pattern; }))
+      EXPECT_TRUE(std::all_of(after.begin() + std::ptrdiff_t(bytes), after.end(),
+                              [&](std::byte b) { return b == pattern; }))
           << "the sort wrote past the lent bytes";
     }
     EXPECT_EQ(download(k2, entries), host.keys) << "sorted keys, lent scratch";
