@@ -355,7 +355,7 @@ TEST(CApi, BadInputGivesAStatusAndAMessageNamingIt) {
   expect(cf_set_option(c, "skin", "thick"), c, {CF_ERROR_INPUT, "option skin: 'thick' is not auto or a number"});
   expect(cf_set_option(c, "device", "-1"), c, {CF_ERROR_INPUT, "device -1"});
   expect(cf_set_option(c, "memory", "tiny"), c,
-         {CF_ERROR_INPUT, "option memory: 'tiny' is not auto, fast or lean"});
+         {CF_ERROR_INPUT, "option memory: 'tiny' is not one of auto, fast or lean"});
   ASSERT_EQ(cf_set_option(c, "memory", "lean"), CF_OK);
   ASSERT_EQ(cf_set_option(c, "memory", "auto"), CF_OK);
   expect(cf_set_option(c, nullptr, "x"), c, {CF_ERROR_INPUT, "option key is a null pointer"});

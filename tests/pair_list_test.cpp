@@ -799,7 +799,7 @@ TEST(PairListMd, GatedRunsEqualTheStepwiseRunLeanOrNot) {
         choice.reuse.automatic = false;
         choice.reuse.skin = 0.3;
         choice.reuse.list = true;
-        choice.lean_lists = lean;
+        choice.memory = lean ? cellforce::ListMemory::kLean : cellforce::ListMemory::kFast;
         choice.list_threads = form.threads;
         auto md = cellforce::make_cuda_md_engine(std::make_unique<cellforce::CudaForceEngine>(choice));
         md->set_state(start, masses, scene.force_field);
@@ -861,7 +861,7 @@ TEST(PairListMd, AGatedDivergenceNamesTheCallersParticle) {
       choice.reuse.automatic = false;
       choice.reuse.skin = 0.3;
       choice.reuse.list = true;
-      choice.lean_lists = lean;
+      choice.memory = lean ? cellforce::ListMemory::kLean : cellforce::ListMemory::kFast;
       auto md = cellforce::make_cuda_md_engine(std::make_unique<cellforce::CudaForceEngine>(choice));
       md->set_state(start, masses, scene.force_field);
       settings.langevin = langevin;

@@ -311,9 +311,7 @@ void Context::set_option(std::string_view key, std::string_view value) {
     c.sort = parse_option(key, value, kSortNames);
     impl_->engine_changed();
   } else if (key == "memory") {
-    if (value == "auto") c.lean_lists.reset();
-    else if (value == "fast" || value == "lean") c.lean_lists = value == "lean";
-    else throw Error("option memory: " + quote_excerpt(std::string(value)) + " is not auto, fast or lean");
+    c.memory = parse_option(key, value, kListMemoryNames);
     impl_->engine_changed();
   } else {
     throw Error("unknown option " + quote_excerpt(std::string(key)) +

@@ -33,8 +33,7 @@ struct EngineChoice {
   ReuseOptions reuse;                                     // skin (or automatic), check, every, audit, list
   int device = 0;                                         // CUDA device ordinal
   std::optional<Grid> grid_override;                      // tests only: this grid, unchecked
-  std::optional<bool> lean_lists;                         // CUDA: the lists' lean memory mode on or off (unset:
-                                                          // the engine's rule; tests and `bench --memory`)
+  ListMemory memory = ListMemory::kAuto;                  // CUDA pair lists' memory mode (option `memory`)
   std::optional<int> list_threads;                        // tests only (CUDA): the list force kernel's threads
                                                           // per particle (1, 2, 4 or 8)
 };

@@ -157,7 +157,7 @@ SizeResult bench_size(const BenchArgs& args, const EngineChoice& engine, int cel
                                              state.config.box, scene.force_field.cutoff);  // the skin in effect
     apply_numbering(state, args.order, scene.seed, scene.force_field.cutoff, reuse.skin, engine.rule);
     row["order"] = name_of(args.order, kNumberingNames);
-    row["memory"] = !engine.lean_lists ? "auto" : *engine.lean_lists ? "lean" : "fast";  // as asked (--memory)
+    row["memory"] = name_of(engine.memory, kListMemoryNames);  // as asked (--memory)
     std::vector<double> final_positions(n * dim), final_forces(n * dim);
     {
       Context ctx = make_context(state.config.box, scene.force_field, engine);

@@ -26,7 +26,7 @@ Context make_context(const Box& box, const ForceField& ff, const EngineChoice& e
   ctx.set_option("cell-rule", name_of(engine.rule, kCellRuleNames));
   ctx.set_option("traversal", name_of(engine.traversal, kTraversalNames));
   ctx.set_option("sort", name_of(engine.sort, kSortNames));
-  if (engine.lean_lists) ctx.set_option("memory", *engine.lean_lists ? "lean" : "fast");
+  ctx.set_option("memory", name_of(engine.memory, kListMemoryNames));
   return ctx;
 }
 

@@ -330,16 +330,11 @@ int main(int argc, char** argv) {
       ->transform(one_of(name_map(kNumberingNames)))
       ->default_str("lattice");
   bench_cmd
-      ->add_option_function<std::string>(
-          "--memory",
-          [&ba](const std::string& m) {
-            if (m == "auto") ba.engine.lean_lists.reset();
-            else ba.engine.lean_lists = (m == "lean");
-          },
-          "CUDA pair lists' memory: auto (lean where the fast layout's ~1,440 bytes a particle would not fit in "
-          "90% of the device; the default), fast, or lean (no masks, occupants staged as the build loads them, "
-          "the sort's arrays in the dead list's room: ~700 bytes a particle, builds ~2x slower)")
-      ->check(CLI::IsMember({"auto", "fast", "lean"}));
+      ->add_option("--memory", ba.engine.memory,
+                   "CUDA pair lists' memory: auto (lean where the fast layout's ~1,440 bytes a particle would not "
+                   "fit in 90% of the device; the default), fast, or lean (no masks, occupants staged as the build "
+                   "loads them, the sort's arrays in the dead list's room: ~700 bytes a particle, builds ~2x slower)")
+      ->transform(one_of(cli::kListMemories));
   bench_cmd->add_option("--label", ba.label, "The rows' configuration name (default: default, or chapter)");
   bench_cmd->add_option("--save-final", ba.save_final,
                         "Write PREFIX-<n>.positions.f64 and PREFIX-<n>.forces.f64: the last step's positions and "

@@ -21,6 +21,7 @@ inline const std::map<std::string, CellRule> kCellRules = name_map(kCellRuleName
 inline const std::map<std::string, Backend> kBackends = name_map(kBackendNames);
 inline const std::map<std::string, TraversalForm> kTraversals = name_map(kTraversalNames);
 inline const std::map<std::string, SortMethod> kSorts = name_map(kSortNames);
+inline const std::map<std::string, ListMemory> kListMemories = name_map(kListMemoryNames);
 inline const std::map<std::string, Lattice> kLattices = {{"sc", Lattice::kSimpleCubic},
                                                          {"bcc", Lattice::kBcc},
                                                          {"fcc", Lattice::kFcc},

@@ -47,6 +47,11 @@ enum class SortMethod : uint8_t {
   kChapter,  // the chapter's three-phase radix sort (tabulate, prefix sums, stable reorder)
 };
 
+// The CUDA pair lists' memory mode. Lean: no masks, no staged array of the cells' own, the
+// sort's arrays in the dead list's room (~700 bytes a particle against fast's ~1,440, builds
+// ~2x slower); auto: lean where fast would not fit in 90% of the device (cuda/engine.cu).
+enum class ListMemory : uint8_t { kAuto, kFast, kLean };
+
 // Counts and stage times (seconds) of the last evaluation. The CPU folds the valid count into
 // t_cell_ids; the GPU times it apart (t_count) and includes staging the occupants (the
 // relative-coordinate gather) in t_traversal. t_transfer: host <-> device copies (GPU only).

@@ -36,6 +36,8 @@ inline constexpr Named<TraversalForm> kTraversalNames[] = {
     {"warp", TraversalForm::kWarpPerCell}, {"thread", TraversalForm::kThreadPerCell}, {"tile", TraversalForm::kWarpPerTile},
     {"auto", TraversalForm::kAuto}};
 inline constexpr Named<SortMethod> kSortNames[] = {{"cub", SortMethod::kCub}, {"chapter", SortMethod::kChapter}};
+inline constexpr Named<ListMemory> kListMemoryNames[] = {
+    {"auto", ListMemory::kAuto}, {"fast", ListMemory::kFast}, {"lean", ListMemory::kLean}};
 
 // The value named `name` exactly, or nothing.
 template <class E, std::size_t N>
