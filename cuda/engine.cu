@@ -121,9 +121,10 @@ struct GpuEngine::Impl {
   std::size_t builds = 0, list_built_for = ~std::size_t(0);
   bool list_usable = false;
   // Lean memory (pair lists on a system whose buffers would not fit beside each other): the build
-  // keeps no masks and no staged occupants (it stages them as it loads them), puts the unsorted keys
-  // and IDs and the sort's scratch in the dead list's array where they fit (lend; else it frees the
-  // last list first, and them after the sort); the same list, bit for bit.
+  // keeps no staged occupants (it stages them as it loads them), keeps masks only for the units the
+  // device's free memory holds (change 71), puts the unsorted keys and IDs and the sort's scratch
+  // in the dead list's array where they fit (lend; else it frees the last list first, and them
+  // after the sort); the same list, bit for bit.
   bool lean = false, lend = false;
   int multiprocessors = 1;  // of the engine's device, read once
   bool has_types = false;
@@ -301,6 +302,8 @@ struct GpuEngine::Impl {
     }
     const Grid& g = st.grid;
     const std::size_t n = sys.n;
+    const bool was_lean = lean;
+    const std::size_t last_entries = entries;
     entries = n << g.dim;
     max_cells = std::min<std::size_t>(n, g.num_cells);
     const std::size_t run_bound = std::min<std::size_t>(entries, g.num_cells);
@@ -335,9 +338,15 @@ struct GpuEngine::Impl {
         list.ranked_forces.release();  // lean gated evaluations store in the caller's order
         list.fixed_next.release();     // and run no kick-drift (change 59)
         list.ranked_next.release();
-        list.masks.release();      // lean builds keep no masks
-        list.mask_base.release();
         staged.release();
+        // The masks' room was sized by the last lean build to the memory it left (grow_masks, change
+        // 71): kept for the same system, whose build takes nothing new where the keys are lent; given
+        // up where that room may be wanted (a new system or mode, the keys in arrays of their own),
+        // and asked for again at this build's end.
+        if (!was_lean || entries != last_entries || (!lend && o.sort == SortMethod::kCub)) {
+          list.masks.release();
+          list.masks_refused = 0;
+        }
       }
     }
     // The unsorted keys and IDs: their own arrays, or (lean, a list array kept above) the dead list's
@@ -457,6 +466,7 @@ struct GpuEngine::Impl {
     }
     list.forced_splits = o.list_splits.value_or(0);
     list.use_masks = o.list_masks.value_or(true);
+    list.mask_limit = o.list_mask_words.value_or(0);
     list.forced_threads = o.list_threads.value_or(0);
     list_usable = cuda::build_pair_list<Real, Accum>(cell_args, sorted_keys.data(), control.data(), entries,
                                                      ff.cutoff + o.reuse.skin, la, list, stream, count_staged);
@@ -917,6 +927,7 @@ std::size_t GpuEngine::listed_pairs() const {
   return s.list_usable && s.list_built_for == s.builds ? s.list.pairs : 0;
 }
 std::size_t GpuEngine::list_masked_fills() const { return impl_->list.masked_fills; }
+std::size_t GpuEngine::list_partly_masked_fills() const { return impl_->list.partly_masked_fills; }
 std::size_t GpuEngine::list_staged_counts() const { return impl_->list.staged_counts; }
 const double* GpuEngine::device_totals() const { return impl_->totals.data(); }
 void* GpuEngine::stream() const { return impl_->stream; }

@@ -37,6 +37,8 @@ struct GpuOptions {
                                       // 4 or 8) instead of the rule (1 from ~135,000 particles on an H100)
   std::optional<bool> list_masks;     // tests only (false): the list build's fill tests every pair
                                       // again instead of reading the count pass's masks (BuildMasks)
+  std::optional<std::size_t> list_mask_words;  // tests only: the masks' room holds at most this many
+                                               // words (as lean memory's room on a full device)
   int device = 0;                     // CUDA device ordinal
 };
 
@@ -162,8 +164,10 @@ class GpuEngine {
   // pair within rc + skin, once from each side); 0 when its evaluations traverse the cells.
   std::size_t listed_pairs() const;
   // Builds whose list fill read the count pass's decisions for every pair (cuda/pair_list.cuh
-  // BuildMasks: the fast memory mode, once the room they ask for is there).
+  // BuildMasks: once the room they ask for is there), and builds whose room held only some units'
+  // decisions (lean memory on a device without room for them all, change 71).
   std::size_t list_masked_fills() const;
+  std::size_t list_partly_masked_fills() const;
   // Lean builds whose count pass read occupants staged in the last list's array (change 70).
   std::size_t list_staged_counts() const;
   const GpuOptions& options() const { return options_; }

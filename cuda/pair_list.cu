@@ -226,8 +226,8 @@ struct CountWalks {
 // several splits, each range's count is added there, an integer sum, and kept per unit and lane
 // in split_counts). Fill: the same walk writes them, after the partners the row's particle found
 // in cells of lower type and in the ranges before this one (so the list does not depend on the
-// splits). With masks (BuildMasks, fast
-// memory mode), the count pass keeps each decision as a bit, writes the bits of the P-only tiles
+// splits). With masks (BuildMasks: every unit's in fast memory mode, a prefix of the units' in
+// lean mode), the count pass keeps each decision as a bit, writes the bits of the P-only tiles
 // that keep masks from their H rows' side (those tiles are not walked; with one column split, the
 // later H row tiles' bits for the earlier ones' columns too, and their counts: change 62, below;
 // with several, the mirrored pass counts the P tiles), and the fill of a unit that keeps masks
@@ -896,21 +896,30 @@ void trim_pool(cudaStream_t stream) {
 
 // Room for the next builds' masks (BuildMasks): `words` and 1/8 more, where the device's free
 // memory keeps 1/16 of it (at least 512 MiB) to spare after it; otherwise none (their fills walk
-// the columns again). After the fill that read the old masks (freed in stream order, the pool
-// trimmed so that the free memory counts them); growing is rare: the first build, and a system
-// that grew denser; a demand refused is not asked again (masks_refused).
-void grow_masks(PairList& list, std::size_t words, cudaStream_t stream) {
+// the columns again). Lean memory (`part`, change 71): as much of that as the free memory holds with
+// 1/8 of it (at least 2 GiB) to spare, so that the units the room holds (a prefix) read their masks
+// and the rest walk again; the wider spare leaves room for what a lean engine may still take after
+// a build (its energies, a build's transient arrays: masks given way to a growing list are asked
+// for again). After the fill that read the old masks (freed in stream order, the pool trimmed so
+// that the free memory counts them); growing is rare: the first build, and a system that grew
+// denser; a demand refused, or granted in part, is not asked again (masks_refused) until the list
+// grows.
+void grow_masks(PairList& list, std::size_t words, bool part, cudaStream_t stream) {
   list.masks.release();
   trim_pool(stream);
   std::size_t free_bytes = 0, total_bytes = 0;
   CF_CUDA_CHECK(cudaMemGetInfo(&free_bytes, &total_bytes));
-  const std::size_t spare = std::max<std::size_t>(free_bytes / 16, std::size_t(512) << 20);
-  const std::size_t want = words + words / 8;
-  if (want * sizeof(uint32_t) + spare <= free_bytes) {
-    list.masks.reserve(want);
+  std::size_t want = words + words / 8;
+  if (list.mask_limit) want = std::min(want, list.mask_limit);
+  if (part) {
+    const std::size_t spare = std::max<std::size_t>(free_bytes / 8, std::size_t(2) << 30);
+    want = std::min(want, free_bytes > spare ? (free_bytes - spare) / sizeof(uint32_t) : 0);
   } else {
-    list.masks_refused = words;  // not asked again for as many or more: each ask waits for the device
+    const std::size_t spare = std::max<std::size_t>(free_bytes / 16, std::size_t(512) << 20);
+    if (want * sizeof(uint32_t) + spare > free_bytes) want = 0;
   }
+  if (want > 0) list.masks.reserve(want);
+  if (want < words) list.masks_refused = words;  // not asked again for as many or more: each ask waits for the device
 }
 
 // Whether the evaluations of these args read FixedParticles (float pairs, fixed_point_serves) or
@@ -960,11 +969,13 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
   const std::size_t units = std::size_t(cells.max_tiles) * std::size_t(list.splits);
   const unsigned row_blocks = unsigned((units + kBlock / 32 - 1) / (kBlock / 32));
   if (list.splits > 1) list.split_counts.reserve(std::size_t(row_blocks) * kBlock);  // a word per warp lane
-  // The count pass's masks for the fill: with staged cells (fast memory mode), in the room the
-  // previous builds asked for (none at the first: it walks twice). Lean mode walks twice.
+  // The count pass's masks for the fill, in the room the previous builds asked for (none at the
+  // first: it walks twice); in lean memory mode (cells without staged occupants) that room may hold
+  // a prefix of the units only (grow_masks, change 71).
+  const bool lean = cells.staged == nullptr;
   const uint32_t launched_units = row_blocks * (kBlock / 32);
   BuildMasks masks;
-  if (cells.staged && list.use_masks && row_blocks) {
+  if (list.use_masks && row_blocks) {
     list.mask_base.reserve(std::size_t(launched_units) + 1);
     unit_mask_words<<<blocks_for(std::size_t(launched_units) + 1), kBlock, 0, stream>>>(
         cells, uint32_t(list.splits), launched_units, list.mask_base.data());
@@ -984,9 +995,9 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
   // The count pass's units first (CountWalks), the rest after them (change 41), where a row tile's
   // columns are one unit (splits = 1, from ~67,000 particles): with splits (small systems) the
   // partition cost more than it saved (H100, 32,000: the count pass 88.6 -> 85.2 us, steps/s -1.7%).
-  // Only with masks in use: without (lean mode, or a fast-mode build before the room for them)
-  // the count pass walks every unit of the range, and those come first in launch order already, so
-  // walk_order is not kept (lean mode's memory).
+  // Only with masks in use: without (a build before the room for them, or with none) the count pass
+  // walks every unit of the range, and those come first in launch order already, so walk_order is
+  // not kept.
   const bool partitioned = row_blocks && list.splits == 1 && masks.words;
   if (!partitioned) {
     list.walk_order.release();
@@ -1009,7 +1020,7 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
   // fill_chunks, fill_room: a fill's guard (list_rows), or none.
   // The count pass reads count_staged where the cells have no staged occupants (lean memory, change
   // 70): they lie in the list's array, which the fill then writes, so only the count pass reads them.
-  // `cells` keeps staged null: the masks, the partition and the headroom above and below take a null
+  // `cells` keeps staged null: the list's headroom and the masks' room below take a null
   // cells.staged for lean mode.
   TraversalArgs<Real, Accum> count_cells = cells;
   if (!cells.staged && count_staged) {
@@ -1119,18 +1130,22 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
     list.neighbors.release();
     list.masks.release();  // counted as free above: this fill walks every unit again (the same list)
     masks.words = nullptr;
+    list.masks_refused = 0;  // the masks are asked for again below, in the room the new list leaves
     trim_pool(stream);
-    const std::size_t headroom = entries_total / (cells.staged ? 16 : 64);
+    const std::size_t headroom = entries_total / (lean ? 64 : 16);
     const bool roomy = need + headroom * sizeof(uint32_t) + 2 * spare <= free_bytes;
     list.neighbors.reserve(roomy ? entries_total + headroom : entries_total);
   }
   if (row_blocks && width && !(early && held)) walk_rows(std::integral_constant<ListPass, ListPass::kFill>{});
-  if (row_blocks && width && masks.words && mask_words <= masks.capacity) ++list.masked_fills;
+  if (row_blocks && width && masks.words) {
+    if (mask_words <= masks.capacity) ++list.masked_fills;
+    else ++list.partly_masked_fills;
+  }
   list.width = width;
   list.pairs = pairs;
   list.slots = entries_total;
   if (masks.base && mask_words > list.masks.capacity() && (!list.masks_refused || mask_words < list.masks_refused))
-    grow_masks(list, mask_words, stream);
+    grow_masks(list, mask_words, lean, stream);
   return true;
 }
 

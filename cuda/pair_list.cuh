@@ -69,10 +69,11 @@ CF_HD std::size_t list_entry(unsigned long long group_chunk0, std::size_t p, uin
   return (std::size_t(group_chunk0 + k / kChunk) * kGroup + p % kGroup) * kChunk + k % kChunk;
 }
 
-// The count pass's decisions, kept for the fill (fast memory mode): per work unit of the build (a
-// row tile and column range), a 32-bit word per column tile and row lane whose bit k marks column k
-// of the tile as a partner of the lane's row, so that the fill writes the list from the words
-// without testing a pair again. Unit u's words are [base[u], base[u + 1]) (an exclusive sum over the
+// The count pass's decisions, kept for the fill: per work unit of the build (a row tile and column
+// range), a 32-bit word per column tile and row lane whose bit k marks column k of the tile as a
+// partner of the lane's row, so that the fill writes the list from the words without testing a
+// pair again. In the room the builds before asked for (grow_masks): every unit's words in fast
+// memory mode, in lean mode as many as the device's free memory holds (change 71). Unit u's words are [base[u], base[u + 1]) (an exclusive sum over the
 // units, the same in every run); a unit keeps them when they end within the buffer (a prefix of
 // the units), and one that does not walks its columns again in the fill, so the list is the same
 // whatever the buffer holds. base[units], the words all units would take, sizes the buffer for the
@@ -83,7 +84,7 @@ CF_HD std::size_t list_entry(unsigned long long group_chunk0, std::size_t p, uin
 struct BuildMasks {
   uint32_t* words = nullptr;                  // capacity words, or null: no room (every unit walks again)
   unsigned long long capacity = 0;
-  const unsigned long long* base = nullptr;   // units + 1, or null: no masks (lean memory)
+  const unsigned long long* base = nullptr;   // units + 1, or null: no masks (list_masks off, or no units)
   __device__ bool kept(uint32_t unit) const { return words && base[unit + 1] <= capacity; }
 };
 
@@ -140,11 +141,11 @@ struct PairList {
   DeviceBuffer<uint32_t> selected;     // 1: CUB's count of H entries (n)
   DeviceBuffer<uint32_t> split_counts; // splits > 1: the count pass's partners per work unit (row
                                        // tile x column split) and lane, for the fill's offsets
-  DeviceBuffer<uint32_t> masks;        // BuildMasks::words (fast memory mode), sized by the build before
+  DeviceBuffer<uint32_t> masks;        // BuildMasks::words, sized by the build before (grow_masks)
   DeviceBuffer<unsigned long long> mask_base;  // BuildMasks::base, units + 1
   DeviceBuffer<uint32_t> walk_order;   // launched units: the count pass's (in order) first, then
                                        // the rest (not read); held only while
-                                       // the build keeps masks (empty in lean mode)
+                                       // the build keeps masks
   DeviceBuffer<uint32_t> walked;       // 1: how many units the count pass walks
   DeviceBuffer<uint32_t> blocks;       // 1: the force kernel's blocks (their sums' count)
   DeviceBuffer<std::byte> block_sums;  // kCellSums per block of the force kernel
@@ -164,9 +165,12 @@ struct PairList {
   int forced_splits = 0;               // tests only: this many splits (at most 8) instead of the rule
   int forced_threads = 0;              // tests only: this many threads per particle (1, 2, 4 or 8)
   bool use_masks = true;               // tests only (false): every fill walks the columns again
+  std::size_t mask_limit = 0;          // tests only (nonzero): the masks' room holds at most this many words
   std::size_t masked_fills = 0;        // builds whose fill read every unit's masks
+  std::size_t partly_masked_fills = 0; // builds whose masks' room held less than every unit's words
+                                       // (lean memory, change 71: the room the device has left)
   std::size_t staged_counts = 0;       // builds whose count pass alone read staged occupants (count_staged)
-  std::size_t masks_refused = 0;       // the smallest mask demand the device had no room for (0: none)
+  std::size_t masks_refused = 0;       // the smallest mask demand the device had no (full) room for (0: none)
 
   template <class F>
   void for_each_buffer(F&& f) {

@@ -529,6 +529,42 @@ TEST(PairListMasks, FillFromMasksIsTheWalkedFill) {
     }
 }
 
+// Lean memory keeps the count pass's masks in the room the device has left (change 71): with room
+// for them all, every rebuild reads them; with room for a part (list_mask_words, as a nearly full
+// device leaves: 2,048 and 8,192 words, less than each scene's masks take; 32,768 held a's and b's
+// whole, H100), the units that room holds read them and the rest walk again. A lean engine gives the
+// room up when the system changes size (engine.cu), so each scene is rebuilt at its own size (moves
+// past skin / 2) as well as reused (a move below it). The lists and results are bitwise those of a
+// lean engine whose fills test every pair again, with one and with 4 splits, in every precision.
+TEST(PairListMasks, LeanFillFromMasksIsTheWalkedFill) {
+  CF_SKIP_WITHOUT_DEVICE();
+  const Scene a = make_scene("multitype3d_lb"), b = make_scene("random3d_periodic"),
+              u = make_scene("random3d_uniform");
+  const Configuration am = moved(a.config, 0.14, 5), af = moved(a.config, 0.2, 6), bf = moved(b.config, 0.2, 7),
+                      uf = moved(u.config, 0.2, 8);
+  const std::pair<const Configuration*, const Scene*> sequence[] = {
+      {&a.config, &a}, {&am, &a}, {&af, &a}, {&a.config, &a}, {&b.config, &b}, {&bf, &b},
+      {&u.config, &u}, {&uf, &u}, {&a.config, &a}, {&af, &a}};
+  for (Precision p : {Precision::kSingle, Precision::kMixed, Precision::kDouble})
+    for (const int splits : {1, 4})
+      for (const std::size_t room : {std::size_t(0), std::size_t(2048), std::size_t(8192)}) {
+        SCOPED_TRACE(cellforce::to_string(p) + std::string(", ") + std::to_string(splits) + " splits, room " +
+                     std::to_string(room));
+        auto [masked, walked] = masked_and_walked(p, splits);
+        masked.lean_lists = walked.lean_lists = true;
+        if (room) masked.list_mask_words = room;
+        GpuEngine x(masked), y(walked);
+        for (const auto& [c, scene] : sequence) expect_same_lists(x, y, *c, *scene);
+        if (room) {
+          EXPECT_EQ(x.list_masked_fills(), 0u);
+          EXPECT_GE(x.list_partly_masked_fills(), 4u);  // the rebuilds at a size built before
+        } else {
+          EXPECT_GE(x.list_masked_fills(), 4u);
+        }
+        EXPECT_EQ(y.list_masked_fills() + y.list_partly_masked_fills(), 0u);
+      }
+}
+
 // The same for a dense cluster: 200 particles in a cube of edge 2 in one cell, nearly every pair
 // within rc + skin (2.8; the cube's diagonal is 3.5), so a row tile keeps ~32 x 100 entries in a
 // batch of 4 column tiles, more than the fill's queue holds (1,024): the fill from masks takes

@@ -47,9 +47,10 @@ enum class SortMethod : uint8_t {
   kChapter,  // the chapter's three-phase radix sort (tabulate, prefix sums, stable reorder)
 };
 
-// The CUDA pair lists' memory mode. Lean: no masks, no staged array of the cells' own, the
-// sort's arrays in the dead list's room (~700 bytes a particle against fast's ~1,440, builds
-// ~2x slower); auto: lean where fast would not fit in 90% of the device (cuda/engine.cu).
+// The CUDA pair lists' memory mode. Lean: no staged array of the cells' own, the sort's arrays in
+// the dead list's room, the count pass's masks only in the memory the device has left (~700 bytes a
+// particle against fast's ~1,440, up to ~930 with every mask; builds up to ~2x slower where the
+// masks find no room); auto: lean where fast would not fit in 90% of the device (cuda/engine.cu).
 enum class ListMemory : uint8_t { kAuto, kFast, kLean };
 
 // Counts and stage times (seconds) of the last evaluation. The CPU folds the valid count into
