@@ -339,16 +339,15 @@ struct GpuEngine::Impl {
         list.fixed_next.release();     // and run no kick-drift (change 59)
         list.ranked_next.release();
         staged.release();
-        // The masks' room was sized by the last lean build to the memory it left (grow_masks, change
-        // 71): kept for the same system, whose build takes nothing new where the keys are lent; given
-        // up where that room may be wanted (a new system or mode, the keys in arrays of their own),
-        // and asked for again at this build's end.
-        if (!was_lean || entries != last_entries || (!lend && o.sort == SortMethod::kCub)) {
-          list.masks.release();
-          list.masks_refused = 0;
-        }
       }
     }
+    // A lean build's masks' room was sized to the memory it left (grow_masks, change 71): kept for
+    // lean builds of the same system whose keys are lent (they take nothing new); given up before
+    // anything else is taken where that room may be wanted (a new system, the other mode, keys in
+    // arrays of their own, or lean after fast mode's room, sized without regard to lean's), and asked
+    // for again at the build's end where masks are used (build_list).
+    const bool keep_room = lean && was_lean && entries == last_entries && lend;
+    if ((lean || was_lean) && !keep_room) cuda::give_up_masks(list);
     // The unsorted keys and IDs: their own arrays, or (lean, a list array kept above) the dead list's
     // first words, the sort's scratch after them.
     uint32_t *unsorted_keys = nullptr, *unsorted_ids = nullptr;
@@ -465,8 +464,18 @@ struct GpuEngine::Impl {
       count_staged = into;
     }
     list.forced_splits = o.list_splits.value_or(0);
-    list.use_masks = o.list_masks.value_or(true);
+    // Lean builds keep masks only while the list's array is kept (lend): otherwise it is freed and
+    // taken again at every build, and the masks would give way to it every time.
+    list.use_masks = o.list_masks.value_or(true) && !(lean && !lend);
     list.mask_limit = o.list_mask_words.value_or(0);
+    list.count_masked_units = o.list_count_masked.value_or(false);
+    // What this engine may still take after a lean build, which the masks' room leaves free: the
+    // positions the evaluations gather (up to 32 bytes a particle) and the energies, until it has them.
+    const std::size_t n = sys.n;
+    const bool gathered = list.fixed.capacity() >= n || list.ranked.capacity() >= n;
+    list.later_bytes =
+        lean ? (gathered ? 0 : n * sizeof(cuda::RankedParticle)) + (energies.capacity() >= n ? 0 : n * sizeof(double))
+             : 0;
     list.forced_threads = o.list_threads.value_or(0);
     list_usable = cuda::build_pair_list<Real, Accum>(cell_args, sorted_keys.data(), control.data(), entries,
                                                      ff.cutoff + o.reuse.skin, la, list, stream, count_staged);
@@ -928,6 +937,7 @@ std::size_t GpuEngine::listed_pairs() const {
 }
 std::size_t GpuEngine::list_masked_fills() const { return impl_->list.masked_fills; }
 std::size_t GpuEngine::list_partly_masked_fills() const { return impl_->list.partly_masked_fills; }
+std::size_t GpuEngine::list_masked_units() const { return impl_->list.masked_units; }
 std::size_t GpuEngine::list_staged_counts() const { return impl_->list.staged_counts; }
 const double* GpuEngine::device_totals() const { return impl_->totals.data(); }
 void* GpuEngine::stream() const { return impl_->stream; }

@@ -39,6 +39,8 @@ struct GpuOptions {
                                       // again instead of reading the count pass's masks (BuildMasks)
   std::optional<std::size_t> list_mask_words;  // tests only: the masks' room holds at most this many
                                                // words (as lean memory's room on a full device)
+  std::optional<bool> list_count_masked;  // tests only (true): count the units each fill writes from
+                                          // masks (list_masked_units; a wait for the fill)
   int device = 0;                     // CUDA device ordinal
 };
 
@@ -168,6 +170,9 @@ class GpuEngine {
   // decisions (lean memory on a device without room for them all, change 71).
   std::size_t list_masked_fills() const;
   std::size_t list_partly_masked_fills() const;
+  // With GpuOptions::list_count_masked: the work units whose list the last build's fill wrote from
+  // the count pass's masks (0 where it walked them all again).
+  std::size_t list_masked_units() const;
   // Lean builds whose count pass read occupants staged in the last list's array (change 70).
   std::size_t list_staged_counts() const;
   const GpuOptions& options() const { return options_; }

@@ -344,6 +344,7 @@ __global__ void __launch_bounds__(kBlock)
   uint16_t* queue = survivors[warp];
   if constexpr (Fill) {
     if (kept) {
+      if (masks.filled && lane == 0) atomicAdd(masks.filled, 1ull);  // tests only
       // The whole warp: the count pass's decisions, kFillBatch column tiles at a time (their words,
       // IDs and ranks loaded together: one tile at a time, the walk waited on three dependent
       // loads per tile), the columns' ranks shared through `batch_ranks`.
@@ -897,13 +898,14 @@ void trim_pool(cudaStream_t stream) {
 // Room for the next builds' masks (BuildMasks): `words` and 1/8 more, where the device's free
 // memory keeps 1/16 of it (at least 512 MiB) to spare after it; otherwise none (their fills walk
 // the columns again). Lean memory (`part`, change 71): as much of that as the free memory holds with
-// 1/8 of it (at least 2 GiB) to spare, so that the units the room holds (a prefix) read their masks
-// and the rest walk again; the wider spare leaves room for what a lean engine may still take after
-// a build (its energies, a build's transient arrays: masks given way to a growing list are asked
-// for again). After the fill that read the old masks (freed in stream order, the pool trimmed so
-// that the free memory counts them); growing is rare: the first build, and a system that grew
-// denser; a demand refused, or granted in part, is not asked again (masks_refused) until the list
-// grows.
+// 1/8 of it (at least 2 GiB) and list.later_bytes (what the engine may still take: its gathered
+// positions and energies where it has none yet) to spare, so that the units the room holds (a
+// prefix) read their masks and the rest walk again; no room where it would hold less than 1/16 of
+// the demand (too little to pay for the partition and the mirror). After the fill that read the old
+// masks (freed in stream order, the pool trimmed so that the free memory counts them); growing is
+// rare: the first build, and a system that grew denser. A demand refused is not asked again
+// (masks_refused), nor is a lean room granted in part (masks_settled), until the room is given up
+// (give_up_masks: a growing list, a new system).
 void grow_masks(PairList& list, std::size_t words, bool part, cudaStream_t stream) {
   list.masks.release();
   trim_pool(stream);
@@ -912,8 +914,10 @@ void grow_masks(PairList& list, std::size_t words, bool part, cudaStream_t strea
   std::size_t want = words + words / 8;
   if (list.mask_limit) want = std::min(want, list.mask_limit);
   if (part) {
-    const std::size_t spare = std::max<std::size_t>(free_bytes / 8, std::size_t(2) << 30);
+    const std::size_t spare = std::max<std::size_t>(free_bytes / 8, std::size_t(2) << 30) + list.later_bytes;
     want = std::min(want, free_bytes > spare ? (free_bytes - spare) / sizeof(uint32_t) : 0);
+    if (want < words / 16) want = 0;
+    if (want < words) list.masks_settled = true;
   } else {
     const std::size_t spare = std::max<std::size_t>(free_bytes / 16, std::size_t(512) << 20);
     if (want * sizeof(uint32_t) + spare > free_bytes) want = 0;
@@ -988,8 +992,13 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
     CF_CUDA_CHECK(cub::DeviceScan::ExclusiveSum(list.scratch.data(), base_bytes, list.mask_base.data(),
                                                 list.mask_base.data(), int(launched_units + 1), stream));
     masks = BuildMasks{list.masks.data(), list.masks.capacity(), list.mask_base.data()};
+    if (list.count_masked_units) {
+      list.filled.reserve(1);
+      CF_CUDA_CHECK(cudaMemsetAsync(list.filled.data(), 0, sizeof(unsigned long long), stream));
+      masks.filled = list.filled.data();
+    }
   } else {
-    list.masks.release();
+    give_up_masks(list);
     list.mask_base.release();
   }
   // The count pass's units first (CountWalks), the rest after them (change 41), where a row tile's
@@ -1117,7 +1126,7 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
   const std::size_t need = entries_total * sizeof(uint32_t);
   if (entries_total > 2 * pairs + 64 * n || (!held && need + spare > free_bytes)) {
     list.neighbors.release();  // dead: the cells serve, and need the room
-    list.masks.release();
+    give_up_masks(list);
     list.mask_base.release();
     return false;
   }
@@ -1128,9 +1137,8 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
     // where that still leaves the spare free: 1/16 with a staged build (fast mode), 1/64 in lean
     // mode (whose array the next builds also lend to their sort first, engine.cu).
     list.neighbors.release();
-    list.masks.release();  // counted as free above: this fill walks every unit again (the same list)
-    masks.words = nullptr;
-    list.masks_refused = 0;  // the masks are asked for again below, in the room the new list leaves
+    give_up_masks(list);  // counted as free above: this fill walks every unit again (the same list);
+    masks.words = nullptr;  // the masks are asked for again below, in the room the new list leaves
     trim_pool(stream);
     const std::size_t headroom = entries_total / (lean ? 64 : 16);
     const bool roomy = need + headroom * sizeof(uint32_t) + 2 * spare <= free_bytes;
@@ -1141,10 +1149,18 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
     if (mask_words <= masks.capacity) ++list.masked_fills;
     else ++list.partly_masked_fills;
   }
+  list.masked_units = 0;
+  if (masks.filled && row_blocks && width) {  // tests only: a wait for the fill
+    unsigned long long filled = 0;
+    CF_CUDA_CHECK(cudaMemcpyAsync(&filled, masks.filled, sizeof(filled), cudaMemcpyDeviceToHost, stream));
+    CF_CUDA_CHECK(cudaStreamSynchronize(stream));
+    list.masked_units = std::size_t(filled);
+  }
   list.width = width;
   list.pairs = pairs;
   list.slots = entries_total;
-  if (masks.base && mask_words > list.masks.capacity() && (!list.masks_refused || mask_words < list.masks_refused))
+  if (masks.base && mask_words > list.masks.capacity() && !list.masks_settled &&
+      (!list.masks_refused || mask_words < list.masks_refused))
     grow_masks(list, mask_words, lean, stream);
   return true;
 }

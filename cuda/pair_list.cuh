@@ -73,10 +73,10 @@ CF_HD std::size_t list_entry(unsigned long long group_chunk0, std::size_t p, uin
 // range), a 32-bit word per column tile and row lane whose bit k marks column k of the tile as a
 // partner of the lane's row, so that the fill writes the list from the words without testing a
 // pair again. In the room the builds before asked for (grow_masks): every unit's words in fast
-// memory mode, in lean mode as many as the device's free memory holds (change 71). Unit u's words are [base[u], base[u + 1]) (an exclusive sum over the
-// units, the same in every run); a unit keeps them when they end within the buffer (a prefix of
-// the units), and one that does not walks its columns again in the fill, so the list is the same
-// whatever the buffer holds. base[units], the words all units would take, sizes the buffer for the
+// memory mode, in lean mode as many as the device's free memory holds (change 71). Unit u's words
+// are [base[u], base[u + 1]) (an exclusive sum over the units, the same in every run); a unit keeps
+// them when they end within the buffer (a prefix of the units), and one that does not walks its
+// columns again in the fill, so the list is the same whatever the buffer holds. base[units], the words all units would take, sizes the buffer for the
 // next build. A tile of P rows only whose words are kept is not tested at all: the H rows that
 // pair with it write its words, since a pair's decision is the same from either side (and with one
 // column split per row tile, an H row tile's words for the columns of the cell's earlier H row
@@ -85,6 +85,7 @@ struct BuildMasks {
   uint32_t* words = nullptr;                  // capacity words, or null: no room (every unit walks again)
   unsigned long long capacity = 0;
   const unsigned long long* base = nullptr;   // units + 1, or null: no masks (list_masks off, or no units)
+  unsigned long long* filled = nullptr;       // tests only (count_masked_units): units the fill wrote from words
   __device__ bool kept(uint32_t unit) const { return words && base[unit + 1] <= capacity; }
 };
 
@@ -147,6 +148,7 @@ struct PairList {
                                        // the rest (not read); held only while
                                        // the build keeps masks
   DeviceBuffer<uint32_t> walked;       // 1: how many units the count pass walks
+  DeviceBuffer<unsigned long long> filled;  // 1: count_masked_units' counter
   DeviceBuffer<uint32_t> blocks;       // 1: the force kernel's blocks (their sums' count)
   DeviceBuffer<std::byte> block_sums;  // kCellSums per block of the force kernel
   DeviceBuffer<std::byte> scratch;     // CUB
@@ -164,23 +166,38 @@ struct PairList {
   int splits = 1;                      // the build's column splits per row tile (build_splits)
   int forced_splits = 0;               // tests only: this many splits (at most 8) instead of the rule
   int forced_threads = 0;              // tests only: this many threads per particle (1, 2, 4 or 8)
-  bool use_masks = true;               // tests only (false): every fill walks the columns again
+  bool use_masks = true;               // false: every fill walks the columns again (tests; lean builds
+                                       // whose list array is not kept, engine.cu)
   std::size_t mask_limit = 0;          // tests only (nonzero): the masks' room holds at most this many words
+  std::size_t later_bytes = 0;         // lean: what the engine may still take after the build (the
+                                       // gathered positions, the energies), left free by grow_masks
+  bool count_masked_units = false;     // tests only: count the units each fill writes from masks
+  std::size_t masked_units = 0;        // with count_masked_units: the last fill's
   std::size_t masked_fills = 0;        // builds whose fill read every unit's masks
   std::size_t partly_masked_fills = 0; // builds whose masks' room held less than every unit's words
                                        // (lean memory, change 71: the room the device has left)
   std::size_t staged_counts = 0;       // builds whose count pass alone read staged occupants (count_staged)
   std::size_t masks_refused = 0;       // the smallest mask demand the device had no (full) room for (0: none)
+  bool masks_settled = false;          // lean: the room was sized to the memory left (in part): not
+                                       // asked for again until it is given up (give_up_masks)
 
   template <class F>
   void for_each_buffer(F&& f) {
     f(order), f(rank), f(slot_counts), f(length), f(group_chunks), f(neighbors), f(ranked), f(fixed), f(ranked_next), f(fixed_next),
         f(ranked_forces);
     f(sizes), f(selected);
-    f(split_counts), f(masks), f(mask_base), f(walk_order), f(walked), f(blocks);
+    f(split_counts), f(masks), f(mask_base), f(walk_order), f(walked), f(filled), f(blocks);
     f(block_sums), f(scratch);
   }
 };
+
+// The masks' room given up (freed in stream order), to be asked for again after the next build:
+// where the memory it holds may be wanted (a growing list, a new system, engine.cu's lean rules).
+inline void give_up_masks(PairList& list) {
+  list.masks.release();
+  list.masks_refused = 0;
+  list.masks_settled = false;
+}
 
 // What the list kernels read besides the list.
 template <class Real, class Accum>

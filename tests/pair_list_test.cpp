@@ -529,13 +529,16 @@ TEST(PairListMasks, FillFromMasksIsTheWalkedFill) {
     }
 }
 
-// Lean memory keeps the count pass's masks in the room the device has left (change 71): with room
-// for them all, every rebuild reads them; with room for a part (list_mask_words, as a nearly full
-// device leaves: 2,048 and 8,192 words, less than each scene's masks take; 32,768 held a's and b's
-// whole, H100), the units that room holds read them and the rest walk again. A lean engine gives the
-// room up when the system changes size (engine.cu), so each scene is rebuilt at its own size (moves
-// past skin / 2) as well as reused (a move below it). The lists and results are bitwise those of a
-// lean engine whose fills test every pair again, with one and with 4 splits, in every precision.
+// Lean memory keeps the count pass's masks in the room the device has left (change 71). Three lean
+// engines on one sequence: `full` has room for every mask, `part` a room capped below each scene's
+// demand (list_mask_words, as a nearly full device leaves: 2,048 and 8,192 words; 32,768 held a's
+// and b's whole, H100), `walked` none (its fills test every pair again). The lists and results are
+// bitwise the same; a rebuild whose masks found room wrote units from them (list_masked_units,
+// counted on the device): every unit for `full`, some but fewer for `part`. A lean engine keeps
+// masks only from its second build of a system on (the first has no list array to lend the sort)
+// and gives the room up when the system changes size (engine.cu), so each scene is rebuilt at its
+// own size (moves past skin / 2) as well as reused (a move below it): `full` reads masks at the
+// third build of a, at bf, uf and the last af.
 TEST(PairListMasks, LeanFillFromMasksIsTheWalkedFill) {
   CF_SKIP_WITHOUT_DEVICE();
   const Scene a = make_scene("multitype3d_lb"), b = make_scene("random3d_periodic"),
@@ -547,21 +550,35 @@ TEST(PairListMasks, LeanFillFromMasksIsTheWalkedFill) {
       {&u.config, &u}, {&uf, &u}, {&a.config, &a}, {&af, &a}};
   for (Precision p : {Precision::kSingle, Precision::kMixed, Precision::kDouble})
     for (const int splits : {1, 4})
-      for (const std::size_t room : {std::size_t(0), std::size_t(2048), std::size_t(8192)}) {
+      for (const std::size_t room : {std::size_t(2048), std::size_t(8192)}) {
         SCOPED_TRACE(cellforce::to_string(p) + std::string(", ") + std::to_string(splits) + " splits, room " +
                      std::to_string(room));
         auto [masked, walked] = masked_and_walked(p, splits);
         masked.lean_lists = walked.lean_lists = true;
-        if (room) masked.list_mask_words = room;
-        GpuEngine x(masked), y(walked);
-        for (const auto& [c, scene] : sequence) expect_same_lists(x, y, *c, *scene);
-        if (room) {
-          EXPECT_EQ(x.list_masked_fills(), 0u);
-          EXPECT_GE(x.list_partly_masked_fills(), 4u);  // the rebuilds at a size built before
-        } else {
-          EXPECT_GE(x.list_masked_fills(), 4u);
+        masked.list_count_masked = true;
+        GpuOptions capped = masked;
+        capped.list_mask_words = room;
+        GpuEngine full(masked), part(capped), none(walked);
+        std::size_t part_reads = 0;
+        for (const auto& [c, scene] : sequence) {
+          ForceResult rf, rp, rn;
+          full.evaluate(c->view(), scene->ff, Request{true, true}, rf);
+          part.evaluate(c->view(), scene->ff, Request{true, true}, rp);
+          none.evaluate(c->view(), scene->ff, Request{true, true}, rn);
+          EXPECT_GT(none.listed_pairs(), 0u);
+          EXPECT_EQ(full.listed_pairs(), none.listed_pairs());
+          EXPECT_EQ(part.listed_pairs(), none.listed_pairs());
+          EXPECT_TRUE(bitwise_equal(rf, rn));
+          EXPECT_TRUE(bitwise_equal(rp, rn));
+          if (!none.stats().rebuilt || part.list_masked_units() == 0) continue;
+          ++part_reads;  // this rebuild's fill wrote some units from the capped room, fewer than from a full one
+          EXPECT_LT(part.list_masked_units(), full.list_masked_units());
         }
-        EXPECT_EQ(y.list_masked_fills() + y.list_partly_masked_fills(), 0u);
+        EXPECT_GE(full.list_masked_fills(), 4u);
+        EXPECT_EQ(part.list_masked_fills(), 0u);
+        EXPECT_GE(part.list_partly_masked_fills(), 2u);
+        EXPECT_GE(part_reads, 2u);
+        EXPECT_EQ(none.list_masked_fills() + none.list_partly_masked_fills() + none.list_masked_units(), 0u);
       }
 }
 

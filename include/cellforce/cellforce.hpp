@@ -204,11 +204,13 @@ class CELLFORCE_API Context {
   //                                           cell, block per 32-occupant tile of a cell; auto, the
   //                                           default: tile for few cells per SM, else warp)
   //   sort          cub | chapter            (CUDA)
-  //   memory        auto | fast | lean       (CUDA pair lists: lean keeps no masks and no staged
-  //                                           occupants and holds the sort's arrays in the dead
-  //                                           list's room, ~700 against ~1,440 bytes a particle,
-  //                                           builds ~2x slower; auto, the default: lean where fast
-  //                                           would not fit in 90% of the device)
+  //   memory        auto | fast | lean       (CUDA pair lists: lean keeps no staged occupants,
+  //                                           holds the sort's arrays in the dead list's room and
+  //                                           keeps the build's masks only in the memory the device
+  //                                           has left: ~700 against ~1,440 bytes a particle, up to
+  //                                           ~930 with every mask; builds up to ~2x slower where
+  //                                           the masks find no room; auto, the default: lean where
+  //                                           fast would not fit in 90% of the device)
   void set_option(std::string_view key, std::string_view value);
 
   // ---- computing ----
