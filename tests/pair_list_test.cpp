@@ -532,9 +532,9 @@ TEST(PairListMasks, FillFromMasksIsTheWalkedFill) {
 // Lean memory keeps the count pass's masks in the room the device has left (change 71). Three lean
 // engines on one sequence: `full` has room for every mask, `part` a room capped below each scene's
 // demand (list_mask_words, as a nearly full device leaves: 2,048 and 8,192 words; 32,768 held a's
-// and b's whole, H100), `walked` none (its fills test every pair again). The lists and results are
-// bitwise the same; a rebuild whose masks found room wrote units from them (list_masked_units,
-// counted on the device): every unit for `full`, some but fewer for `part`. A lean engine keeps
+// and b's whole, H100), `none` no room (its fills test every pair again). The lists and results are
+// bitwise the same; the capped room's rebuilds wrote some units from masks, fewer than the full
+// room's at the same rebuild (list_masked_units, counted on the device). A lean engine keeps
 // masks only from its second build of a system on (the first has no list array to lend the sort)
 // and gives the room up when the system changes size (engine.cu), so each scene is rebuilt at its
 // own size (moves past skin / 2) as well as reused (a move below it): `full` reads masks at the
