@@ -122,9 +122,9 @@ struct GpuEngine::Impl {
   bool list_usable = false;
   // Lean memory (pair lists on a system whose buffers would not fit beside each other): the build
   // keeps no staged occupants (it stages them as it loads them), keeps masks only for the units the
-  // device's free memory holds (change 71), puts the unsorted keys and IDs and the sort's scratch
-  // in the dead list's array where they fit (lend; else it frees the last list first, and them
-  // after the sort); the same list, bit for bit.
+  // device's free memory holds and only while the list's array is lent (change 71), puts the
+  // unsorted keys and IDs and the sort's scratch in the dead list's array where they fit (lend; else
+  // it frees the last list first, and them after the sort); the same list, bit for bit.
   bool lean = false, lend = false;
   int multiprocessors = 1;  // of the engine's device, read once
   bool has_types = false;
@@ -342,7 +342,8 @@ struct GpuEngine::Impl {
       }
     }
     // A lean build's masks' room was sized to the memory it left (grow_masks, change 71): kept for
-    // lean builds of the same system whose keys are lent (they take nothing new); given up before
+    // lean builds of the same system whose keys are lent (they take no room anew: the collision
+    // flags they free and take again come back from the stream's pool); given up before
     // anything else is taken where that room may be wanted (a new system, the other mode, keys in
     // arrays of their own, or lean after fast mode's room, sized without regard to lean's), and asked
     // for again at the build's end where masks are used (build_list).

@@ -903,7 +903,8 @@ void trim_pool(cudaStream_t stream) {
 // prefix) read their masks and the rest walk again; no room where it would hold less than 1/16 of
 // the demand (too little to pay for the partition and the mirror). After the fill that read the old
 // masks (freed in stream order, the pool trimmed so that the free memory counts them); growing is
-// rare: the first build, and a system that grew denser. A demand refused is not asked again
+// rare: the first build, a system that grew denser, and in lean mode the first build of each system
+// size and the build after the list grew (the room given up). A demand refused is not asked again
 // (masks_refused), nor is a lean room granted in part (masks_settled), until the room is given up
 // (give_up_masks: a growing list, a new system).
 void grow_masks(PairList& list, std::size_t words, bool part, cudaStream_t stream) {

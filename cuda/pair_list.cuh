@@ -73,11 +73,12 @@ CF_HD std::size_t list_entry(unsigned long long group_chunk0, std::size_t p, uin
 // range), a 32-bit word per column tile and row lane whose bit k marks column k of the tile as a
 // partner of the lane's row, so that the fill writes the list from the words without testing a
 // pair again. In the room the builds before asked for (grow_masks): every unit's words in fast
-// memory mode, in lean mode as many as the device's free memory holds (change 71). Unit u's words
-// are [base[u], base[u + 1]) (an exclusive sum over the units, the same in every run); a unit keeps
-// them when they end within the buffer (a prefix of the units), and one that does not walks its
-// columns again in the fill, so the list is the same whatever the buffer holds. base[units], the
-// words all units would take, sizes the buffer for the next build. A tile of P rows only whose
+// memory mode, in lean mode as many as the device's free memory holds, while the list's array is
+// lent and where that is at least 1/16 of them (change 71). Unit u's words are [base[u],
+// base[u + 1]) (an exclusive sum over the units, the same in every run); a unit keeps them when
+// they end within the buffer (a prefix of the units), and one that does not walks its columns again
+// in the fill, so the list is the same whatever the buffer holds. base[units], the words all units
+// would take, sizes the buffer for the next build. A tile of P rows only whose
 // words are kept is not tested at all: the H rows that pair with it write its words, since a pair's
 // decision is the same from either side (and with one column split per row tile, an H row tile's
 // words for the columns of the cell's earlier H row tiles: those tiles write them;

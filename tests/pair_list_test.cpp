@@ -534,11 +534,12 @@ TEST(PairListMasks, FillFromMasksIsTheWalkedFill) {
 // demand (list_mask_words, as a nearly full device leaves: 2,048 and 8,192 words; 32,768 held a's
 // and b's whole, H100), `none` no room (its fills test every pair again). The lists and results are
 // bitwise the same; the capped room's rebuilds wrote some units from masks, fewer than the full
-// room's at the same rebuild (list_masked_units, counted on the device). A lean engine keeps
-// masks only from its second build of a system on (the first has no list array to lend the sort)
-// and gives the room up when the system changes size (engine.cu), so each scene is rebuilt at its
-// own size (moves past skin / 2) as well as reused (a move below it): `full` reads masks at the
-// third build of a, at bf, uf and the last af.
+// room's at the same rebuild (list_masked_units, counted on the device). A lean engine gives the
+// room up when the system changes size and asks for it again at the end of a build that kept masks
+// (engine.cu), so it reads masks from the second build of a system on (from the third of its first
+// system, whose first build has no list array to lend the sort and keeps none); so each scene is
+// rebuilt at its own size (moves past skin / 2) as well as reused (a move below it): `full` reads
+// masks at the third build of a, at bf, uf and the last af.
 TEST(PairListMasks, LeanFillFromMasksIsTheWalkedFill) {
   CF_SKIP_WITHOUT_DEVICE();
   const Scene a = make_scene("multitype3d_lb"), b = make_scene("random3d_periodic"),
