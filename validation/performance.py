@@ -11,7 +11,10 @@ measure, per size N and precision P:
   CutoffPeriodic 2.5, no dispersion correction, VerletIntegrator, warm-up excluded);
 - mixed only: the forces of cellforce's last configuration (mixed run) from OpenMM CUDA mixed and
   double; OpenMM mixed's median relative force error against OpenMM double, and cellforce's own
-  mixed forces against the same OpenMM double forces (a cross-check of the bench's error).
+  mixed forces against the same OpenMM double forces (a cross-check of the bench's error);
+- with --largest N, after the sizes: cellforce alone at N (the largest system, 100M particles on an
+  H100 in lean memory), mixed, pair lists, `--steps --warmup --samples 2 --no-reference` (a double
+  reference and OpenMM would not fit beside it), the row noted as such.
 performance.json (rewritten whole after every size), performance-table.md and bench.log go to --out
 (and nothing else: the device tool returns a limited number of files).
 Exits 1 when a run failed (its row says why).
@@ -20,7 +23,9 @@ report: the Markdown tables (per precision; the chapter's configuration), the ta
 of particle-steps/s against N (matplotlib; only this subcommand needs it).
 
   python3 validation/performance.py measure --cellforce build-gpu-bin/cellforce \
-      --sizes 32000 256000 1048576 4194304 --out perf --commit $(git rev-parse --short HEAD)
+      --sizes 32000 256000 1048576 4194304 16777216 --precisions mixed single --seconds 1.5 \
+      --openmm-max 17000000 --cells-max 1048576 --chapter-max 32000 --largest 100000000 \
+      --out perf --commit $(git rev-parse --short HEAD)
   python3 validation/performance.py report --json perf/performance.json \
       --md perf/performance-table.md --plot perf/performance.png
 """
@@ -87,13 +92,15 @@ def configuration_args(configuration: str, skin: float) -> list[str]:
 
 
 def run_bench(binary: str, n: int, precision: str, seconds: float, out: Path, work: Path, configuration: str,
-              skin: float, save: bool) -> dict:
+              skin: float, save: bool, timing: list[str] | None = None) -> dict:
     """One `cellforce bench` call for one size; its JSON row, or a row with an "error" when it gave none.
-    Its JSON and saved configuration go to `work` (a scratch folder: --out keeps three files only)."""
+    Its JSON and saved configuration go to `work` (a scratch folder: --out keeps three files only).
+    `timing`: the bench's timing arguments instead of `--seconds seconds`."""
     json_path = work / f"cf-{n}-{configuration}-{precision}.json"
     json_path.unlink(missing_ok=True)
+    timing = timing if timing is not None else ["--seconds", f"{seconds:g}"]
     command = [str(Path(binary).resolve()), "bench", "--sizes", str(n), "--precision", precision, "--backend",
-               "cuda", "--seconds", f"{seconds:g}", "--json", str(json_path)] + configuration_args(configuration, skin)
+               "cuda", *timing, "--json", str(json_path)] + configuration_args(configuration, skin)
     if save:  # the last configuration, for OpenMM's force error on it
         command += ["--save-final", str(work / f"final-{precision}")]
     p = subprocess.run(command, capture_output=True, text=True)
@@ -237,6 +244,19 @@ def measure_in(args: argparse.Namespace, work: Path) -> int:
             failed |= "error" in row
             print(f"  {label}: {summary(row)}", flush=True)
             save()
+    if args.largest:
+        timing = ["--steps", str(args.largest_steps), "--warmup", str(args.largest_warmup), "--samples", "2",
+                  "--no-reference"]
+        print(f"[{args.largest:,} mixed] cellforce bench, pair lists, the largest run", flush=True)
+        row = run_bench(args.cellforce, args.largest, "mixed", args.seconds, out, work, "list", args.skin, save=False,
+                        timing=timing)
+        row["note"] = (f"the largest run, in the same call after the sizes: {' '.join(timing)} (memory option "
+                       f"{row.get('memory', 'unknown')}, auto being lean where fast would not fit; "
+                       f"{row.get('builds', '?')} builds in its timed steps, so the build's share is larger than "
+                       "in a long run; no double reference, no OpenMM)")
+        rows.append(row)
+        failed |= "error" in row
+        print(f"  largest: {summary(row)}", flush=True)
     save()
     print(tables(doc), flush=True)
     return 1 if failed else 0
@@ -480,6 +500,10 @@ def main() -> int:
                    help="largest N that also runs the chapter's configuration (mixed)")
     m.add_argument("--openmm-max", type=int, default=None, help="largest N that runs OpenMM (default: all)")
     m.add_argument("--skip-openmm", action="store_true")
+    m.add_argument("--largest", type=int, default=None,
+                   help="after the sizes, cellforce alone at this N (mixed, pair lists; e.g. 100000000)")
+    m.add_argument("--largest-steps", type=int, default=60, help="the largest run's timed steps")
+    m.add_argument("--largest-warmup", type=int, default=15, help="the largest run's warm-up steps")
     m.add_argument("--commit", default=None, help="cellforce's commit, for the report")
     m.add_argument("--out", required=True, help="folder for performance.json, the table, bench.log")
     r = sub.add_parser("report", help="tables and plot from performance.json")
