@@ -322,7 +322,8 @@ struct GpuEngine::Impl {
         std::size_t free_bytes = 0;
         CF_CUDA_CHECK(cudaMemGetInfo(&free_bytes, &device_bytes));
       }
-      lean = o.lean_lists ? *o.lean_lists : double(n) * 1440.0 > 0.9 * double(device_bytes);
+      lean = o.memory == ListMemory::kAuto ? double(n) * 1440.0 > 0.9 * double(device_bytes)
+                                           : o.memory == ListMemory::kLean;
       if (lean) {
         // The new build makes a new list: the old one is dead. Its array holds the unsorted keys and
         // IDs and the sort's scratch where all three fit in it (lent below), then the occupants

@@ -30,7 +30,7 @@ struct GpuOptions {
   GridOptions grid;
   ReuseOptions reuse;  // skin > 0: stages 1-3 reused while no particle moved more than skin / 2
   std::optional<Grid> grid_override;  // tests only: this grid, unchecked
-  std::optional<bool> lean_lists;     // the pair lists' lean memory mode on or off (EngineChoice::memory); unset: auto
+  ListMemory memory = ListMemory::kAuto;  // the pair lists' memory mode (EngineChoice::memory)
   std::optional<int> list_splits;     // tests only: the list build's column splits per row tile
                                       // (cuda/pair_list.cuh build_splits) instead of the rule
   std::optional<int> list_threads;    // tests only: the list force kernel's threads per particle (1, 2,

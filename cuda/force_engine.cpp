@@ -14,7 +14,7 @@ GpuOptions options(const EngineChoice& choice) {
   o.reuse = choice.reuse;
   o.device = choice.device;
   o.grid_override = choice.grid_override;
-  if (choice.memory != ListMemory::kAuto) o.lean_lists = choice.memory == ListMemory::kLean;
+  o.memory = choice.memory;
   o.list_threads = choice.list_threads;
   return o;
 }

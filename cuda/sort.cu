@@ -24,11 +24,8 @@ void radix_sort_cub(const uint32_t* keys_in, const uint32_t* values_in, uint32_t
                     uint32_t* values_out, std::size_t entries, int key_bits,
                     DeviceBuffer<std::byte>& scratch, cudaStream_t stream, ScratchLoan loan) {
   if (entries == 0) return;
-  if (entries > std::size_t(INT32_MAX)) throw Error("sort of more than 2^31 entries");
+  std::size_t bytes = radix_sort_cub_bytes(entries, key_bits);  // refuses more than 2^31 entries
   const int n = int(entries);
-  std::size_t bytes = 0;
-  CF_CUDA_CHECK(cub::DeviceRadixSort::SortPairs(nullptr, bytes, keys_in, keys_out, values_in,
-                                                values_out, n, 0, key_bits, stream));
   std::byte* room = loan.data;
   if (bytes > loan.bytes || !loan.data) {
     scratch.reserve(bytes);

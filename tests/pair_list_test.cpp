@@ -32,6 +32,7 @@ using cellforce::Configuration;
 using cellforce::ForceResult;
 using cellforce::GpuEngine;
 using cellforce::GpuOptions;
+using cellforce::ListMemory;
 using cellforce::Precision;
 using cellforce::Request;
 
@@ -322,8 +323,8 @@ TEST(PairListLean, LeanBuildIsBitwiseTheStagedOne) {
       {&a.config, &a}, {&am, &a}, {&b.config, &b}, {&a.config, &a}};
   for (Precision p : {Precision::kSingle, Precision::kMixed, Precision::kDouble}) {
     GpuOptions lean = list_options(p), fast = list_options(p);
-    lean.lean_lists = true;
-    fast.lean_lists = false;
+    lean.memory = ListMemory::kLean;
+    fast.memory = ListMemory::kFast;
     SCOPED_TRACE(cellforce::to_string(p));
     GpuEngine x(lean), y(fast);
     for (const auto& [c, scene] : sequence) expect_same_lists(x, y, *c, *scene);
@@ -489,7 +490,7 @@ TEST(PairListSplits, SplitWalksListWhatOneWalkLists) {
       GpuOptions one = list_options(Precision::kMixed), many = list_options(Precision::kMixed);
       one.list_splits = 1;
       many.list_splits = splits;
-      one.lean_lists = many.lean_lists = lean;
+      one.memory = many.memory = lean ? ListMemory::kLean : ListMemory::kFast;
       GpuEngine x(one), y(many);
       for (const auto& [c, scene] : sequence) expect_same_lists(x, y, *c, *scene);
     }
@@ -505,7 +506,7 @@ TEST(PairListSplits, SplitWalksListWhatOneWalkLists) {
 // every pair again.
 std::pair<GpuOptions, GpuOptions> masked_and_walked(Precision p, int splits) {
   GpuOptions masked = list_options(p), walked = list_options(p);
-  masked.lean_lists = walked.lean_lists = false;
+  masked.memory = walked.memory = ListMemory::kFast;
   masked.list_splits = walked.list_splits = splits;
   walked.list_masks = false;
   return {masked, walked};
@@ -555,7 +556,7 @@ TEST(PairListMasks, LeanFillFromMasksIsTheWalkedFill) {
         SCOPED_TRACE(cellforce::to_string(p) + std::string(", ") + std::to_string(splits) + " splits, room " +
                      std::to_string(room));
         auto [masked, walked] = masked_and_walked(p, splits);
-        masked.lean_lists = walked.lean_lists = true;
+        masked.memory = walked.memory = ListMemory::kLean;
         masked.list_count_masked = true;
         GpuOptions capped = masked;
         capped.list_mask_words = room;
