@@ -313,17 +313,13 @@ struct GpuEngine::Impl {
     ++builds;
     lean = lend = false;
     if (lists(o, sys.box, ff.cutoff)) {
-      // Lean when the fast layout's buffers (about 1,440 bytes per particle with a 0.6 skin and the
-      // MD state: a staged array, the sort's arrays, the list, the gated evaluations' forces, a
-      // second rank-ordered array and the MD engine's rank-order copy of the state side by side;
-      // 1,433-1,441 measured on the H100 at bac0539 from 256k up) would not fit in 90% of the
-      // device: a rule of the system and the device, and the results do not depend on it.
+      // Lean where asked, or where the fast layout would not fit in 90% of the device (lists_memory:
+      // the rule the automatic skin follows too).
       if (device_bytes == 0) {  // asked once: cudaMemGetInfo at every build held the device idle ~8 us
         std::size_t free_bytes = 0;
         CF_CUDA_CHECK(cudaMemGetInfo(&free_bytes, &device_bytes));
       }
-      lean = o.memory == ListMemory::kAuto ? double(n) * 1440.0 > 0.9 * double(device_bytes)
-                                           : o.memory == ListMemory::kLean;
+      lean = lists_memory(o.memory, n, device_bytes) == ListMemory::kLean;
       if (lean) {
         // The new build makes a new list: the old one is dead. Its array holds the unsorted keys and
         // IDs and the sort's scratch where all three fit in it (lent below), then the occupants
@@ -967,6 +963,8 @@ void GpuEngine::finish_timing() {
   stats_.buffer_bytes = s.bytes();
   stats_.list_pairs = listed_pairs();
   stats_.list_slots = stats_.list_pairs ? s.list.slots : 0;
+  stats_.list_mask_words = stats_.list_pairs ? s.list.mask_words : 0;
+  stats_.list_mask_words_held = stats_.list_pairs ? s.list.mask_words_held : 0;
 }
 
 
@@ -1152,6 +1150,15 @@ std::string GpuEngine::device_name() const {
   cudaDeviceProp prop{};
   CF_CUDA_CHECK(cudaGetDeviceProperties(&prop, options_.device));
   return prop.name;
+}
+
+std::size_t GpuEngine::memory_bytes(int device) {
+  int count = 0;
+  if (!unavailable().empty() || cudaGetDeviceCount(&count) != cudaSuccess || device < 0 || device >= count) return 0;
+  const DeviceScope scope(device);
+  std::size_t free_bytes = 0, total_bytes = 0;
+  CF_CUDA_CHECK(cudaMemGetInfo(&free_bytes, &total_bytes));
+  return total_bytes;
 }
 
 std::string GpuEngine::unavailable() {

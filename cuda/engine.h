@@ -184,6 +184,9 @@ class GpuEngine {
 
   // Empty when a CUDA device can be used here; otherwise why not.
   static std::string unavailable();
+  // The memory of CUDA device `device` in bytes (cudaMemGetInfo's total, what the lists' memory
+  // mode weighs: lists_memory); 0 where it cannot be used or does not exist.
+  static std::size_t memory_bytes(int device);
 
   struct Impl;  // device buffers, stream and events, reused across evaluations
 

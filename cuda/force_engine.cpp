@@ -77,5 +77,6 @@ std::unique_ptr<ForceEngine> make_cuda_force_engine(const EngineChoice& choice) 
 }
 
 std::string cuda_unavailable() { return GpuEngine::unavailable(); }
+std::size_t cuda_memory_bytes(int device) { return GpuEngine::memory_bytes(device); }
 
 }  // namespace cellforce

@@ -1146,7 +1146,9 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
     list.neighbors.reserve(roomy ? entries_total + headroom : entries_total);
   }
   if (row_blocks && width && !(early && held)) walk_rows(std::integral_constant<ListPass, ListPass::kFill>{});
-  if (row_blocks && width && masks.words) {
+  list.mask_words = row_blocks && width ? mask_words : 0;
+  list.mask_words_held = row_blocks && width && masks.words ? std::min<std::size_t>(mask_words, masks.capacity) : 0;
+  if (list.mask_words_held) {
     if (mask_words <= masks.capacity) ++list.masked_fills;
     else ++list.partly_masked_fills;
   }

@@ -176,6 +176,9 @@ struct PairList {
   bool count_masked_units = false;     // tests only: count the units each fill writes from masks
   std::size_t masked_units = 0;        // with count_masked_units: the last fill's
   std::size_t masked_fills = 0;        // builds whose fill read every unit's masks
+  std::size_t mask_words = 0;          // the last fill's: the words every unit's masks take, and
+  std::size_t mask_words_held = 0;     // those its room held (0: no masks read; the units whose
+                                       // words end within it read them, the rest walked again)
   std::size_t partly_masked_fills = 0; // builds whose masks' room held less than every unit's words
                                        // (lean memory, change 71: the room the device has left)
   std::size_t staged_counts = 0;       // builds whose count pass alone read staged occupants (count_staged)

@@ -309,6 +309,12 @@ TEST_P(MdApi, SkinAutoIsTheBackendsRule) {
   EXPECT_EQ(ctx.skin(), cuda ? 0.24 * 2.5 : 0.0);
   EXPECT_EQ(ctx.neighbor(), cuda ? "skin 0.6 (auto: 0.24 rc), pair lists"
                                  : "none, stages 1-3 every evaluation (auto: no skin on the cpu)");
+  RunSetup lean = s;  // lists in lean memory (asked for here; auto takes it where fast would not fit): 0.18 rc
+  lean.options = {{"memory", "lean"}};
+  cf::Context lean_ctx = liquid(lean);
+  EXPECT_EQ(lean_ctx.skin(), cuda ? 0.18 * 2.5 : 0.0);
+  EXPECT_EQ(lean_ctx.neighbor(), cuda ? "skin 0.45 (auto: 0.18 rc, lean memory), pair lists"
+                                      : "none, stages 1-3 every evaluation (auto: no skin on the cpu)");
   RunSetup plain = s;
   plain.options = {{"skin", "0"}};
   cf::Context ref = liquid(plain);

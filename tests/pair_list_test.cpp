@@ -572,9 +572,17 @@ TEST(PairListMasks, LeanFillFromMasksIsTheWalkedFill) {
           EXPECT_EQ(part.listed_pairs(), none.listed_pairs());
           EXPECT_TRUE(bitwise_equal(rf, rn));
           EXPECT_TRUE(bitwise_equal(rp, rn));
+          EXPECT_EQ(none.stats().list_mask_words_held, 0u);
           if (!none.stats().rebuilt || part.list_masked_units() == 0) continue;
           ++part_reads;  // this rebuild's fill wrote some units from the capped room, fewer than from a full one
           EXPECT_LT(part.list_masked_units(), full.list_masked_units());
+          // What the stats say of it: every word held in full, part of them within the cap.
+          EXPECT_GT(full.stats().list_mask_words, 0u);
+          EXPECT_EQ(full.stats().list_mask_words_held, full.stats().list_mask_words);
+          EXPECT_EQ(part.stats().list_mask_words, full.stats().list_mask_words);
+          EXPECT_GT(part.stats().list_mask_words_held, 0u);
+          EXPECT_LE(part.stats().list_mask_words_held, room);
+          EXPECT_LT(part.stats().list_mask_words_held, part.stats().list_mask_words);
         }
         EXPECT_GE(full.list_masked_fills(), 4u);
         EXPECT_EQ(part.list_masked_fills(), 0u);

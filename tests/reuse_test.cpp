@@ -64,6 +64,7 @@ TEST(ReuseOptions, BadValuesAreRejectedNamingTheParameter) {
 // the engine's own test of it); none for force calls, the CPU, Gauss-Seidel or a smaller box. The
 // caller's check, every and audit pass through; a skin given by the caller comes back as it is.
 TEST(ReuseOptions, AutoIsARuleOfTheBackendAndTheBox) {
+  constexpr cellforce::ListMemory kFast = cellforce::ListMemory::kFast;
   using cellforce::Accumulation;
   using cellforce::Backend;
   using cellforce::resolve_reuse;
@@ -76,21 +77,34 @@ TEST(ReuseOptions, AutoIsARuleOfTheBackendAndTheBox) {
   automatic.check = false;
   automatic.every = 7;
   automatic.audit = true;
-  const ReuseOptions lists = resolve_reuse(automatic, Backend::kCuda, Accumulation::kJacobi, true, box, rc);
+  const ReuseOptions lists = resolve_reuse(automatic, Backend::kCuda, Accumulation::kJacobi, true, box, rc, kFast);
   EXPECT_DOUBLE_EQ(lists.skin, skin);
   EXPECT_TRUE(lists.list);
   EXPECT_FALSE(lists.check);
   EXPECT_EQ(lists.every, 7);
   EXPECT_TRUE(lists.audit);
-  EXPECT_EQ(cellforce::describe_reuse(automatic, lists, Backend::kCuda, Accumulation::kJacobi, true, box, rc),
+  EXPECT_EQ(cellforce::describe_reuse(automatic, lists, Backend::kCuda, Accumulation::kJacobi, true, box, rc, kFast),
             "skin 0.6 (auto: 0.24 rc), pair lists, rebuilt every 7 (not checked)");
+  // Lists in lean memory: 0.18 rc; the same rule as to the box.
+  const ReuseOptions lean =
+      resolve_reuse(automatic, Backend::kCuda, Accumulation::kJacobi, true, box, rc, cellforce::ListMemory::kLean);
+  EXPECT_DOUBLE_EQ(lean.skin, 0.18 * rc);
+  EXPECT_TRUE(lean.list);
+  EXPECT_EQ(cellforce::describe_reuse(automatic, lean, Backend::kCuda, Accumulation::kJacobi, true, box, rc,
+                                      cellforce::ListMemory::kLean),
+            "skin 0.45 (auto: 0.18 rc, lean memory), pair lists, rebuilt every 7 (not checked)");
+  cellforce::Box narrow = box;  // 0.6 does not fit its y edge, 0.45 does
+  narrow.length[1] = 2.0 * (rc + 0.5);
+  EXPECT_FALSE(resolve_reuse(automatic, Backend::kCuda, Accumulation::kJacobi, true, narrow, rc, kFast).list);
+  EXPECT_TRUE(resolve_reuse(automatic, Backend::kCuda, Accumulation::kJacobi, true, narrow, rc,
+                            cellforce::ListMemory::kLean).list);
   auto none = [&](Backend b, Accumulation acc, bool md, const cellforce::Box& bx, const char* why) {
-    const ReuseOptions r = resolve_reuse(automatic, b, acc, md, bx, rc);
+    const ReuseOptions r = resolve_reuse(automatic, b, acc, md, bx, rc, kFast);
     EXPECT_EQ(r.skin, 0.0) << why;
     EXPECT_FALSE(r.list) << why;
     EXPECT_EQ(r.every, 7) << why;
-    EXPECT_NE(cellforce::describe_reuse(automatic, r, b, acc, md, bx, rc).find(why), std::string::npos)
-        << cellforce::describe_reuse(automatic, r, b, acc, md, bx, rc);
+    EXPECT_NE(cellforce::describe_reuse(automatic, r, b, acc, md, bx, rc, kFast).find(why), std::string::npos)
+        << cellforce::describe_reuse(automatic, r, b, acc, md, bx, rc, kFast);
   };
   none(Backend::kCpu, Accumulation::kJacobi, true, box, "no skin on the cpu");
   none(Backend::kCuda, Accumulation::kJacobi, false, box, "no skin for force calls");
@@ -99,28 +113,44 @@ TEST(ReuseOptions, AutoIsARuleOfTheBackendAndTheBox) {
   small.length[1] = std::nextafter(2.0 * (rc + skin), 0.0);
   none(Backend::kCuda, Accumulation::kJacobi, true, small, "rc + skin exceeds half the box");
   small.length[1] = 2.0 * (rc + skin);  // equality fits: 2 (rc + skin) <= L
-  EXPECT_TRUE(resolve_reuse(automatic, Backend::kCuda, Accumulation::kJacobi, true, small, rc).list);
+  EXPECT_TRUE(resolve_reuse(automatic, Backend::kCuda, Accumulation::kJacobi, true, small, rc, kFast).list);
   small.periodic[1] = false;  // an open axis sets no bound
   small.length[1] = 0.0;
-  EXPECT_TRUE(resolve_reuse(automatic, Backend::kCuda, Accumulation::kJacobi, true, small, rc).list);
+  EXPECT_TRUE(resolve_reuse(automatic, Backend::kCuda, Accumulation::kJacobi, true, small, rc, kFast).list);
   ReuseOptions given;
   given.skin = 0.3;
-  const ReuseOptions same = resolve_reuse(given, Backend::kCuda, Accumulation::kJacobi, true, box, rc);
+  const ReuseOptions same = resolve_reuse(given, Backend::kCuda, Accumulation::kJacobi, true, box, rc, kFast);
   EXPECT_EQ(same.skin, 0.3);
   EXPECT_FALSE(same.list);
-  EXPECT_EQ(cellforce::describe_reuse(given, same, Backend::kCuda, Accumulation::kJacobi, true, box, rc),
+  EXPECT_EQ(cellforce::describe_reuse(given, same, Backend::kCuda, Accumulation::kJacobi, true, box, rc, kFast),
             "skin 0.3, cells reused");
   given.list = true;  // asked for: served on CUDA with Jacobi where rc + skin fits, else the cells
-  EXPECT_EQ(cellforce::describe_reuse(given, given, Backend::kCuda, Accumulation::kJacobi, false, box, rc),
+  EXPECT_EQ(cellforce::describe_reuse(given, given, Backend::kCuda, Accumulation::kJacobi, false, box, rc, kFast),
             "skin 0.3, pair lists");
-  EXPECT_EQ(cellforce::describe_reuse(given, given, Backend::kCpu, Accumulation::kJacobi, false, box, rc),
+  EXPECT_EQ(cellforce::describe_reuse(given, given, Backend::kCpu, Accumulation::kJacobi, false, box, rc, kFast),
             "skin 0.3, cells reused");
-  EXPECT_EQ(cellforce::describe_reuse(given, given, Backend::kCuda, Accumulation::kGaussSeidel, false, box, rc),
+  EXPECT_EQ(cellforce::describe_reuse(given, given, Backend::kCuda, Accumulation::kGaussSeidel, false, box, rc, kFast),
             "skin 0.3, cells reused");
   EXPECT_TRUE(cellforce::pair_lists_serve(given, Accumulation::kJacobi, box, rc));
   small.periodic[1] = true;
   small.length[1] = std::nextafter(2.0 * (rc + 0.3), 0.0);
   EXPECT_FALSE(cellforce::pair_lists_serve(given, Accumulation::kJacobi, small, rc));
+}
+
+// The lists' memory mode (lists_memory): as asked, or (auto) lean exactly where n x 1,440 bytes
+// exceeds 90% of the device's memory; fast where the device's memory is unknown (0).
+TEST(ReuseOptions, ListsMemoryIsARuleOfTheSystemAndTheDevice) {
+  using cellforce::ListMemory;
+  using cellforce::lists_memory;
+  const std::size_t h100 = 85'520'809'984;  // an H100's 81,559 MiB
+  const std::size_t limit = std::size_t(0.9 * double(h100) / 1440.0);  // the largest fast system
+  EXPECT_EQ(lists_memory(ListMemory::kAuto, 16'777'216, h100), ListMemory::kFast);
+  EXPECT_EQ(lists_memory(ListMemory::kAuto, limit, h100), ListMemory::kFast);
+  EXPECT_EQ(lists_memory(ListMemory::kAuto, limit + 1, h100), ListMemory::kLean);
+  EXPECT_EQ(lists_memory(ListMemory::kAuto, 100'000'000, h100), ListMemory::kLean);
+  EXPECT_EQ(lists_memory(ListMemory::kAuto, 100'000'000, 0), ListMemory::kFast);
+  EXPECT_EQ(lists_memory(ListMemory::kLean, 1'000, h100), ListMemory::kLean);
+  EXPECT_EQ(lists_memory(ListMemory::kFast, 100'000'000, h100), ListMemory::kFast);
 }
 
 // The condition a skin adds (grid.h): on a periodic axis of two or more cells, c/2 + h + skin/2 <

@@ -83,16 +83,17 @@ def write_atomically(path: Path, text: str) -> None:
     os.replace(partial, path)
 
 
-# cellforce's configurations: "list" (a skin and pair lists, the fastest; with --skin 0.6, what
-# skin auto chooses on CUDA for rc 2.5), "default" (no skin: the cells traversed on every step; the
-# name is kept for the rows of earlier reports, when it was a scene's default) and the chapter's own.
-def configuration_args(configuration: str, skin: float) -> list[str]:
-    return {"list": ["--skin", f"{skin:g}", "--neighbor-list", "--label", "list"], "default": ["--skin", "0"],
-            "chapter": ["--chapter"]}[configuration]
+# cellforce's configurations: "list" (a skin and pair lists, the fastest; with --skin auto, cellforce's
+# own choice: on CUDA for rc 2.5, 0.6 where the lists run in fast memory and 0.45 in lean; a length
+# instead names it), "default" (no skin: the cells traversed on every step; the name is kept for the
+# rows of earlier reports, when it was a scene's default) and the chapter's own.
+def configuration_args(configuration: str, skin: str) -> list[str]:
+    lists = ["--label", "list"] if skin == "auto" else ["--skin", skin, "--neighbor-list", "--label", "list"]
+    return {"list": lists, "default": ["--skin", "0"], "chapter": ["--chapter"]}[configuration]
 
 
 def run_bench(binary: str, n: int, precision: str, seconds: float, out: Path, work: Path, configuration: str,
-              skin: float, save: bool, timing: list[str] | None = None) -> dict:
+              skin: str, save: bool, timing: list[str] | None = None) -> dict:
     """One `cellforce bench` call for one size; its JSON row, or a row with an "error" when it gave none.
     Its JSON and saved configuration go to `work` (a scratch folder: --out keeps three files only).
     `timing`: the bench's timing arguments instead of `--seconds seconds`."""
@@ -251,7 +252,8 @@ def measure_in(args: argparse.Namespace, work: Path) -> int:
         row = run_bench(args.cellforce, args.largest, "mixed", args.seconds, out, work, "list", args.skin, save=False,
                         timing=timing)
         row["note"] = (f"the largest run, in the same call after the sizes: {' '.join(timing)} (memory option "
-                       f"{row.get('memory', 'unknown')}, auto being lean where fast would not fit; "
+                       f"{row.get('memory', 'unknown')}, auto being lean where fast would not fit; skin "
+                       f"{row.get('skin', '?')} ({row.get('skin_requested', '?')}); "
                        f"{row.get('builds', '?')} builds in its timed steps, so the build's share is larger than "
                        "in a long run; no double reference, no OpenMM)")
         rows.append(row)
@@ -318,6 +320,13 @@ def ratio(a: dict | None, b: dict | None) -> float:
     return x / y if y > 0 else math.nan
 
 
+def forces_from(cf: dict) -> str:
+    """What evaluated the forces: pair lists (and their skin), or the traversal's form."""
+    if not cf.get("neighbor_list"):
+        return cf.get("traversal", "-")
+    return "pair lists" + (f", skin {cf['skin']:g}" if isinstance(cf.get("skin"), (int, float)) else "")
+
+
 def precision_table(rows: list[dict], precision: str) -> list[str]:
     lines = [f"### {precision} precision", "",
              "| N | cellforce steps/s | OpenMM CUDA steps/s | cellforce / OpenMM | cellforce particle-steps/s | "
@@ -337,7 +346,7 @@ def precision_table(rows: list[dict], precision: str) -> list[str]:
             f"| {n:,} | {fmt(number(cf, 'steps_per_second'))} | {omm_rate} | "
             f"{fmt(ratio(cf, omm if omm and 'error' not in omm else None), '{:.2f}')} | "
             f"{fmt(number(cf, 'particle_steps_per_second'), '{:.3e}')} | {fmt(ns_per_particle_step(cf), '{:.3g}')} | "
-            f"{'pair lists' if cf.get('neighbor_list') else cf.get('traversal', '-')} | "
+            f"{forces_from(cf)} | "
             f"{fmt(number(cf, 'bytes_per_particle'))} | "
             f"{fmt(number(cf, 'force_error_median'), '{:.2e}')}, {omm_err} | "
             f"{fmt(number(cf, 'nve_drift'), '{:.2e}')} |")
@@ -425,9 +434,12 @@ def tables(doc: dict) -> str:
              ""]
     precisions = sorted({r.get("precision") for r in rows if r.get("engine") == "cellforce"
                          and r.get("configuration") == "list"}, key=lambda p: (p != "mixed", str(p)))
-    skins = sorted({r.get("skin") for r in rows if r.get("configuration") == "list" and r.get("skin") is not None})
-    lines += [f"cellforce with pair lists (skin {', '.join(f'{x:g}' for x in skins)}, rebuilt when a particle "
-              "has moved more than skin / 2), against OpenMM CUDA in the same precision:", ""]
+    listed = [r for r in rows if r.get("configuration") == "list" and r.get("skin") is not None]
+    skins = sorted({r["skin"] for r in listed})
+    auto = any(r.get("skin_requested") == "auto" for r in listed)
+    lines += [f"cellforce with pair lists (skin {', '.join(f'{x:g}' for x in skins)}"
+              f"{' (auto: 0.24 rc, 0.18 rc where the lists run in lean memory)' if auto else ''}, rebuilt when a "
+              "particle has moved more than skin / 2), against OpenMM CUDA in the same precision:", ""]
     for precision in precisions:
         lines += precision_table(rows, precision) + [""]
     for configuration in ("default", "chapter"):
@@ -493,7 +505,8 @@ def main() -> int:
                    help="particle counts (each runs the nearest fcc lattice, 4 c^3)")
     m.add_argument("--precisions", nargs="+", default=["mixed", "single"])
     m.add_argument("--seconds", type=float, default=2.0, help="timed seconds per run (sets the steps)")
-    m.add_argument("--skin", type=float, default=0.6, help="the pair-list configuration's skin")
+    m.add_argument("--skin", default="auto",
+                   help="the pair-list configuration's skin: auto (cellforce's choice) or a length")
     m.add_argument("--cells-max", type=int, default=4194304,
                    help="largest N that runs the cells-every-step configuration (mixed)")
     m.add_argument("--chapter-max", type=int, default=1048576,
@@ -503,7 +516,8 @@ def main() -> int:
     m.add_argument("--largest", type=int, default=None,
                    help="after the sizes, cellforce alone at this N (mixed, pair lists; e.g. 100000000)")
     m.add_argument("--largest-steps", type=int, default=60, help="the largest run's timed steps")
-    m.add_argument("--largest-warmup", type=int, default=15, help="the largest run's warm-up steps")
+    m.add_argument("--largest-warmup", type=int, default=50,
+                   help="the largest run's warm-up steps (default: the bench's, as for every other row)")
     m.add_argument("--commit", default=None, help="cellforce's commit, for the report")
     m.add_argument("--out", required=True, help="folder for performance.json, the table, bench.log")
     r = sub.add_parser("report", help="tables and plot from performance.json")

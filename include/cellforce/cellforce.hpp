@@ -137,6 +137,10 @@ struct RunStatistics {
   // from each side) and the entries their layout holds, padding included (the force kernel walks
   // each warp's lists as long as its longest); 0 without lists.
   std::size_t list_pairs = 0, list_slots = 0;
+  // The same build's masks (each work unit's count-pass decisions, read by the fill instead of
+  // testing its pairs again): the words every unit's take, and those the device had room for (lean
+  // memory keeps as many as its free memory holds); 0 without lists.
+  std::size_t list_mask_words = 0, list_mask_words_held = 0;
   // With neighbor-audit: pairs within the cutoff that a reused structure missed or repeated.
   std::size_t missed_pairs = 0, repeated_pairs = 0;
 };

@@ -89,15 +89,24 @@ struct Context::Impl {
   }
 
   // What the engines are made from: the backend kAuto stands for, and an automatic skin resolved
-  // for the force calls' or the MD engine's use (md), `b` and the cutoff (resolve_reuse: a rule of
-  // the backend and the system).
-  EngineChoice resolved(const Box& b, bool for_md) const {
+  // for the force calls' or the MD engine's use (md), `b`, the cutoff and the lists' memory mode
+  // (resolve_reuse: a rule of the backend, the system and the device; md_memory_for).
+  EngineChoice resolved(const Box& b, bool for_md, ListMemory memory = ListMemory::kFast) const {
     EngineChoice c = choice;
     c.backend = resolve_backend(choice.backend);
-    c.reuse = resolve_reuse(choice.reuse, c.backend, choice.accumulation, for_md, b, ff.cutoff);
+    c.reuse = resolve_reuse(choice.reuse, c.backend, choice.accumulation, for_md, b, ff.cutoff, memory);
     return c;
   }
+  // The lists' memory mode an MD state of n particles runs in (lists_memory: the device's memory is
+  // asked for only where an automatic skin on CUDA follows it).
+  ListMemory md_memory_for(std::size_t n) const {
+    EngineChoice c = choice;
+    c.backend = resolve_backend(choice.backend);
+    if (!choice.reuse.automatic || c.backend != Backend::kCuda) return choice.memory;
+    return lists_memory(choice.memory, n, device_memory_bytes(c));
+  }
   ReuseOptions md_reuse;  // what `md` was made with
+  ListMemory md_memory = ListMemory::kAuto;  // and the lists' memory mode its skin was resolved for
 
   static bool same_reuse(const ReuseOptions& a, const ReuseOptions& b) {
     return a.skin == b.skin && a.list == b.list && a.check == b.check && a.every == b.every && a.audit == b.audit;
@@ -110,11 +119,13 @@ struct Context::Impl {
     Box box;
     double cutoff;
     bool md;
+    ListMemory memory;  // what an automatic skin was resolved for
   };
   Neighbor neighbor() const {
     const bool has_md = md != nullptr;
-    Neighbor nb{resolved(has_md ? md_box : box, has_md), has_md ? md_box : box, has_md ? md_ff.cutoff : ff.cutoff,
-                has_md};
+    const ListMemory memory = has_md ? md_memory : ListMemory::kFast;
+    Neighbor nb{resolved(has_md ? md_box : box, has_md, memory), has_md ? md_box : box,
+                has_md ? md_ff.cutoff : ff.cutoff, has_md, memory};
     if (has_md) nb.choice.reuse = md_reuse;
     return nb;
   }
@@ -409,12 +420,15 @@ void Context::set_state(std::size_t n, const double* positions, const double* ve
   state.step = step;
   state.time = double(step) * s.integrator.dt;
   std::vector<double> m(masses, masses + n);
-  const EngineChoice resolved = s.resolved(s.box, true);
-  if (s.md && !Impl::same_reuse(resolved.reuse, s.md_reuse)) s.md.reset();  // an automatic skin for another box
+  const ListMemory memory = s.md_memory_for(n);
+  const EngineChoice resolved = s.resolved(s.box, true, memory);
+  // An automatic skin for another box, or another memory mode (another particle count)
+  if (s.md && !Impl::same_reuse(resolved.reuse, s.md_reuse)) s.md.reset();
   if (!s.md) {
     s.md = make_md_engine(resolved);
     s.md_reuse = resolved.reuse;
   }
+  s.md_memory = memory;
   try {
     s.md->set_state(state, m, s.ff);
   } catch (...) {
@@ -534,6 +548,8 @@ RunStatistics Context::run_statistics() const {
   r.buffer_bytes = impl_->md->forces().stats().buffer_bytes;
   r.list_pairs = impl_->md->forces().stats().list_pairs;
   r.list_slots = impl_->md->forces().stats().list_slots;
+  r.list_mask_words = impl_->md->forces().stats().list_mask_words;
+  r.list_mask_words_held = impl_->md->forces().stats().list_mask_words_held;
   r.state_bytes = impl_->md->state_bytes();
   return r;
 }
@@ -556,7 +572,7 @@ bool Context::neighbor_lists() {
 std::string Context::neighbor() {
   const Impl::Neighbor nb = impl_->neighbor();
   return describe_reuse(impl_->choice.reuse, nb.choice.reuse, nb.choice.backend, nb.choice.accumulation, nb.md,
-                        nb.box, nb.cutoff);
+                        nb.box, nb.cutoff, nb.memory);
 }
 
 // The MD engine's force engine when there is one (no second engine is built just to be named).

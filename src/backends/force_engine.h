@@ -93,11 +93,17 @@ std::unique_ptr<ForceEngine> make_force_engine(const EngineChoice& choice);
 // The backend kAuto stands for here (CUDA when a device can be used, else the CPU); others as given.
 Backend resolve_backend(Backend backend);
 
+// The memory of the device `choice` runs on, in bytes (CUDA: the device's total; 0 on the CPU, in a
+// build without CUDA, or where the device cannot be used): what the lists' memory mode, and with it
+// the automatic skin, weighs (lists_memory, resolve_reuse).
+std::size_t device_memory_bytes(const EngineChoice& choice);
+
 // The backends themselves (make_force_engine picks one).
 std::unique_ptr<ForceEngine> make_cpu_force_engine(const EngineChoice& choice);
 #ifdef CELLFORCE_HAVE_CUDA
 std::unique_ptr<ForceEngine> make_cuda_force_engine(const EngineChoice& choice);
 std::string cuda_unavailable();  // empty when a CUDA device can be used; otherwise why not
+std::size_t cuda_memory_bytes(int device);  // 0 where it cannot be used
 #endif
 
 }  // namespace cellforce

@@ -13,6 +13,15 @@ Backend resolve_backend(Backend backend) {
 #endif
 }
 
+std::size_t device_memory_bytes(const EngineChoice& choice) {
+#ifdef CELLFORCE_HAVE_CUDA
+  if (resolve_backend(choice.backend) == Backend::kCuda) return cuda_memory_bytes(choice.device);
+#else
+  (void)choice;
+#endif
+  return 0;
+}
+
 std::unique_ptr<ForceEngine> make_force_engine(const EngineChoice& choice) {
   if (choice.reuse.automatic)  // the caller resolves it for its system (resolve_reuse)
     throw Error("internal error: an engine was asked for with an unresolved automatic skin");

@@ -153,8 +153,9 @@ SizeResult bench_size(const BenchArgs& args, const EngineChoice& engine, int cel
     const int dim = 3;
     const std::vector<double> masses(n, scene.masses[0]);
     initialize_velocities(state, masses, scene.initial_temperature, scene.seed, !args.langevin);
-    const ReuseOptions reuse = resolve_reuse(engine.reuse, resolve_backend(engine.backend), engine.accumulation, true,
-                                             state.config.box, scene.force_field.cutoff);  // the skin in effect
+    const ReuseOptions reuse =  // the skin in effect (the context's rule: Context::skin() below)
+        resolve_reuse(engine.reuse, resolve_backend(engine.backend), engine.accumulation, true, state.config.box,
+                      scene.force_field.cutoff, lists_memory(engine.memory, n, device_memory_bytes(engine)));
     apply_numbering(state, args.order, scene.seed, scene.force_field.cutoff, reuse.skin, engine.rule);
     row["order"] = name_of(args.order, kNumberingNames);
     row["memory"] = name_of(engine.memory, kListMemoryNames);  // as asked (--memory)
@@ -232,6 +233,8 @@ SizeResult bench_size(const BenchArgs& args, const EngineChoice& engine, int cel
       row["buffer_bytes"] = st.buffer_bytes;
       row["list_pairs"] = st.list_pairs;
       row["list_slots"] = st.list_slots;
+      row["list_mask_words"] = st.list_mask_words;
+      row["list_mask_words_held"] = st.list_mask_words_held;
       row["state_bytes"] = st.state_bytes;
       row["bytes_per_particle"] = double(st.buffer_bytes + st.state_bytes) / double(n);
       row["energy_per_particle_start"] = e.front();

@@ -53,6 +53,20 @@ enum class SortMethod : uint8_t {
 // masks find no room); auto: lean where fast would not fit in 90% of the device (cuda/engine.cu).
 enum class ListMemory : uint8_t { kAuto, kFast, kLean };
 
+// The memory mode the lists run in for `n` particles on a device of `device_bytes` (0: unknown, or
+// no device): as asked, or (auto) lean where the fast layout, about kFastListBytesPerParticle with
+// a 0.6 skin and the MD state (1,433-1,441 measured on the H100 from 256k up: a staged array, the
+// sort's arrays, the list, the gated evaluations' forces, a second rank-ordered array and the MD
+// engine's rank-order copy of the state side by side), would not fit in 90% of the device. A rule
+// of the system and the device: cuda/engine.cu applies it at every build, and the automatic skin
+// follows it (resolve_reuse). The results do not depend on the mode, only on the skin.
+inline constexpr double kFastListBytesPerParticle = 1440.0;
+inline ListMemory lists_memory(ListMemory asked, std::size_t n, std::size_t device_bytes) {
+  if (asked != ListMemory::kAuto) return asked;
+  return device_bytes > 0 && double(n) * kFastListBytesPerParticle > 0.9 * double(device_bytes) ? ListMemory::kLean
+                                                                                                 : ListMemory::kFast;
+}
+
 // Counts and stage times (seconds) of the last evaluation. The CPU folds the valid count into
 // t_cell_ids; the GPU times it apart (t_count) and includes staging the occupants (the
 // relative-coordinate gather) in t_traversal. t_transfer: host <-> device copies (GPU only).
@@ -73,6 +87,10 @@ struct PipelineStats {
   // pairs (within rc + skin, once from each side) and the entries their layout holds, padding
   // included (each group of 32 lists as long as its longest, in whole chunks); 0 without lists.
   std::size_t list_pairs = 0, list_slots = 0;
+  // The build's masks (CUDA lists, cuda/pair_list.cuh BuildMasks): the words every work unit's
+  // count-pass decisions take, and those the room held (the units within it read theirs, the rest
+  // tested their pairs again); 0 without lists or masks.
+  std::size_t list_mask_words = 0, list_mask_words_held = 0;
   // Reuse of the structure (core/reuse.h; skin > 0): whether this evaluation ran stages 1-3, how
   // many builds the engine has made, the largest displacement since the build in use (0 when not
   // measured), and, with the audit, pairs closer than rc that the reused structure never

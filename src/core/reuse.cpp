@@ -29,7 +29,7 @@ bool pair_lists_serve(const ReuseOptions& r, Accumulation accumulation, const Bo
 }
 
 ReuseOptions resolve_reuse(const ReuseOptions& options, Backend backend, Accumulation accumulation, bool md,
-                           const Box& box, double cutoff) {
+                           const Box& box, double cutoff, ListMemory memory) {
   if (!options.automatic) return options;
   ReuseOptions r = options;
   r.automatic = false;  // resolved: what the engine runs
@@ -37,17 +37,20 @@ ReuseOptions resolve_reuse(const ReuseOptions& options, Backend backend, Accumul
   r.list = false;
   if (!md || backend != Backend::kCuda || !(cutoff > 0)) return r;
   ReuseOptions lists = r;
-  lists.skin = kAutoSkinPerCutoff * cutoff;
+  lists.skin = (memory == ListMemory::kLean ? kAutoLeanSkinPerCutoff : kAutoSkinPerCutoff) * cutoff;
   lists.list = true;
   return pair_lists_serve(lists, accumulation, box, cutoff) ? lists : r;
 }
 
 std::string describe_reuse(const ReuseOptions& requested, const ReuseOptions& resolved, Backend backend,
-                           Accumulation accumulation, bool md, const Box& box, double cutoff) {
+                           Accumulation accumulation, bool md, const Box& box, double cutoff, ListMemory memory) {
   std::ostringstream s;
   if (resolved.skin > 0) {
     s << "skin " << resolved.skin;
-    if (requested.automatic) s << " (auto: " << kAutoSkinPerCutoff << " rc)";
+    if (requested.automatic && memory == ListMemory::kLean)
+      s << " (auto: " << kAutoLeanSkinPerCutoff << " rc, lean memory)";
+    else if (requested.automatic)
+      s << " (auto: " << kAutoSkinPerCutoff << " rc)";
     const bool lists = backend == Backend::kCuda && pair_lists_serve(resolved, accumulation, box, cutoff);
     s << (lists ? ", pair lists" : ", cells reused");
     if (!resolved.check) s << ", rebuilt every " << resolved.every << " (not checked)";

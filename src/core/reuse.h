@@ -57,6 +57,12 @@ bool pair_lists_serve(const ReuseOptions& resolved, Accumulation accumulation, c
 //   fits in half of every periodic edge: pair lists with a skin of kAutoSkinPerCutoff x rc. Measured on the H100 (in.lj, rc 2.5, mixed, lists,
 //   validation/reports/performance.md): skin 0.4 / 0.6 / 0.8 gave 7,861 / 8,280 / 7,855 steps/s at
 //   32,000 particles and 823 / 825 / 774 at 1,048,576; cells every step 3,976 and 380.
+//   Where the lists run in lean memory (`memory`, from lists_memory: the device too small for the
+//   fast layout), kAutoLeanSkinPerCutoff x rc: a lean build keeps its count pass's masks only in
+//   the memory left, and a shorter list leaves more (performance.md, change 73; H100, lean, in.lj,
+//   mixed: skin 0.4 / 0.45 / 0.5 / 0.55 / 0.6 gave 19.0 / 19.9 / 19.4 / 17.5 / 17.0 steps/s at
+//   99.6M particles, every mask held from 0.45 down; 117.0 / 120.8 / 115.1 at 16.7M, every mask
+//   held at each).
 // - Force calls (md false: compute, compute_device): no skin. Each call's positions are the
 //   caller's, and the displacement check would make compute_device wait for the host.
 // - Otherwise no skin: without lists the skin's larger cells cost the traversal about what the
@@ -66,14 +72,16 @@ bool pair_lists_serve(const ReuseOptions& resolved, Accumulation accumulation, c
 // `backend` is the one the engine runs on (cpu or cuda, not auto). check, every and audit are the
 // caller's; with automatic false the options come back as they are.
 inline constexpr double kAutoSkinPerCutoff = 0.24;
+inline constexpr double kAutoLeanSkinPerCutoff = 0.18;
 ReuseOptions resolve_reuse(const ReuseOptions& options, Backend backend, Accumulation accumulation, bool md,
-                           const Box& box, double cutoff);
+                           const Box& box, double cutoff, ListMemory memory);
 
 // The resolved choice in words, for run headers: "skin 0.6 (auto: 0.24 rc), pair lists",
-// "none, stages 1-3 every evaluation (auto: no skin on the cpu)", "skin 0.3, cells reused" (what
-// the engine does: lists asked for on the CPU, or where they do not fit, are cells reused).
+// "skin 0.45 (auto: 0.18 rc, lean memory), pair lists", "none, stages 1-3 every evaluation (auto:
+// no skin on the cpu)", "skin 0.3, cells reused" (what the engine does: lists asked for on the
+// CPU, or where they do not fit, are cells reused). `memory` as resolve_reuse's.
 std::string describe_reuse(const ReuseOptions& requested, const ReuseOptions& resolved, Backend backend,
-                           Accumulation accumulation, bool md, const Box& box, double cutoff);
+                           Accumulation accumulation, bool md, const Box& box, double cutoff, ListMemory memory);
 
 // When to rebuild, apart from the displacement: the first evaluation, a change of box, particle
 // count or cutoff, skin 0, or a structure that has served `every` evaluations. Shared by both

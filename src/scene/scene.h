@@ -31,7 +31,7 @@
 //                  with a skin given as a length)
 // skin = "auto" (the default, also without [neighbor]) lets the engine choose (core/reuse.h
 // resolve_reuse: pair lists with a skin of 0.24 rc on CUDA with Jacobi accumulation where they fit
-// the box, else no skin; the run header prints the choice). A length: skin > 0 builds the cell structure (stages 1-3) for rc + skin and reuses it while no
+// the box, 0.18 rc where the lists run in lean memory, else no skin; the run header prints the choice). A length: skin > 0 builds the cell structure (stages 1-3) for rc + skin and reuses it while no
 // particle has moved more than skin/2 since the build (check), and at most `every` steps when
 // every > 0; audit = true counts on every reused step the pairs within rc the structure misses or
 // repeats (a diagnostic: slow); list = true (CUDA, Jacobi) has each build record every particle's
