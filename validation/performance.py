@@ -253,7 +253,7 @@ def measure_in(args: argparse.Namespace, work: Path) -> int:
                         timing=timing)
         row["note"] = (f"the largest run, in the same call after the sizes: {' '.join(timing)} (memory option "
                        f"{row.get('memory', 'unknown')}, auto being lean where fast would not fit; skin "
-                       f"{row.get('skin', '?')} ({row.get('skin_requested', '?')}); "
+                       f"{fmt(row.get('skin'), '{:g}')} ({row.get('skin_requested', '?')}); "
                        f"{row.get('builds', '?')} builds in its timed steps, so the build's share is larger than "
                        "in a long run; no double reference, no OpenMM)")
         rows.append(row)
@@ -289,6 +289,11 @@ def fmt(v, pattern: str = "{:,.0f}") -> str:
     if v is None or (isinstance(v, float) and math.isnan(v)):
         return "-"
     return pattern.format(v)
+
+
+def fmt_rate(v) -> str:
+    """Steps/s: whole numbers, one decimal below 100 (the largest run's)."""
+    return fmt(v, "{:.1f}") if isinstance(v, (int, float)) and v < 100 else fmt(v)
 
 
 def error_cell(row: dict) -> str:
@@ -343,7 +348,7 @@ def precision_table(rows: list[dict], precision: str) -> list[str]:
             lines.append(f"| {n:,} | {error_cell(cf)} | {omm_rate} | - | - | - | - | - | -, {omm_err} | - |")
             continue
         lines.append(
-            f"| {n:,} | {fmt(number(cf, 'steps_per_second'))} | {omm_rate} | "
+            f"| {n:,} | {fmt_rate(number(cf, 'steps_per_second'))} | {omm_rate} | "
             f"{fmt(ratio(cf, omm if omm and 'error' not in omm else None), '{:.2f}')} | "
             f"{fmt(number(cf, 'particle_steps_per_second'), '{:.3e}')} | {fmt(ns_per_particle_step(cf), '{:.3g}')} | "
             f"{forces_from(cf)} | "
