@@ -1153,11 +1153,17 @@ std::string GpuEngine::device_name() const {
 }
 
 std::size_t GpuEngine::memory_bytes(int device) {
-  int count = 0;
-  if (!unavailable().empty() || cudaGetDeviceCount(&count) != cudaSuccess || device < 0 || device >= count) return 0;
-  const DeviceScope scope(device);
+  // Never throws: a device that cannot be used is the engine's to report, when it is made. An
+  // error one of these calls returns is cleared (a sticky one stays, for the engine to meet).
+  auto ok = [](cudaError_t e) {
+    if (e != cudaSuccess) (void)cudaGetLastError();
+    return e == cudaSuccess;
+  };
+  int count = 0, previous = 0;
+  if (!ok(cudaGetDeviceCount(&count)) || device < 0 || device >= count || !ok(cudaGetDevice(&previous))) return 0;
   std::size_t free_bytes = 0, total_bytes = 0;
-  CF_CUDA_CHECK(cudaMemGetInfo(&free_bytes, &total_bytes));
+  if (!ok(cudaSetDevice(device)) || !ok(cudaMemGetInfo(&free_bytes, &total_bytes))) total_bytes = 0;
+  (void)ok(cudaSetDevice(previous));
   return total_bytes;
 }
 

@@ -137,12 +137,14 @@ struct RunStatistics {
   // from each side) and the entries their layout holds, padding included (the force kernel walks
   // each warp's lists as long as its longest); 0 without lists.
   std::size_t list_pairs = 0, list_slots = 0;
-  // The same build's masks (each work unit's count-pass decisions, read by the fill instead of
-  // testing its pairs again): the words every unit's take, and those the device had room for (lean
-  // memory keeps as many as its free memory holds); 0 without lists.
-  std::size_t list_mask_words = 0, list_mask_words_held = 0;
   // With neighbor-audit: pairs within the cutoff that a reused structure missed or repeated.
   std::size_t missed_pairs = 0, repeated_pairs = 0;
+  // CUDA pair lists, as of the last sampled evaluation: its build's masks (each work unit's
+  // count-pass decisions, read by the fill instead of testing its pairs again), the words every
+  // unit's take and the room the device had for them (lean memory keeps as much as its free memory
+  // holds; the units whose words end within it read them, the rest test their pairs again); 0
+  // without lists or masks (held: also where the build had no room, e.g. while a list grows).
+  std::size_t list_mask_words = 0, list_mask_words_held = 0;
 };
 
 // The neighbour structure in use (skin > 0), for a bitwise restart: the positions it was built
@@ -183,10 +185,11 @@ class CELLFORCE_API Context {
   // Verlet skin of the neighbour structure (length): stages 1-3 are built for rc + skin and reused
   // while no particle has moved more than skin / 2; 0 rebuilds on every call. The default is auto
   // (option skin = auto): the MD state (set_state, step, minimize) on CUDA with Jacobi accumulation
-  // gets pair lists with a skin of 0.24 rc where rc + skin fits in half of every periodic edge;
-  // otherwise (the CPU, and the force calls compute and compute_device, which then never wait for
-  // a displacement check) no skin. A rule of the backend and the box, not a timing: skin() and
-  // neighbor() say what it chose.
+  // gets pair lists with a skin of 0.24 rc (0.18 rc where the lists run in lean memory: option
+  // memory) where rc + skin fits in half of every periodic edge; otherwise (the CPU, and the force
+  // calls compute and compute_device, which then never wait for a displacement check) no skin. A
+  // rule of the backend, the box, the particle count and the device's memory, not a timing: skin()
+  // and neighbor() say what it chose.
   void set_skin(double skin);
   // Every choice by name, as the C API and scene files write them:
   //   backend       cpu | cuda | auto
@@ -214,7 +217,8 @@ class CELLFORCE_API Context {
   //                                           has left: ~700 against ~1,440 bytes a particle, up to
   //                                           ~930 with every mask; builds up to ~2x slower where
   //                                           the masks find no room; auto, the default: lean where
-  //                                           fast would not fit in 90% of the device)
+  //                                           fast would not fit in 90% of the device; lean memory
+  //                                           makes an automatic skin 0.18 rc instead of 0.24 rc)
   void set_option(std::string_view key, std::string_view value);
 
   // ---- computing ----
@@ -294,7 +298,8 @@ class CELLFORCE_API Context {
   std::string description();
   std::string traversal();
   std::string sort();
-  // The skin in effect (the automatic one resolved for the box and backend; 0: none) and the
+  // The skin in effect (the automatic one resolved for the box, backend and lists' memory mode; 0:
+  // none) and the
   // neighbour structure in words, e.g. "skin 0.6 (auto: 0.24 rc), pair lists" or "none, stages 1-3
   // every evaluation (auto: no skin on the cpu)". For the MD state when there is one (as set_state
   // resolved it), else for force calls on the current box (auto: none).

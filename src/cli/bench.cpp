@@ -153,9 +153,11 @@ SizeResult bench_size(const BenchArgs& args, const EngineChoice& engine, int cel
     const int dim = 3;
     const std::vector<double> masses(n, scene.masses[0]);
     initialize_velocities(state, masses, scene.initial_temperature, scene.seed, !args.langevin);
-    const ReuseOptions reuse =  // the skin in effect (the context's rule: Context::skin() below)
+    const ListMemory memory =  // the device's memory is asked for only where an automatic skin follows it
+        engine.reuse.automatic ? lists_memory(engine.memory, n, device_memory_bytes(engine)) : engine.memory;
+    const ReuseOptions reuse =  // the skin in effect (the context's rule: checked against Context::skin() below)
         resolve_reuse(engine.reuse, resolve_backend(engine.backend), engine.accumulation, true, state.config.box,
-                      scene.force_field.cutoff, lists_memory(engine.memory, n, device_memory_bytes(engine)));
+                      scene.force_field.cutoff, memory);
     apply_numbering(state, args.order, scene.seed, scene.force_field.cutoff, reuse.skin, engine.rule);
     row["order"] = name_of(args.order, kNumberingNames);
     row["memory"] = name_of(engine.memory, kListMemoryNames);  // as asked (--memory)
@@ -178,6 +180,9 @@ SizeResult bench_size(const BenchArgs& args, const EngineChoice& engine, int cel
       row["traversal"] = ctx.traversal();
       row["sort"] = ctx.sort();
       row["skin"] = ctx.skin();  // in effect (auto resolved)
+      if (ctx.skin() != reuse.skin)  // the numbering above was planned for the skin in effect
+        throw Error("internal error: the bench resolved the skin " + std::to_string(reuse.skin) +
+                    ", the context " + std::to_string(ctx.skin()));
       row["neighbor"] = ctx.neighbor();
       // Warm-up (allocations, first builds), then a calibration of the rate; both excluded.
       ctx.step(std::max<int64_t>(args.warmup, 1), true);

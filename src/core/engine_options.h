@@ -50,7 +50,7 @@ enum class SortMethod : uint8_t {
 // The CUDA pair lists' memory mode. Lean: no staged array of the cells' own, the sort's arrays in
 // the dead list's room, the count pass's masks only in the memory the device has left (~700 bytes a
 // particle against fast's ~1,440, up to ~930 with every mask; builds up to ~2x slower where the
-// masks find no room); auto: lean where fast would not fit in 90% of the device (cuda/engine.cu).
+// masks find no room); auto: lean where fast would not fit in 90% of the device (lists_memory).
 enum class ListMemory : uint8_t { kAuto, kFast, kLean };
 
 // The memory mode the lists run in for `n` particles on a device of `device_bytes` (0: unknown, or

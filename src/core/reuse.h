@@ -51,8 +51,10 @@ void validate_reuse(const ReuseOptions& options);
 // choice and the description use it.
 bool pair_lists_serve(const ReuseOptions& resolved, Accumulation accumulation, const Box& box, double cutoff);
 
-// The automatic choice (ReuseOptions::automatic): a rule of the backend and the system, not a
-// timing, so that every run of a scene makes the same choice and the same bits.
+// The automatic choice (ReuseOptions::automatic): a rule of the backend, the system and (through
+// `memory`, lists_memory) the device's memory, not a timing, so that every run of a scene on the
+// same device makes the same choice and the same bits (a system near a device's capacity may get
+// another skin on a device with less memory).
 // - An MD engine (md: its steps, minimisation) on CUDA with Jacobi accumulation, where rc + skin
 //   fits in half of every periodic edge: pair lists with a skin of kAutoSkinPerCutoff x rc. Measured on the H100 (in.lj, rc 2.5, mixed, lists,
 //   validation/reports/performance.md): skin 0.4 / 0.6 / 0.8 gave 7,861 / 8,280 / 7,855 steps/s at
