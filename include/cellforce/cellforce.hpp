@@ -299,10 +299,10 @@ class CELLFORCE_API Context {
   std::string traversal();
   std::string sort();
   // The skin in effect (the automatic one resolved for the box, backend and lists' memory mode; 0:
-  // none) and the
-  // neighbour structure in words, e.g. "skin 0.6 (auto: 0.24 rc), pair lists" or "none, stages 1-3
-  // every evaluation (auto: no skin on the cpu)". For the MD state when there is one (as set_state
-  // resolved it), else for force calls on the current box (auto: none).
+  // none) and the neighbour structure in words, e.g. "skin 0.6 (auto: 0.24 rc), pair lists",
+  // "skin 0.45 (auto: 0.18 rc, lean memory), pair lists" or "none, stages 1-3 every evaluation
+  // (auto: no skin on the cpu)". For the MD state when there is one (as set_state resolved it),
+  // else for force calls on the current box (auto: none).
   double skin();
   std::string neighbor();
   // Whether the evaluations walk pair lists (CUDA, a skin with lists, Jacobi accumulation, rc + skin

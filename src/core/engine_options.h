@@ -59,7 +59,8 @@ enum class ListMemory : uint8_t { kAuto, kFast, kLean };
 // sort's arrays, the list, the gated evaluations' forces, a second rank-ordered array and the MD
 // engine's rank-order copy of the state side by side), would not fit in 90% of the device. A rule
 // of the system and the device: cuda/engine.cu applies it at every build, and the automatic skin
-// follows it (resolve_reuse). The results do not depend on the mode, only on the skin.
+// follows it (resolve_reuse). The mode itself changes no result; the skin it leads to changes when
+// the builds come and the order of the sums (so the bits), not which pairs are summed.
 inline constexpr double kFastListBytesPerParticle = 1440.0;
 inline ListMemory lists_memory(ListMemory asked, std::size_t n, std::size_t device_bytes) {
   if (asked != ListMemory::kAuto) return asked;
