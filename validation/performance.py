@@ -3,7 +3,9 @@ r"""The performance issue's report: `cellforce bench` of the LAMMPS in.lj fluid 
 platform, at several sizes, in one call on one machine (`measure`), and its tables and plot (`report`).
 
 measure, per size N and precision P:
-- `cellforce bench --sizes N --precision P --backend cuda --seconds S`: steps/s, particle-steps/s,
+- `cellforce bench --sizes N --precision P --backend cuda --seconds S` with pair lists (--skin auto,
+  the default: cellforce's own skin, 0.24 rc or 0.18 rc in lean memory; or a length given with
+  --skin): steps/s, particle-steps/s,
   stage times, memory per particle, median force error against a double-precision evaluation of the
   last configuration, NVE drift (the bench's JSON row, kept as it came; stdout appended to bench.log);
 - for N <= --chapter-max, the chapter's configuration (`--chapter`), mixed precision only;
@@ -13,7 +15,8 @@ measure, per size N and precision P:
   double; OpenMM mixed's median relative force error against OpenMM double, and cellforce's own
   mixed forces against the same OpenMM double forces (a cross-check of the bench's error);
 - with --largest N, after the sizes: cellforce alone at N (the largest system, 100M particles on an
-  H100 in lean memory), mixed, pair lists, `--steps --warmup --samples 2 --no-reference` (a double
+  H100 in lean memory), mixed, pair lists, `--steps --warmup --samples 2 --no-reference` (the
+  bench's default warm-up of 50 steps, as every other row; a double
   reference and OpenMM would not fit beside it), the row noted as such.
 performance.json (rewritten whole after every size), performance-table.md and bench.log go to --out
 (and nothing else: the device tool returns a limited number of files).
