@@ -71,8 +71,8 @@ CELLFORCE_API cf_status cf_set_pair(cf_context* ctx, uint32_t a, uint32_t b, dou
  *   mixing        lorentz-berthelot | geometric
  *   cutoff-mode   truncate | shift | force-shift
  *   skin          auto (the default: none for the force calls; the C++ API's MD state gets pair
- *                 lists with a skin of 0.24 rc on CUDA) | a length >= 0 (Verlet skin of the
- *                 neighbour structure; 0 rebuilds every call)
+ *                 lists with a skin of 0.24 rc on CUDA, 0.18 rc where they run in lean memory) |
+ *                 a length >= 0 (Verlet skin of the neighbour structure; 0 rebuilds every call)
  *   device        CUDA device ordinal      accumulation  jacobi | gauss-seidel
  *   cell-rule     tight | chapter          sort          cub | chapter
  *   traversal     auto | warp | thread | tile (CUDA; auto, the default, picks tile or warp)
