@@ -90,20 +90,12 @@ struct Context::Impl {
 
   // What the engines are made from: the backend kAuto stands for, and an automatic skin resolved
   // for the force calls' or the MD engine's use (md), `b`, the cutoff and the lists' memory mode
-  // (resolve_reuse: a rule of the backend, the system and the device; md_memory_for).
+  // (resolve_reuse: a rule of the backend, the system and the device; md_list_memory).
   EngineChoice resolved(const Box& b, bool for_md, ListMemory memory = ListMemory::kFast) const {
     EngineChoice c = choice;
     c.backend = resolve_backend(choice.backend);
     c.reuse = resolve_reuse(choice.reuse, c.backend, choice.accumulation, for_md, b, ff.cutoff, memory);
     return c;
-  }
-  // The lists' memory mode an MD state of n particles runs in (lists_memory: the device's memory is
-  // asked for only where an automatic skin on CUDA follows it).
-  ListMemory md_memory_for(std::size_t n) const {
-    EngineChoice c = choice;
-    c.backend = resolve_backend(choice.backend);
-    if (!choice.reuse.automatic || c.backend != Backend::kCuda) return choice.memory;
-    return lists_memory(choice.memory, n, device_memory_bytes(c));
   }
   ReuseOptions md_reuse;  // what `md` was made with
   ListMemory md_memory = ListMemory::kAuto;  // and the lists' memory mode its skin was resolved for
@@ -420,7 +412,7 @@ void Context::set_state(std::size_t n, const double* positions, const double* ve
   state.step = step;
   state.time = double(step) * s.integrator.dt;
   std::vector<double> m(masses, masses + n);
-  const ListMemory memory = s.md_memory_for(n);
+  const ListMemory memory = md_list_memory(s.choice, n);
   const EngineChoice resolved = s.resolved(s.box, true, memory);
   // An automatic skin for another box, or another memory mode (another particle count)
   if (s.md && !Impl::same_reuse(resolved.reuse, s.md_reuse)) s.md.reset();

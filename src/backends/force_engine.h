@@ -98,6 +98,11 @@ Backend resolve_backend(Backend backend);
 // the automatic skin, weighs (lists_memory, resolve_reuse).
 std::size_t device_memory_bytes(const EngineChoice& choice);
 
+// The lists' memory mode an MD state of n particles runs in under `choice` (lists_memory on the
+// device's memory), for its automatic skin (resolve_reuse); the device is asked only where that
+// skin is automatic and the backend CUDA, else choice.memory comes back as given.
+ListMemory md_list_memory(const EngineChoice& choice, std::size_t n);
+
 // The backends themselves (make_force_engine picks one).
 std::unique_ptr<ForceEngine> make_cpu_force_engine(const EngineChoice& choice);
 #ifdef CELLFORCE_HAVE_CUDA

@@ -22,6 +22,11 @@ std::size_t device_memory_bytes(const EngineChoice& choice) {
   return 0;
 }
 
+ListMemory md_list_memory(const EngineChoice& choice, std::size_t n) {
+  if (!choice.reuse.automatic || resolve_backend(choice.backend) != Backend::kCuda) return choice.memory;
+  return lists_memory(choice.memory, n, device_memory_bytes(choice));
+}
+
 std::unique_ptr<ForceEngine> make_force_engine(const EngineChoice& choice) {
   if (choice.reuse.automatic)  // the caller resolves it for its system (resolve_reuse)
     throw Error("internal error: an engine was asked for with an unresolved automatic skin");

@@ -153,11 +153,9 @@ SizeResult bench_size(const BenchArgs& args, const EngineChoice& engine, int cel
     const int dim = 3;
     const std::vector<double> masses(n, scene.masses[0]);
     initialize_velocities(state, masses, scene.initial_temperature, scene.seed, !args.langevin);
-    const ListMemory memory =  // the device's memory is asked for only where an automatic skin follows it
-        engine.reuse.automatic ? lists_memory(engine.memory, n, device_memory_bytes(engine)) : engine.memory;
     const ReuseOptions reuse =  // the skin in effect (the context's rule: checked against Context::skin() below)
         resolve_reuse(engine.reuse, resolve_backend(engine.backend), engine.accumulation, true, state.config.box,
-                      scene.force_field.cutoff, memory);
+                      scene.force_field.cutoff, md_list_memory(engine, n));
     apply_numbering(state, args.order, scene.seed, scene.force_field.cutoff, reuse.skin, engine.rule);
     row["order"] = name_of(args.order, kNumberingNames);
     row["memory"] = name_of(engine.memory, kListMemoryNames);  // as asked (--memory)
