@@ -14,6 +14,7 @@
 #include <cstring>
 #include <string>
 
+#include "build_graph.cuh"
 #include "check.cuh"
 #include "core/error.h"
 #include "device_buffer.cuh"
@@ -118,6 +119,7 @@ struct GpuEngine::Impl {
   // Pair lists (ReuseOptions::list): the list of the build numbered list_built_for, when it could
   // be built (list_usable); builds counts the structures built.
   cuda::PairList list;
+  cuda::BuildGraph graph;  // the build's fixed part as a CUDA graph (cuda/build_graph.cuh)
   std::size_t builds = 0, list_built_for = ~std::size_t(0);
   bool list_usable = false;
   // Lean memory (pair lists on a system whose buffers would not fit beside each other): the build
@@ -147,6 +149,52 @@ struct GpuEngine::Impl {
     std::size_t b = 0;
     for_each_buffer([&](const auto& buffer) { b += buffer.bytes(); });
     return b;
+  }
+
+  // Calls f on every buffer the build's fixed part names (its graph holds their addresses): an
+  // operation added to the part adds its buffers here. The others (the evaluations' and the list's
+  // own, some swapped at every gated step) do not key its graph.
+  template <class F>
+  void for_each_part_buffer(F&& f) {
+    f(keys), f(object_ids), f(sorted_keys), f(sorted_ids), f(control), f(cub), f(counts), f(cells);
+    f(collision.flags), f(collision.run_start), f(collision.cub), f(tile_start), f(build_positions), f(staged);
+    f(flags), f(table);
+    list.for_each_head_buffer(f);
+  }
+
+  // The key of the build's fixed part (cuda/build_graph.cuh): the address and capacity of every
+  // buffer it names, and what else shapes its operations and their arguments: the system's size
+  // and grid, the positions and types it reads, whether it resets the flags, the options and the device.
+  cuda::BuildGraph::Key build_key(const GpuOptions& o, const Grid& g, const ForceField& ff, std::size_t n) {
+    using cuda::add_to_key;
+    cuda::BuildGraph::Key k;
+    k.reserve(192);
+    for (const auto v : {n, entries, max_cells, std::size_t(form), std::size_t(multiprocessors), std::size_t(g.dim),
+                         std::size_t(g.num_cells), std::size_t(g.key_bits), std::size_t(accumulate_flags),
+                         std::size_t(o.precision), std::size_t(ff.num_types()), std::size_t(ff.mode),
+                         std::size_t(o.list_splits.value_or(0)), std::size_t(o.list_masks.value_or(true)),
+                         o.list_mask_words.value_or(0), std::size_t(o.list_threads.value_or(0))})
+      add_to_key(k, v);
+    for (const double v : {g.half_width, ff.cutoff, o.reuse.skin}) add_to_key(k, v);
+    for (int a = 0; a < kMaxDim; ++a) {
+      add_to_key(k, g.n[a]);
+      for (const double v : {g.origin[a], g.cell[a], g.inv_cell[a], g.length[a], g.inv_length[a], g.half_width_cells[a]})
+        add_to_key(k, v);
+    }
+    add_to_key(k, pos);
+    add_to_key(k, typ);
+    for_each_part_buffer([&](const auto& buffer) {
+      add_to_key(k, static_cast<const void*>(buffer.data()));
+      add_to_key(k, buffer.capacity());
+    });
+    return k;
+  }
+
+  // A stage event of the build's fixed part: a node of its graph while it is captured (recorded at
+  // every replay), else recorded.
+  void stage_record(Event e) {
+    if (graph.capturing()) CF_CUDA_CHECK(cudaEventRecordWithFlags(events[e], stream, cudaEventRecordExternal));
+    else record(e);
   }
 
   ~Impl() {
@@ -366,45 +414,58 @@ struct GpuEngine::Impl {
     sorted_keys.reserve(cap);
     sorted_ids.reserve(cap);
     control.reserve(std::max<std::size_t>(n, 1));
-    cuda::build_cell_ids(g, pos, n, unsorted_keys, unsorted_ids, control.data(), stream);
-    if (skin > 0) {
-      build_positions.reserve(std::max<std::size_t>(n * std::size_t(g.dim), 1));
-      if (n)
-        CF_CUDA_CHECK(cudaMemcpyAsync(build_positions.data(), pos, n * g.dim * sizeof(double),
-                                      cudaMemcpyDeviceToDevice, stream));
-      if (o.reuse.audit) {  // before the sort (the chapter's may reuse the input); read after a sync
-        download(build_keys, unsorted_keys, entries, stream);
-        download(build_control, control.data(), n, stream);
+    if (skin > 0) build_positions.reserve(std::max<std::size_t>(n * std::size_t(g.dim), 1));
+    if (lists(o, sys.box, ff.cutoff)) tile_start.reserve(max_cells + 1);
+    // The fixed part of a list build, from here to the list's partition (build_pair_list), queued,
+    // captured or replayed as a CUDA graph (cuda/build_graph.cuh): in fast memory with CUB's sort,
+    // Jacobi slots and no audit. Its operations are queued only while graph.queuing().
+    const bool graphed = o.build_graph.value_or(true) && lists(o, sys.box, ff.cutoff) && !lean &&
+                         o.sort == SortMethod::kCub && o.accumulation == Accumulation::kJacobi && !o.reuse.audit &&
+                         !o.list_count_masked.value_or(false) && n > 0;
+    graph.begin(graphed ? build_key(o, g, ff, n) : cuda::BuildGraph::Key{}, graphed, stream);
+    const bool queue = graph.queuing();
+    if (queue) {
+      cuda::build_cell_ids(g, pos, n, unsorted_keys, unsorted_ids, control.data(), stream);
+      if (skin > 0) {
+        if (n)
+          CF_CUDA_CHECK(cudaMemcpyAsync(build_positions.data(), pos, n * g.dim * sizeof(double),
+                                        cudaMemcpyDeviceToDevice, stream));
+        if (o.reuse.audit) {  // before the sort (the chapter's may reuse the input); read after a sync
+          download(build_keys, unsorted_keys, entries, stream);
+          download(build_control, control.data(), n, stream);
+        }
       }
+      stage_record(kCellIds);
+      cuda::count_valid(unsorted_keys, entries, counts.data(), cub, stream);
+      stage_record(kCounted);
+      switch (o.sort) {
+        case SortMethod::kCub:
+          cuda::radix_sort_cub(unsorted_keys, unsorted_ids, sorted_keys.data(), sorted_ids.data(), entries,
+                               g.key_bits, cub, stream, loan);
+          break;
+        case SortMethod::kChapter:
+          cuda::radix_sort_chapter(unsorted_keys, unsorted_ids, sorted_keys.data(), sorted_ids.data(), entries,
+                                   g.key_bits, chapter_sort, stream);
+          break;
+      }
+      stage_record(kSorted);
     }
-    record(kCellIds);
-    cuda::count_valid(unsorted_keys, entries, counts.data(), cub, stream);
-    record(kCounted);
-    switch (o.sort) {
-      case SortMethod::kCub:
-        cuda::radix_sort_cub(unsorted_keys, unsorted_ids, sorted_keys.data(), sorted_ids.data(), entries,
-                             g.key_bits, cub, stream, loan);
-        break;
-      case SortMethod::kChapter:
-        cuda::radix_sort_chapter(unsorted_keys, unsorted_ids, sorted_keys.data(), sorted_ids.data(), entries,
-                                 g.key_bits, chapter_sort, stream);
-        break;
-    }
-    record(kSorted);
     if (lean && o.sort == SortMethod::kCub) {  // dead until the next build (the chapter's sort may reuse them)
       keys.release();
       object_ids.release();
       cub.release();
     }
-    cuda::find_collision_cells(sorted_keys.data(), entries, run_bound, max_cells, counts.data(), cells,
-                               collision, stream);
-    if (o.accumulation == Accumulation::kGaussSeidel)
-      cuda::split_by_type(g, cells, max_cells, counts.data(), split, stream);
-    if (form == TraversalForm::kWarpPerTile || lists(o, sys.box, ff.cutoff)) {  // the cells' tiles, final order
-      tile_start.reserve(max_cells + 1);
-      cuda::tile_starts(cells.data(), counts.data()->cell_range, max_cells, tile_start.data(), cub, stream);
+    if (queue) {
+      cuda::find_collision_cells(sorted_keys.data(), entries, run_bound, max_cells, counts.data(), cells,
+                                 collision, stream);
+      if (o.accumulation == Accumulation::kGaussSeidel)
+        cuda::split_by_type(g, cells, max_cells, counts.data(), split, stream);
+      if (form == TraversalForm::kWarpPerTile || lists(o, sys.box, ff.cutoff)) {  // the cells' tiles, final order
+        tile_start.reserve(max_cells + 1);
+        cuda::tile_starts(cells.data(), counts.data()->cell_range, max_cells, tile_start.data(), cub, stream);
+      }
+      stage_record(kCellsFound);
     }
-    record(kCellsFound);
     st.entries = entries;
     st.valid_entries = st.collision_cells = 0;  // on the device until read_counts()
   }
@@ -424,7 +485,7 @@ struct GpuEngine::Impl {
                                         const Request& req) {
     const std::size_t n = sys.n, dim = std::size_t(g.dim);
     upload_table<Real>(ff);
-    if (!accumulate_flags) reset_flags();
+    if (!accumulate_flags && graph.queuing()) reset_flags();
     forces.reserve(std::max<std::size_t>(n * dim, 1));
     if (req.energy) energies.reserve(std::max<std::size_t>(n, 1));
     cuda::ListArgs<Real, Accum> la;
@@ -475,8 +536,12 @@ struct GpuEngine::Impl {
         lean ? (gathered ? 0 : n * sizeof(cuda::RankedParticle)) + (energies.capacity() >= n ? 0 : n * sizeof(double))
              : 0;
     list.forced_threads = o.list_threads.value_or(0);
+    // The build's fixed part ends before the count pass (cuda/build_graph.cuh).
+    const cuda::ListBuildHead head{graph.queuing(), [&] {
+                                     if (graph.open()) graph.end(build_key(o, g, ff, n), stream);
+                                   }};
     list_usable = cuda::build_pair_list<Real, Accum>(cell_args, sorted_keys.data(), control.data(), entries,
-                                                     ff.cutoff + o.reuse.skin, la, list, stream, count_staged);
+                                                     ff.cutoff + o.reuse.skin, la, list, stream, count_staged, head);
     if (lean) collision.flags.release();
     if (!list_usable) list.ranked_forces.release();  // no gated evaluations: the cells serve
     list_built_for = builds;
@@ -554,9 +619,10 @@ struct GpuEngine::Impl {
   cuda::TraversalArgs<Real, Accum> prepare(const Grid& g, const SystemView& sys,
                                            const ForceField& ff, CutoffMode mode) {
     staged.reserve(std::max<std::size_t>(entries, 1) * sizeof(cuda::StagedEntry<Real>));
-    cuda::stage_occupants<Real>(g, sorted_keys.data(), sorted_ids.data(), entries, &counts.data()->valid, pos,
-                                typ, uint32_t(ff.num_types()), control.data(), as<cuda::StagedEntry<Real>>(staged),
-                                stream);
+    if (graph.queuing())
+      cuda::stage_occupants<Real>(g, sorted_keys.data(), sorted_ids.data(), entries, &counts.data()->valid, pos,
+                                  typ, uint32_t(ff.num_types()), control.data(), as<cuda::StagedEntry<Real>>(staged),
+                                  stream);
     cuda::TraversalArgs<Real, Accum> args = traversal_args<Real, Accum>(g, sys, ff, mode);
     args.staged = as<cuda::StagedEntry<Real>>(staged);
     return args;
@@ -583,7 +649,7 @@ struct GpuEngine::Impl {
     args.num_types = uint32_t(ff.num_types());
     args.rc2 = Real(ff.cutoff) * Real(ff.cutoff);
     wrap_lengths(g, args.length, args.inv_length);  // core/cell_totals.h
-    if (!accumulate_flags) reset_flags();
+    if (!accumulate_flags && graph.queuing()) reset_flags();
     args.flags = flags.data();
     return args;
   }
@@ -937,6 +1003,8 @@ std::size_t GpuEngine::list_masked_fills() const { return impl_->list.masked_fil
 std::size_t GpuEngine::list_partly_masked_fills() const { return impl_->list.partly_masked_fills; }
 std::size_t GpuEngine::list_masked_units() const { return impl_->list.masked_units; }
 std::size_t GpuEngine::list_staged_counts() const { return impl_->list.staged_counts; }
+std::size_t GpuEngine::build_replays() const { return impl_->graph.replays(); }
+std::size_t GpuEngine::build_captures() const { return impl_->graph.captures(); }
 const double* GpuEngine::device_totals() const { return impl_->totals.data(); }
 void* GpuEngine::stream() const { return impl_->stream; }
 void GpuEngine::collect_timing() {
@@ -1036,14 +1104,31 @@ void GpuEngine::plan_corners(const Box& box, std::size_t n, const double* positi
 void GpuEngine::build(const SystemView& system, const ForceField& ff) {
   reuse_.invalidate();
   Impl& s = *impl_;
-  s.build(options_, stats_, system, ff);
-  if (Impl::lists(options_, system.box, ff.cutoff)) {
-    const Grid& g = stats_.grid;
-    switch (options_.precision) {
-      case Precision::kSingle: s.build_list<float, float>(options_, g, system, ff); break;
-      case Precision::kMixed: s.build_list<float, double>(options_, g, system, ff); break;
-      case Precision::kDouble: s.build_list<double, double>(options_, g, system, ff); break;
+  const bool lists = Impl::lists(options_, system.box, ff.cutoff);
+  const std::size_t replays = s.graph.replays();
+  stats_.graph_build = false;
+  try {
+    if (lists) {  // the pair table before the build's fixed part, whose graph has no copy of it
+      switch (options_.precision) {
+        case Precision::kSingle:
+        case Precision::kMixed: s.upload_table<float>(ff); break;
+        case Precision::kDouble: s.upload_table<double>(ff); break;
+      }
     }
+    s.build(options_, stats_, system, ff);
+    if (lists) {
+      const Grid& g = stats_.grid;
+      switch (options_.precision) {
+        case Precision::kSingle: s.build_list<float, float>(options_, g, system, ff); break;
+        case Precision::kMixed: s.build_list<float, double>(options_, g, system, ff); break;
+        case Precision::kDouble: s.build_list<double, double>(options_, g, system, ff); break;
+      }
+    }
+    if (s.graph.open()) throw Error("internal error: the build's fixed part did not end");
+    stats_.graph_build = s.graph.replays() > replays;
+  } catch (...) {
+    s.graph.abandon(s.stream);
+    throw;
   }
   reuse_.built(system, ff.cutoff);
 }

@@ -41,6 +41,8 @@ struct GpuOptions {
                                                // words (as lean memory's room on a full device)
   std::optional<bool> list_count_masked;  // tests only (true): count the units each fill writes from
                                           // masks (list_masked_units; a wait for the fill)
+  std::optional<bool> build_graph;  // tests only (false): the build's fixed part is always queued
+                                    // operation by operation, never as a CUDA graph (cuda/build_graph.cuh)
   int device = 0;                     // CUDA device ordinal
 };
 
@@ -175,6 +177,10 @@ class GpuEngine {
   std::size_t list_masked_units() const;
   // Lean builds whose count pass read occupants staged in the last list's array (change 70).
   std::size_t list_staged_counts() const;
+  // Builds whose fixed part (cell IDs to the list's partition) a CUDA graph replayed, and the
+  // graphs captured for it (cuda/build_graph.cuh).
+  std::size_t build_replays() const;
+  std::size_t build_captures() const;
   const GpuOptions& options() const { return options_; }
   // The traversal form in use: options().traversal, or what kAuto chose at the last build (kAuto
   // before the first).

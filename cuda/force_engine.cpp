@@ -16,6 +16,7 @@ GpuOptions options(const EngineChoice& choice) {
   o.grid_override = choice.grid_override;
   o.memory = choice.memory;
   o.list_threads = choice.list_threads;
+  o.build_graph = choice.build_graph;
   return o;
 }
 

@@ -939,8 +939,9 @@ bool gathers_fixed(const ListArgs<Real, Accum>& args) {
 template <class Real, class Accum>
 bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* sorted_keys, const Control* control,
                      std::size_t entries, double list_cutoff, const ListArgs<Real, Accum>& args, PairList& list,
-                     cudaStream_t stream, const StagedEntry<Real>* count_staged) {
+                     cudaStream_t stream, const StagedEntry<Real>* count_staged, const ListBuildHead& head) {
   const std::size_t n = args.n;
+  const bool queue = head.queue;  // false: the build's graph queued the head's operations (build_graph.cuh)
   const int dim = args.grid.dim;
   const std::size_t slots = std::size_t(1) << dim;
   list.order.reserve(std::max<std::size_t>(n, 1));
@@ -959,13 +960,15 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
                                       int(entries), stream);
   });
   list.scratch.reserve(std::max<std::size_t>(bytes, 1));
-  CF_CUDA_CHECK(cub::DeviceSelect::Flagged(list.scratch.data(), bytes, cells.sorted_ids, home, list.order.data(),
-                                           list.selected.data(), int(entries), stream));
-  invert_order<<<blocks_for(n), kBlock, 0, stream>>>(list.order.data(), n, list.rank.data());
-  CF_CUDA_CHECK_LAUNCH();
+  if (queue) {
+    CF_CUDA_CHECK(cub::DeviceSelect::Flagged(list.scratch.data(), bytes, cells.sorted_ids, home, list.order.data(),
+                                             list.selected.data(), int(entries), stream));
+    invert_order<<<blocks_for(n), kBlock, 0, stream>>>(list.order.data(), n, list.rank.data());
+    CF_CUDA_CHECK_LAUNCH();
+  }
 
   // Count, size, fill.
-  CF_CUDA_CHECK(cudaMemsetAsync(list.slot_counts.data(), 0, n * slots * sizeof(uint32_t), stream));
+  if (queue) CF_CUDA_CHECK(cudaMemsetAsync(list.slot_counts.data(), 0, n * slots * sizeof(uint32_t), stream));
   const double cutoff2 = list_cutoff * list_cutoff;
   const Real in2 = Real(cutoff2 * (1 - 1e-5)), out2 = Real(cutoff2 * (1 + 1e-5));
   const Real pre2 = Real(prefilter_bound(cells.grid, double(out2)));  // used with float coordinates
@@ -982,18 +985,21 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
   BuildMasks masks;
   if (list.use_masks && row_blocks) {
     list.mask_base.reserve(std::size_t(launched_units) + 1);
-    unit_mask_words<<<blocks_for(std::size_t(launched_units) + 1), kBlock, 0, stream>>>(
-        cells, uint32_t(list.splits), launched_units, list.mask_base.data());
-    CF_CUDA_CHECK_LAUNCH();
+    if (queue) {
+      unit_mask_words<<<blocks_for(std::size_t(launched_units) + 1), kBlock, 0, stream>>>(
+          cells, uint32_t(list.splits), launched_units, list.mask_base.data());
+      CF_CUDA_CHECK_LAUNCH();
+    }
     std::size_t base_bytes = cub_bytes(list.base_bytes, launched_units + 1, [&](std::size_t& b) {
       return cub::DeviceScan::ExclusiveSum(nullptr, b, list.mask_base.data(), list.mask_base.data(),
                                            int(launched_units + 1), stream);
     });
     list.scratch.reserve(std::max<std::size_t>(base_bytes, 1));
-    CF_CUDA_CHECK(cub::DeviceScan::ExclusiveSum(list.scratch.data(), base_bytes, list.mask_base.data(),
-                                                list.mask_base.data(), int(launched_units + 1), stream));
+    if (queue)
+      CF_CUDA_CHECK(cub::DeviceScan::ExclusiveSum(list.scratch.data(), base_bytes, list.mask_base.data(),
+                                                  list.mask_base.data(), int(launched_units + 1), stream));
     masks = BuildMasks{list.masks.data(), list.masks.capacity(), list.mask_base.data()};
-    if (list.count_masked_units) {
+    if (list.count_masked_units) {  // never in a graph (engine.cu)
       list.filled.reserve(1);
       CF_CUDA_CHECK(cudaMemsetAsync(list.filled.data(), 0, sizeof(unsigned long long), stream));
       masks.filled = list.filled.data();
@@ -1022,8 +1028,9 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
                                       int(launched_units), walks, stream);
     });
     list.scratch.reserve(std::max<std::size_t>(part_bytes, 1));
-    CF_CUDA_CHECK(cub::DevicePartition::If(list.scratch.data(), part_bytes, all, list.walk_order.data(),
-                                           list.walked.data(), int(launched_units), walks, stream));
+    if (queue)
+      CF_CUDA_CHECK(cub::DevicePartition::If(list.scratch.data(), part_bytes, all, list.walk_order.data(),
+                                             list.walked.data(), int(launched_units), walks, stream));
   }
   const ListStaging staging{sorted_keys, args.positions, args.types, args.num_types, control};
   // The rows' walk, counting or filling, in the geometry's instantiation (2D/3D, wrap in a cell).
@@ -1057,6 +1064,7 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
     });
     CF_CUDA_CHECK_LAUNCH();
   };
+  if (head.done) head.done();  // the build's fixed part ends here
   if (row_blocks) walk_rows(std::integral_constant<ListPass, ListPass::kCount>{});
   // With one column split the count pass added the mirrored counts itself (change 62).
   if (masks.words && list.splits > 1) walk_rows(std::integral_constant<ListPass, ListPass::kMirrored>{});
@@ -1314,7 +1322,7 @@ void unrank_forces(const PairList& list, std::size_t n, int dim, double* forces,
 #define CF_PAIR_LIST(Real, Accum)                                                                              \
   template bool build_pair_list<Real, Accum>(const TraversalArgs<Real, Accum>&, const uint32_t*, const Control*, \
                                              std::size_t, double, const ListArgs<Real, Accum>&, PairList&,       \
-                                             cudaStream_t, const StagedEntry<Real>*);                            \
+                                             cudaStream_t, const StagedEntry<Real>*, const ListBuildHead&);      \
   template void list_forces<Real, Accum>(const Switches&, const ListArgs<Real, Accum>&, PairList&, cudaStream_t, \
                                          const GateView&, bool, const NextKickDrift*);                          \
   template RankOrder rank_order<Real, Accum>(const ListArgs<Real, Accum>&, PairList&, bool, bool);

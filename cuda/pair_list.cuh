@@ -28,6 +28,7 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <functional>
 #include <type_traits>
 
 #include "list_build.h"  // split_columns, build_splits, prefilter_bound, fixed-point coordinates
@@ -194,6 +195,13 @@ struct PairList {
     f(split_counts), f(masks), f(mask_base), f(walk_order), f(walked), f(filled), f(blocks);
     f(block_sums), f(scratch);
   }
+  // Calls f on every buffer the head of a build (build_pair_list up to its count pass) names: what
+  // a graph of the build's fixed part holds (cuda/build_graph.cuh, engine.cu's key).
+  template <class F>
+  void for_each_head_buffer(F&& f) {
+    f(order), f(rank), f(slot_counts), f(length), f(sizes), f(selected), f(scratch);
+    f(split_counts), f(masks), f(mask_base), f(walk_order), f(walked);
+  }
 };
 
 // The masks' room given up (freed in stream order), to be asked for again after the next build:
@@ -261,6 +269,14 @@ __device__ __forceinline__ void place_ranked(const RankOrder& to, std::size_t i,
   else store_ranked<D>(static_cast<RankedParticle*>(to.particles), p, to.grid, v, t, to.num_types, i, to.flags);
 }
 
+// The head of a list build, up to its count pass, ends the build's fixed part (cuda/build_graph.cuh):
+// whether its operations are queued (false: a graph replays them), and what to call where the
+// part ends (before the count pass; null: nothing).
+struct ListBuildHead {
+  bool queue = true;
+  std::function<void()> done;
+};
+
 // Builds the list from the structure just built (cells: its cells, tile starts, sorted IDs and
 // staged occupants, or none: then they are staged as the build loads them;
 // sorted_keys and control: stage 1-2's; the positions of `list_args`) for partners closer than
@@ -275,7 +291,7 @@ template <class Real, class Accum>
 bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* sorted_keys, const Control* control,
                      std::size_t entries, double list_cutoff,
                      const ListArgs<Real, Accum>& list_args, PairList& list, cudaStream_t stream,
-                     const StagedEntry<Real>* count_staged = nullptr);
+                     const StagedEntry<Real>* count_staged = nullptr, const ListBuildHead& head = {});
 
 // Gathers the positions into rank order (FixedParticle for float pairs where fixed_point_serves,
 // else RankedParticle) and evaluates every listed pair with r < rc: forces (and

@@ -894,6 +894,98 @@ TEST(PairListMd, GatedRunsEqualTheStepwiseRunLeanOrNot) {
   }
 }
 
+// The build's fixed part replayed as a CUDA graph (change 74, cuda/build_graph.cuh) is the part
+// queued operation by operation: two engines, x with graphs and y without, on a sequence of
+// rebuilds (every other configuration moved by up to 0.2 > skin / 2) of two systems of different
+// sizes and back, list the same pairs and give bitwise the same results, in every precision. x
+// captured a graph for each system (the third build of a size, once the second changed nothing) and
+// replayed it at the later builds of that size, whose stage times its events still measure.
+TEST(PairListGraph, ReplayedBuildsAreTheQueuedOnes) {
+  CF_SKIP_WITHOUT_DEVICE();
+  const Scene a = make_scene("multitype3d_lb"), b = make_scene("random3d_periodic");
+  const Configuration am = moved(a.config, 0.2, 6), am2 = moved(a.config, 0.2, 9), bm = moved(b.config, 0.2, 7);
+  ASSERT_NE(a.config.size(), b.config.size());
+  const std::pair<const Configuration*, const Scene*> sequence[] = {
+      {&a.config, &a}, {&am, &a}, {&a.config, &a}, {&am2, &a}, {&a.config, &a}, {&am, &a},
+      {&b.config, &b}, {&bm, &b}, {&b.config, &b}, {&bm, &b}, {&b.config, &b},
+      {&a.config, &a}, {&am, &a}, {&a.config, &a}, {&am2, &a}};
+  for (Precision p : {Precision::kSingle, Precision::kMixed, Precision::kDouble}) {
+    SCOPED_TRACE(cellforce::to_string(p));
+    GpuOptions graphed = list_options(p), queued = list_options(p);
+    graphed.memory = queued.memory = ListMemory::kFast;
+    queued.build_graph = false;
+    GpuEngine x(graphed), y(queued);
+    std::size_t replayed = 0;
+    for (const auto& [c, scene] : sequence) {
+      const std::size_t before = x.build_replays();
+      expect_same_lists(x, y, *c, *scene);
+      EXPECT_TRUE(x.stats().rebuilt);
+      if (x.build_replays() == before) continue;
+      ++replayed;
+      const cellforce::PipelineStats& st = x.stats();  // the graph's event nodes time the stages
+      EXPECT_GT(st.t_cell_ids, 0.0);
+      EXPECT_GT(st.t_count, 0.0);
+      EXPECT_GT(st.t_sort, 0.0);
+      EXPECT_GT(st.t_collision_cells, 0.0);
+    }
+    EXPECT_GE(x.build_captures(), 3u);  // a, b, a again
+    EXPECT_GE(replayed, 6u);
+    EXPECT_EQ(y.build_captures() + y.build_replays(), 0u);
+  }
+}
+
+// The same through a resident MD run (the gated chunks' builds, evaluate_resident): 300 steps of
+// the in.lj fluid (2,048 particles), Verlet and Langevin, with and without graphs: bitwise the same
+// positions, velocities and forces, and the graphed run replayed most of its builds.
+TEST(PairListGraph, ReplayedRunIsTheQueuedRun) {
+  CF_SKIP_WITHOUT_DEVICE();
+  cellforce::Scene scene = cellforce::default_scene();
+  scene.particles.cells = {8, 8, 8};
+  cellforce::MdState start;
+  start.config = cellforce::build_configuration(scene);
+  const std::vector<double> masses(start.config.size(), 1.0);
+  cellforce::initialize_velocities(start, masses, 1.44, 7, true);
+  for (const bool langevin : {false, true}) {
+    SCOPED_TRACE(langevin ? "Langevin" : "Verlet");
+    cellforce::IntegratorSettings settings;
+    settings.langevin = langevin;
+    settings.kT = 1.44;
+    settings.seed = 99;
+    auto run = [&](bool graph, std::size_t* replays, int64_t* builds) {
+      cellforce::EngineChoice choice;
+      choice.backend = cellforce::Backend::kCuda;
+      choice.precision = Precision::kMixed;
+      choice.reuse.automatic = false;
+      choice.reuse.skin = 0.3;
+      choice.reuse.list = true;
+      choice.memory = ListMemory::kFast;
+      choice.build_graph = graph;
+      auto forces = std::make_unique<cellforce::CudaForceEngine>(choice);
+      const GpuEngine& gpu = forces->gpu();
+      auto md = cellforce::make_cuda_md_engine(std::move(forces));
+      md->set_state(start, masses, scene.force_field);
+      md->advance(300, settings, false);
+      *replays = gpu.build_replays();
+      *builds = md->counters().builds;
+      EXPECT_EQ(md->counters().graph_builds, int64_t(*replays));  // MdCounters counts them too
+      cellforce::MdState end;
+      md->get_state(end);
+      std::vector<double> all = end.config.positions;
+      all.insert(all.end(), end.velocities.begin(), end.velocities.end());
+      all.insert(all.end(), end.forces.begin(), end.forces.end());
+      return all;
+    };
+    std::size_t with = 0, without = 0;
+    int64_t builds_with = 0, builds_without = 0;
+    const std::vector<double> g = run(true, &with, &builds_with), q = run(false, &without, &builds_without);
+    EXPECT_TRUE(g == q) << "the run with graphs differs from the run without";
+    EXPECT_EQ(builds_with, builds_without);
+    EXPECT_GE(builds_with, 8) << "too few rebuilds to replay a graph";
+    EXPECT_GE(int64_t(with), builds_with - 4) << "builds after the first few should replay the graph";
+    EXPECT_EQ(without, 0u);
+  }
+}
+
 // A gated chunk runs on a copy of the state in the list's rank order (change 58): a particle whose
 // drift diverges there is named by the caller's index, not its rank. Particle 1234 of 2,048 (its
 // rank is another number: the lattice's numbering is not the cells') moves twice the box edge along

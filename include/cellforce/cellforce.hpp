@@ -145,6 +145,10 @@ struct RunStatistics {
   // holds; the units whose words end within it read them, the rest test their pairs again); 0
   // without lists or masks (held: also where the build had no room, e.g. while a list grows).
   std::size_t list_mask_words = 0, list_mask_words_held = 0;
+  // CUDA pair lists: builds over all evaluations whose fixed part (cell IDs to the list's count
+  // pass) the device ran as one replayed CUDA graph instead of operation by operation (once a system's
+  // builds take nothing anew: from about its third build).
+  int64_t graph_builds = 0;
 };
 
 // The neighbour structure in use (skin > 0), for a bitwise restart: the positions it was built

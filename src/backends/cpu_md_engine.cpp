@@ -36,6 +36,7 @@ void add_stage_sample(MdCounters& c, const PipelineStats& s) {
 void add_reuse(MdCounters& c, const PipelineStats& s, int64_t evaluations) {
   c.list_evaluations += s.listed ? evaluations : 0;
   c.builds += s.rebuilt ? 1 : 0;
+  c.graph_builds += s.rebuilt && s.graph_build ? 1 : 0;
   c.dangerous_builds += s.dangerous_build ? 1 : 0;
   if (!s.rebuilt) c.served = std::max(c.served, s.max_displacement);
   c.missed_pairs += s.missed_pairs;

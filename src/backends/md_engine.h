@@ -45,6 +45,7 @@ struct MdCounters {
   double served = 0;
   int64_t gated_steps = 0;  // CUDA: steps the structure served behind the step gate (cuda/step_gate.h)
   int64_t list_evaluations = 0;  // CUDA: evaluations that walked pair lists (PipelineStats::listed)
+  int64_t graph_builds = 0;  // CUDA: builds whose fixed part a CUDA graph replayed (PipelineStats::graph_build)
   std::size_t missed_pairs = 0, repeated_pairs = 0;
 };
 

@@ -112,6 +112,9 @@ struct PipelineStats {
   double t_cell_ids = 0, t_count = 0, t_sort = 0, t_collision_cells = 0, t_traversal = 0,
          t_accumulate = 0, t_transfer = 0;
   double t_total = 0;
+  // CUDA pair lists: this evaluation's build ran its fixed part (cell IDs to the list's count pass)
+  // as a replayed CUDA graph (cuda/build_graph.cuh).
+  bool graph_build = false;
 };
 
 inline const char* to_string(Precision precision) {
