@@ -17,7 +17,9 @@
 //   - any other build queues the part operation by operation (the first builds of a system, a
 //     build after a list grew or the masks' room changed).
 // A replay or capture that ends with another key than it began with would have run on stale
-// arrays: an internal error, thrown.
+// arrays: an internal error, thrown. With `audit` (tests), a replay's bookkeeping runs under a
+// stream capture of its own that must record nothing: an operation of the part queued again by
+// the host (a missing guard) or a buffer taken anew is an internal error too.
 #pragma once
 
 #include <cuda_runtime.h>
@@ -25,6 +27,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <cstring>
+#include <string>
 #include <type_traits>
 #include <vector>
 
@@ -47,7 +50,7 @@ class BuildGraph {
 
   // The part begins: queued, captured or replayed (launched here, so that the device runs it while
   // the host does the part's bookkeeping) by the rule above. `allowed`: the build may use a graph at all.
-  void begin(Key key, bool allowed, cudaStream_t stream) {
+  void begin(Key key, bool allowed, cudaStream_t stream, bool audit = false) {
     key_ = std::move(key);
     mode_ = Mode::kIdle;
     if (!allowed) {  // queued, and no graph kept: nothing reuses what this build leaves
@@ -61,6 +64,10 @@ class BuildGraph {
       CF_CUDA_CHECK(cudaGraphLaunch(exec_, stream));
       mode_ = Mode::kReplay;
       ++replays_;
+      if (audit) {
+        CF_CUDA_CHECK(cudaStreamBeginCapture(stream, cudaStreamCaptureModeThreadLocal));
+        auditing_ = true;
+      }
     } else if (!last_before_.empty() && key_ == last_before_ && key_ == last_after_) {
       drop();
       CF_CUDA_CHECK(cudaStreamBeginCapture(stream, cudaStreamCaptureModeThreadLocal));
@@ -73,6 +80,18 @@ class BuildGraph {
   void end(const Key& key, cudaStream_t stream) {
     const Mode mode = mode_;
     mode_ = Mode::kIdle;
+    if (auditing_) {
+      auditing_ = false;
+      cudaGraph_t queued = nullptr;
+      CF_CUDA_CHECK(cudaStreamEndCapture(stream, &queued));
+      std::size_t nodes = 0;
+      const cudaError_t counted = cudaGraphGetNodes(queued, nullptr, &nodes);
+      cudaGraphDestroy(queued);
+      CF_CUDA_CHECK(counted);
+      if (nodes > 0)
+        throw Error("internal error: a replayed build queued " + std::to_string(nodes) +
+                    " operation(s) of the part its graph holds");
+    }
     if (mode == Mode::kCapture) {
       cudaGraph_t graph = nullptr;
       CF_CUDA_CHECK(cudaStreamEndCapture(stream, &graph));
@@ -101,12 +120,13 @@ class BuildGraph {
   // An exception left the part: a capture in progress is ended and thrown away, and nothing is
   // reused from it (never throws).
   void abandon(cudaStream_t stream) noexcept {
-    if (mode_ == Mode::kCapture) {
+    if (mode_ == Mode::kCapture || auditing_) {
       cudaGraph_t graph = nullptr;
       if (cudaStreamEndCapture(stream, &graph) == cudaSuccess && graph) cudaGraphDestroy(graph);
       (void)cudaGetLastError();
     }
     mode_ = Mode::kIdle;
+    auditing_ = false;
     key_.clear();
     last_before_.clear();
     last_after_.clear();
@@ -130,6 +150,7 @@ class BuildGraph {
   }
 
   Mode mode_ = Mode::kIdle;
+  bool auditing_ = false;  // a replay's bookkeeping under a capture that must stay empty
   Key key_, graph_key_, last_before_, last_after_;
   cudaGraphExec_t exec_ = nullptr;
   std::size_t replays_ = 0, captures_ = 0;

@@ -158,7 +158,7 @@ struct GpuEngine::Impl {
   void for_each_part_buffer(F&& f) {
     f(keys), f(object_ids), f(sorted_keys), f(sorted_ids), f(control), f(cub), f(counts), f(cells);
     f(collision.flags), f(collision.run_start), f(collision.cub), f(tile_start), f(build_positions), f(staged);
-    f(flags), f(table);
+    f(flags), f(table), f(forces);  // forces: reserved by the part's list_args, written after it
     list.for_each_head_buffer(f);
   }
 
@@ -231,6 +231,8 @@ struct GpuEngine::Impl {
     const std::vector<LJParams<Real>> params = make_pair_table<Real>(f);
     const std::size_t bytes = params.size() * sizeof(LJParams<Real>);
     if (host_table.size() == bytes && std::memcmp(host_table.data(), params.data(), bytes) == 0) return;
+    if (graph.capturing() || !graph.queuing())  // GpuEngine::build uploads it before the build's fixed
+      throw Error("internal error: the pair table changed inside the build's graph");  // part: none in its graph
     CF_CUDA_CHECK(cudaEventSynchronize(table_copied));
     if (pinned_bytes < bytes) {
       if (pinned_table) CF_CUDA_CHECK(cudaFreeHost(pinned_table));
@@ -422,7 +424,8 @@ struct GpuEngine::Impl {
     const bool graphed = o.build_graph.value_or(true) && lists(o, sys.box, ff.cutoff) && !lean &&
                          o.sort == SortMethod::kCub && o.accumulation == Accumulation::kJacobi && !o.reuse.audit &&
                          !o.list_count_masked.value_or(false) && n > 0;
-    graph.begin(graphed ? build_key(o, g, ff, n) : cuda::BuildGraph::Key{}, graphed, stream);
+    graph.begin(graphed ? build_key(o, g, ff, n) : cuda::BuildGraph::Key{}, graphed, stream,
+                o.build_graph_audit.value_or(false));
     const bool queue = graph.queuing();
     if (queue) {
       cuda::build_cell_ids(g, pos, n, unsorted_keys, unsorted_ids, control.data(), stream);

@@ -43,6 +43,8 @@ struct GpuOptions {
                                           // masks (list_masked_units; a wait for the fill)
   std::optional<bool> build_graph;  // tests only (false): the build's fixed part is always queued
                                     // operation by operation, never as a CUDA graph (cuda/build_graph.cuh)
+  std::optional<bool> build_graph_audit;  // tests only (true): a replayed build's bookkeeping runs under
+                                          // a stream capture that must record nothing (BuildGraph)
   int device = 0;                     // CUDA device ordinal
 };
 

@@ -17,6 +17,7 @@ GpuOptions options(const EngineChoice& choice) {
   o.memory = choice.memory;
   o.list_threads = choice.list_threads;
   o.build_graph = choice.build_graph;
+  o.build_graph_audit = choice.build_graph_audit;
   return o;
 }
 

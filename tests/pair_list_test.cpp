@@ -823,6 +823,37 @@ sigma = 0.8
 epsilon = 1.5
 )";
 
+// The MD tests' integrator: Verlet, or Langevin at kT 1.44 with seed 99 (friction the default).
+cellforce::IntegratorSettings md_settings(bool langevin) {
+  cellforce::IntegratorSettings settings;
+  settings.langevin = langevin;
+  settings.kT = 1.44;
+  settings.seed = 99;
+  return settings;
+}
+
+// A CUDA engine with pair lists at skin 0.3 (not the automatic choice), fast or lean memory.
+cellforce::EngineChoice list_choice(Precision p, ListMemory memory) {
+  cellforce::EngineChoice choice;
+  choice.backend = cellforce::Backend::kCuda;
+  choice.precision = p;
+  choice.reuse.automatic = false;
+  choice.reuse.skin = 0.3;
+  choice.reuse.list = true;
+  choice.memory = memory;
+  return choice;
+}
+
+// An MD engine's positions, velocities and forces, one after the other: what two runs compare bitwise.
+std::vector<double> end_state(cellforce::MdEngine& md) {
+  cellforce::MdState end;
+  md.get_state(end);
+  std::vector<double> all = end.config.positions;
+  all.insert(all.end(), end.velocities.begin(), end.velocities.end());
+  all.insert(all.end(), end.forces.begin(), end.forces.end());
+  return all;
+}
+
 TEST(PairListMd, GatedRunsEqualTheStepwiseRunLeanOrNot) {
   CF_SKIP_WITHOUT_DEVICE();
   cellforce::Scene fluid = cellforce::default_scene();
@@ -851,18 +882,9 @@ TEST(PairListMd, GatedRunsEqualTheStepwiseRunLeanOrNot) {
     cellforce::initialize_velocities(start, masses, 1.44, 7, true);
     for (const bool langevin : {false, true}) {
       SCOPED_TRACE(langevin ? "Langevin" : "Verlet");
-      cellforce::IntegratorSettings settings;
-      settings.langevin = langevin;
-      settings.kT = 1.44;
-      settings.seed = 99;
+      const cellforce::IntegratorSettings settings = md_settings(langevin);
       auto run = [&](bool lean, bool one_call, cellforce::MdCounters* counters) {
-        cellforce::EngineChoice choice;
-        choice.backend = cellforce::Backend::kCuda;
-        choice.precision = form.precision;
-        choice.reuse.automatic = false;
-        choice.reuse.skin = 0.3;
-        choice.reuse.list = true;
-        choice.memory = lean ? cellforce::ListMemory::kLean : cellforce::ListMemory::kFast;
+        cellforce::EngineChoice choice = list_choice(form.precision, lean ? ListMemory::kLean : ListMemory::kFast);
         choice.list_threads = form.threads;
         auto md = cellforce::make_cuda_md_engine(std::make_unique<cellforce::CudaForceEngine>(choice));
         md->set_state(start, masses, scene.force_field);
@@ -872,12 +894,7 @@ TEST(PairListMd, GatedRunsEqualTheStepwiseRunLeanOrNot) {
           for (int k = 0; k < 300; ++k) md->advance(1, settings, false);
         }
         *counters = md->counters();
-        cellforce::MdState end;
-        md->get_state(end);
-        std::vector<double> all = end.config.positions;
-        all.insert(all.end(), end.velocities.begin(), end.velocities.end());
-        all.insert(all.end(), end.forces.begin(), end.forces.end());
-        return all;
+        return end_state(*md);
       };
       cellforce::MdCounters fast, lean, stepwise;
       const std::vector<double> a = run(false, true, &fast), b = run(true, true, &lean),
@@ -896,47 +913,70 @@ TEST(PairListMd, GatedRunsEqualTheStepwiseRunLeanOrNot) {
 
 // The build's fixed part replayed as a CUDA graph (change 74, cuda/build_graph.cuh) is the part
 // queued operation by operation: two engines, x with graphs and y without, on a sequence of
-// rebuilds (every other configuration moved by up to 0.2 > skin / 2) of two systems of different
-// sizes and back, list the same pairs and give bitwise the same results, in every precision. x
-// captured a graph for each system (the third build of a size, once the second changed nothing) and
-// replayed it at the later builds of that size, whose stage times its events still measure.
+// rebuilds (every other configuration moved by up to 0.2 > skin / 2) of one system, the same
+// particles in a box 5% larger, the same with a 5% shorter cutoff (the same n, another grid: the
+// key must change), a system of another size, and the first again, list the same pairs and give
+// bitwise the same results, in every precision, with the rule's column splits and with one (the
+// count pass's units partitioned: the path of systems above ~67,000 particles). x captured a graph
+// for each system and replayed it at the later builds of that system, whose stage times its events
+// still measure, and never at the first build of another; its audit (build_graph_audit) finds
+// nothing of the part queued again by a replayed build.
 TEST(PairListGraph, ReplayedBuildsAreTheQueuedOnes) {
   CF_SKIP_WITHOUT_DEVICE();
   const Scene a = make_scene("multitype3d_lb"), b = make_scene("random3d_periodic");
-  const Configuration am = moved(a.config, 0.2, 6), am2 = moved(a.config, 0.2, 9), bm = moved(b.config, 0.2, 7);
   ASSERT_NE(a.config.size(), b.config.size());
-  const std::pair<const Configuration*, const Scene*> sequence[] = {
-      {&a.config, &a}, {&am, &a}, {&a.config, &a}, {&am2, &a}, {&a.config, &a}, {&am, &a},
-      {&b.config, &b}, {&bm, &b}, {&b.config, &b}, {&bm, &b}, {&b.config, &b},
-      {&a.config, &a}, {&am, &a}, {&a.config, &a}, {&am2, &a}};
-  for (Precision p : {Precision::kSingle, Precision::kMixed, Precision::kDouble}) {
-    SCOPED_TRACE(cellforce::to_string(p));
-    GpuOptions graphed = list_options(p), queued = list_options(p);
-    graphed.memory = queued.memory = ListMemory::kFast;
-    queued.build_graph = false;
-    GpuEngine x(graphed), y(queued);
-    std::size_t replayed = 0;
-    for (const auto& [c, scene] : sequence) {
-      const std::size_t before = x.build_replays();
-      expect_same_lists(x, y, *c, *scene);
-      EXPECT_TRUE(x.stats().rebuilt);
-      if (x.build_replays() == before) continue;
-      ++replayed;
-      const cellforce::PipelineStats& st = x.stats();  // the graph's event nodes time the stages
-      EXPECT_GT(st.t_cell_ids, 0.0);
-      EXPECT_GT(st.t_count, 0.0);
-      EXPECT_GT(st.t_sort, 0.0);
-      EXPECT_GT(st.t_collision_cells, 0.0);
+  Scene wide = a, short_cut = a;
+  for (double& x : wide.config.positions) x *= 1.05;
+  for (int k = 0; k < wide.config.box.dim; ++k) wide.config.box.length[k] *= 1.05;
+  short_cut.ff.cutoff *= 0.95;
+  const Configuration am = moved(a.config, 0.2, 6), am2 = moved(a.config, 0.2, 9), bm = moved(b.config, 0.2, 7),
+                      wm = moved(wide.config, 0.2, 8), sm = moved(short_cut.config, 0.2, 10);
+  struct Build {
+    const Configuration* config;
+    const Scene* scene;
+    bool new_key;  // the first build of another system, grid or cutoff: no graph may serve it
+  };
+  const Build sequence[] = {
+      {&a.config, &a, true},  {&am, &a, false},  {&a.config, &a, false}, {&am2, &a, false}, {&a.config, &a, false},
+      {&am, &a, false},
+      {&wide.config, &wide, true}, {&wm, &wide, false}, {&wide.config, &wide, false}, {&wm, &wide, false},
+      {&short_cut.config, &short_cut, true}, {&sm, &short_cut, false}, {&short_cut.config, &short_cut, false},
+      {&sm, &short_cut, false},
+      {&b.config, &b, true}, {&bm, &b, false}, {&b.config, &b, false}, {&bm, &b, false}, {&b.config, &b, false},
+      {&a.config, &a, true}, {&am, &a, false}, {&a.config, &a, false}, {&am2, &a, false}};
+  for (Precision p : {Precision::kSingle, Precision::kMixed, Precision::kDouble})
+    for (const std::optional<int> splits : {std::optional<int>{}, std::optional<int>{1}}) {
+      SCOPED_TRACE(cellforce::to_string(p) + std::string(splits ? ", one split" : ", the rule's splits"));
+      GpuOptions graphed = list_options(p), queued = list_options(p);
+      graphed.memory = queued.memory = ListMemory::kFast;
+      graphed.list_splits = queued.list_splits = splits;
+      graphed.build_graph_audit = true;
+      queued.build_graph = false;
+      GpuEngine x(graphed), y(queued);
+      std::size_t replayed = 0;
+      for (const Build& build : sequence) {
+        const std::size_t before = x.build_replays();
+        expect_same_lists(x, y, *build.config, *build.scene);
+        EXPECT_TRUE(x.stats().rebuilt);
+        if (x.build_replays() == before) continue;
+        EXPECT_FALSE(build.new_key) << "a graph served the first build of another system";
+        ++replayed;
+        const cellforce::PipelineStats& st = x.stats();  // the graph's event nodes time the stages
+        EXPECT_GT(st.t_cell_ids, 0.0);
+        EXPECT_GT(st.t_count, 0.0);
+        EXPECT_GT(st.t_sort, 0.0);
+        EXPECT_GT(st.t_collision_cells, 0.0);
+      }
+      EXPECT_GE(x.build_captures(), 5u);  // a, wide, short_cut, b, a again
+      EXPECT_GE(replayed, 8u);
+      EXPECT_EQ(y.build_captures() + y.build_replays(), 0u);
     }
-    EXPECT_GE(x.build_captures(), 3u);  // a, b, a again
-    EXPECT_GE(replayed, 6u);
-    EXPECT_EQ(y.build_captures() + y.build_replays(), 0u);
-  }
 }
 
 // The same through a resident MD run (the gated chunks' builds, evaluate_resident): 300 steps of
 // the in.lj fluid (2,048 particles), Verlet and Langevin, with and without graphs: bitwise the same
-// positions, velocities and forces, and the graphed run replayed most of its builds.
+// positions, velocities and forces, and the graphed run replayed most of its builds (audited: none
+// queued anything of its graph's part again).
 TEST(PairListGraph, ReplayedRunIsTheQueuedRun) {
   CF_SKIP_WITHOUT_DEVICE();
   cellforce::Scene scene = cellforce::default_scene();
@@ -947,19 +987,11 @@ TEST(PairListGraph, ReplayedRunIsTheQueuedRun) {
   cellforce::initialize_velocities(start, masses, 1.44, 7, true);
   for (const bool langevin : {false, true}) {
     SCOPED_TRACE(langevin ? "Langevin" : "Verlet");
-    cellforce::IntegratorSettings settings;
-    settings.langevin = langevin;
-    settings.kT = 1.44;
-    settings.seed = 99;
+    const cellforce::IntegratorSettings settings = md_settings(langevin);
     auto run = [&](bool graph, std::size_t* replays, int64_t* builds) {
-      cellforce::EngineChoice choice;
-      choice.backend = cellforce::Backend::kCuda;
-      choice.precision = Precision::kMixed;
-      choice.reuse.automatic = false;
-      choice.reuse.skin = 0.3;
-      choice.reuse.list = true;
-      choice.memory = ListMemory::kFast;
+      cellforce::EngineChoice choice = list_choice(Precision::kMixed, ListMemory::kFast);
       choice.build_graph = graph;
+      choice.build_graph_audit = graph;  // a replayed build queues nothing of its graph's part
       auto forces = std::make_unique<cellforce::CudaForceEngine>(choice);
       const GpuEngine& gpu = forces->gpu();
       auto md = cellforce::make_cuda_md_engine(std::move(forces));
@@ -968,12 +1000,7 @@ TEST(PairListGraph, ReplayedRunIsTheQueuedRun) {
       *replays = gpu.build_replays();
       *builds = md->counters().builds;
       EXPECT_EQ(md->counters().graph_builds, int64_t(*replays));  // MdCounters counts them too
-      cellforce::MdState end;
-      md->get_state(end);
-      std::vector<double> all = end.config.positions;
-      all.insert(all.end(), end.velocities.begin(), end.velocities.end());
-      all.insert(all.end(), end.forces.begin(), end.forces.end());
-      return all;
+      return end_state(*md);
     };
     std::size_t with = 0, without = 0;
     int64_t builds_with = 0, builds_without = 0;

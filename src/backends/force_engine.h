@@ -38,6 +38,8 @@ struct EngineChoice {
                                                           // per particle (1, 2, 4 or 8)
   std::optional<bool> build_graph;                        // tests only (CUDA, false): no CUDA graph of the
                                                           // build's fixed part (cuda/build_graph.cuh)
+  std::optional<bool> build_graph_audit;                  // tests only (CUDA, true): a replayed build must
+                                                          // queue nothing of that part (BuildGraph)
 };
 
 class ForceEngine {
