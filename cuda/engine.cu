@@ -746,6 +746,9 @@ GpuEngine::GpuEngine(GpuOptions options)
   CF_CUDA_CHECK(cudaStreamCreateWithFlags(&impl_->stream, cudaStreamNonBlocking));
   CF_CUDA_CHECK(cudaDeviceGetAttribute(&impl_->multiprocessors, cudaDevAttrMultiProcessorCount,
                                        options_.device));
+  int major = 0;
+  CF_CUDA_CHECK(cudaDeviceGetAttribute(&major, cudaDevAttrComputeCapabilityMajor, options_.device));
+  impl_->list.dependent_launch = major >= 9;
   for (cudaEvent_t& e : impl_->events) CF_CUDA_CHECK(cudaEventCreate(&e));
   CF_CUDA_CHECK(cudaEventCreateWithFlags(&impl_->joined, cudaEventDisableTiming));
   CF_CUDA_CHECK(cudaEventCreateWithFlags(&impl_->finished, cudaEventDisableTiming));

@@ -670,6 +670,21 @@ __device__ __forceinline__ void next_kick_drift(const NextKickDrift& s, std::siz
   raise_block_displacement(worst, gate_next);
 }
 
+// Programmatic dependent launch's two instructions (PTX griddepcontrol, compute capability 9.0):
+// let the kernel launched after this one be scheduled; wait for the kernel before this one to
+// complete, its memory visible. No-ops for a kernel launched without the attribute, and on older
+// devices.
+__device__ __forceinline__ void pdl_launch_dependents() {
+#if defined(__CUDA_ARCH__) && __CUDA_ARCH__ >= 900
+  asm volatile("griddepcontrol.launch_dependents;" ::: "memory");
+#endif
+}
+__device__ __forceinline__ void pdl_wait() {
+#if defined(__CUDA_ARCH__) && __CUDA_ARCH__ >= 900
+  asm volatile("griddepcontrol.wait;" ::: "memory");
+#endif
+}
+
 template <class T, int S, bool Folded, bool Drift, class Particle, class Real, class Accum>
 __global__ void __launch_bounds__(kBlock)
     list_force_kernel(const ListArgs<Real, Accum> args, const uint32_t* __restrict__ order,
@@ -685,12 +700,22 @@ __global__ void __launch_bounds__(kBlock)
   const std::size_t t = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
   const std::size_t p = t / S;
   const uint32_t part = uint32_t(t % S);
+  // Programmatic dependent launch (change 75; the gated evaluations, list_forces): the next step's
+  // force kernel may be scheduled once every block of this one has started, and waits below for
+  // this one to complete, so that its blocks take the multiprocessors this one's last wave leaves
+  // idle instead of waiting for the launch after it. Without the launch attribute both are no-ops.
+  // The list's lengths and group chunks come from the build, which completed before the gated
+  // evaluations began: read before the wait; everything the last kernel wrote (positions, the gate)
+  // after it.
+  pdl_launch_dependents();
   // The particle, its list's length and its group's first chunk are loaded before the gate's
   // barrier (a shut gate discards them), so that their round trip overlaps the gate's (change 33).
   Particle P{};
   uint32_t len = 0;
   unsigned long long group_chunk0 = 0;
-  if (p < n) P = ranked[p], len = length[p], group_chunk0 = group_chunks[p / kGroup];
+  if (p < n) len = length[p], group_chunk0 = group_chunks[p / kGroup];
+  pdl_wait();
+  if (p < n) P = ranked[p];
   // The whole block: before any shuffle or barrier. Drift: the next step's first kernel's test, which
   // closes the gate where this step's displacement ran past the limit.
   if constexpr (Drift) {
@@ -1255,12 +1280,28 @@ void list_forces(const Switches& sw, const ListArgs<Real, Accum>& given, PairLis
         auto go = [&](auto split) {
           auto launch = [&](auto folded) {
             auto with = [&](auto drift) {
-              list_force_kernel<T, decltype(split)::value, decltype(folded)::value, decltype(drift)::value,
-                                Particle, Real, Accum>
-                  <<<blocks, kBlock, 0, stream>>>(args, list.order.data(), ranked.data(), list.length.data(),
-                                                  list.group_chunks.data(), list.neighbors.data(), scale, fold,
-                                                  reinterpret_cast<Accum*>(list.block_sums.data()), gate,
-                                                  by_rank, then ? *then : NextKickDrift{}, next.data());
+              // Gated evaluations follow each other: each may be scheduled while the last one
+              // runs (programmatic dependent launch, change 75; the kernel waits for it).
+              cudaLaunchAttribute overlap{};
+              overlap.id = cudaLaunchAttributeProgrammaticStreamSerialization;
+              overlap.val.programmaticStreamSerializationAllowed = 1;
+              cudaLaunchConfig_t config{};
+              config.gridDim = dim3(blocks);
+              config.blockDim = dim3(kBlock);
+              config.stream = stream;
+              const bool overlapped = gate.gate && list.dependent_launch;
+              config.attrs = overlapped ? &overlap : nullptr;
+              config.numAttrs = overlapped ? 1 : 0;
+              CF_CUDA_CHECK(cudaLaunchKernelEx(
+                  &config,
+                  list_force_kernel<T, decltype(split)::value, decltype(folded)::value, decltype(drift)::value,
+                                    Particle, Real, Accum>,
+                  args, static_cast<const uint32_t*>(list.order.data()), static_cast<const Particle*>(ranked.data()),
+                  static_cast<const uint32_t*>(list.length.data()),
+                  static_cast<const unsigned long long*>(list.group_chunks.data()),
+                  static_cast<const uint32_t*>(list.neighbors.data()), scale, fold,
+                  reinterpret_cast<Accum*>(list.block_sums.data()), gate, by_rank, then ? *then : NextKickDrift{},
+                  next.data()));
             };
             if constexpr (!T::kObservables) {
               if (then) return with(std::true_type{});

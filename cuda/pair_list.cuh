@@ -169,6 +169,8 @@ struct PairList {
   int splits = 1;                      // the build's column splits per row tile (build_splits)
   int forced_splits = 0;               // tests only: this many splits (at most 8) instead of the rule
   int forced_threads = 0;              // tests only: this many threads per particle (1, 2, 4 or 8)
+  bool dependent_launch = false;       // the device schedules a kernel before the last one ends
+                                       // (programmatic dependent launch: compute capability 9.0 on)
   bool use_masks = true;               // false: every fill walks the columns again (tests; lean builds
                                        // whose list array is not kept, engine.cu)
   std::size_t mask_limit = 0;          // tests only (nonzero): the masks' room holds at most this many words
