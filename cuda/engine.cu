@@ -362,7 +362,9 @@ struct GpuEngine::Impl {
     form = resolve_traversal(o.traversal, max_cells, multiprocessors);
     ++builds;
     lean = lend = false;
-    if (lists(o, sys.box, ff.cutoff)) {
+    const bool listed = lists(o, sys.box, ff.cutoff);
+    const bool tiled = form == TraversalForm::kWarpPerTile || listed;  // the cells' tiles, in final order
+    if (listed) {
       // Lean where asked, or where the fast layout would not fit in 90% of the device (lists_memory:
       // the rule the automatic skin follows too).
       if (device_bytes == 0) {  // asked once: cudaMemGetInfo at every build held the device idle ~8 us
@@ -417,11 +419,11 @@ struct GpuEngine::Impl {
     sorted_ids.reserve(cap);
     control.reserve(std::max<std::size_t>(n, 1));
     if (skin > 0) build_positions.reserve(std::max<std::size_t>(n * std::size_t(g.dim), 1));
-    if (lists(o, sys.box, ff.cutoff)) tile_start.reserve(max_cells + 1);
+    if (tiled) tile_start.reserve(max_cells + 1);
     // The fixed part of a list build, from here to the list's partition (build_pair_list), queued,
     // captured or replayed as a CUDA graph (cuda/build_graph.cuh): in fast memory with CUB's sort,
     // Jacobi slots and no audit. Its operations are queued only while graph.queuing().
-    const bool graphed = o.build_graph.value_or(true) && lists(o, sys.box, ff.cutoff) && !lean &&
+    const bool graphed = o.build_graph.value_or(true) && listed && !lean &&
                          o.sort == SortMethod::kCub && o.accumulation == Accumulation::kJacobi && !o.reuse.audit &&
                          !o.list_count_masked.value_or(false) && n > 0;
     graph.begin(graphed ? build_key(o, g, ff, n) : cuda::BuildGraph::Key{}, graphed, stream,
@@ -463,10 +465,7 @@ struct GpuEngine::Impl {
                                  collision, stream);
       if (o.accumulation == Accumulation::kGaussSeidel)
         cuda::split_by_type(g, cells, max_cells, counts.data(), split, stream);
-      if (form == TraversalForm::kWarpPerTile || lists(o, sys.box, ff.cutoff)) {  // the cells' tiles, final order
-        tile_start.reserve(max_cells + 1);
-        cuda::tile_starts(cells.data(), counts.data()->cell_range, max_cells, tile_start.data(), cub, stream);
-      }
+      if (tiled) cuda::tile_starts(cells.data(), counts.data()->cell_range, max_cells, tile_start.data(), cub, stream);
       stage_record(kCellsFound);
     }
     st.entries = entries;
@@ -1113,22 +1112,20 @@ void GpuEngine::build(const SystemView& system, const ForceField& ff) {
   const bool lists = Impl::lists(options_, system.box, ff.cutoff);
   const std::size_t replays = s.graph.replays();
   stats_.graph_build = false;
-  try {
-    if (lists) {  // the pair table before the build's fixed part, whose graph has no copy of it
-      switch (options_.precision) {
-        case Precision::kSingle:
-        case Precision::kMixed: s.upload_table<float>(ff); break;
-        case Precision::kDouble: s.upload_table<double>(ff); break;
-      }
-    }
+  // Stages 1-3, then the list in the engine's precision; the pair table first, before the build's
+  // fixed part, whose graph holds no copy of it.
+  auto stages = [&](auto real, auto accum) {
+    using Real = decltype(real);
+    using Accum = decltype(accum);
+    if (lists) s.upload_table<Real>(ff);
     s.build(options_, stats_, system, ff);
-    if (lists) {
-      const Grid& g = stats_.grid;
-      switch (options_.precision) {
-        case Precision::kSingle: s.build_list<float, float>(options_, g, system, ff); break;
-        case Precision::kMixed: s.build_list<float, double>(options_, g, system, ff); break;
-        case Precision::kDouble: s.build_list<double, double>(options_, g, system, ff); break;
-      }
+    if (lists) s.build_list<Real, Accum>(options_, stats_.grid, system, ff);
+  };
+  try {
+    switch (options_.precision) {
+      case Precision::kSingle: stages(float{}, float{}); break;
+      case Precision::kMixed: stages(float{}, double{}); break;
+      case Precision::kDouble: stages(double{}, double{}); break;
     }
     if (s.graph.open()) throw Error("internal error: the build's fixed part did not end");
     stats_.graph_build = s.graph.replays() > replays;

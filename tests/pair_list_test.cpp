@@ -823,6 +823,22 @@ sigma = 0.8
 epsilon = 1.5
 )";
 
+// The in.lj fluid at 2,048 particles (8 x 8 x 8 fcc cells, edge 13.4 > 2 (rc + 0.3)).
+cellforce::Scene small_fluid() {
+  cellforce::Scene fluid = cellforce::default_scene();
+  fluid.particles.cells = {8, 8, 8};
+  return fluid;
+}
+
+// A start of `scene`'s configuration with unit masses and velocities at T 1.44 (seed 7, no drift).
+cellforce::MdState unit_mass_start(const cellforce::Scene& scene, std::vector<double>& masses) {
+  cellforce::MdState start;
+  start.config = cellforce::build_configuration(scene);
+  masses.assign(start.config.size(), 1.0);
+  cellforce::initialize_velocities(start, masses, 1.44, 7, true);
+  return start;
+}
+
 // The MD tests' integrator: Verlet, or Langevin at kT 1.44 with seed 99 (friction the default).
 cellforce::IntegratorSettings md_settings(bool langevin) {
   cellforce::IntegratorSettings settings;
@@ -856,8 +872,7 @@ std::vector<double> end_state(cellforce::MdEngine& md) {
 
 TEST(PairListMd, GatedRunsEqualTheStepwiseRunLeanOrNot) {
   CF_SKIP_WITHOUT_DEVICE();
-  cellforce::Scene fluid = cellforce::default_scene();
-  fluid.particles.cells = {8, 8, 8};
+  const cellforce::Scene fluid = small_fluid();
   struct Form {
     Precision precision;
     std::optional<int> threads;
@@ -979,12 +994,9 @@ TEST(PairListGraph, ReplayedBuildsAreTheQueuedOnes) {
 // queued anything of its graph's part again).
 TEST(PairListGraph, ReplayedRunIsTheQueuedRun) {
   CF_SKIP_WITHOUT_DEVICE();
-  cellforce::Scene scene = cellforce::default_scene();
-  scene.particles.cells = {8, 8, 8};
-  cellforce::MdState start;
-  start.config = cellforce::build_configuration(scene);
-  const std::vector<double> masses(start.config.size(), 1.0);
-  cellforce::initialize_velocities(start, masses, 1.44, 7, true);
+  const cellforce::Scene scene = small_fluid();
+  std::vector<double> masses;
+  const cellforce::MdState start = unit_mass_start(scene, masses);
   for (const bool langevin : {false, true}) {
     SCOPED_TRACE(langevin ? "Langevin" : "Verlet");
     const cellforce::IntegratorSettings settings = md_settings(langevin);
@@ -1022,14 +1034,11 @@ TEST(PairListGraph, ReplayedRunIsTheQueuedRun) {
 // overlap (the flag keeps the smallest index).
 TEST(PairListMd, AGatedDivergenceNamesTheCallersParticle) {
   CF_SKIP_WITHOUT_DEVICE();
-  cellforce::Scene scene = cellforce::default_scene();
-  scene.particles.cells = {8, 8, 8};
-  cellforce::MdState start;
-  start.config = cellforce::build_configuration(scene);
+  const cellforce::Scene scene = small_fluid();
+  std::vector<double> masses;
+  cellforce::MdState start = unit_mass_start(scene, masses);
   const std::size_t n = start.config.size(), bad = 1234;
   ASSERT_GT(n, bad);
-  const std::vector<double> masses(n, 1.0);
-  cellforce::initialize_velocities(start, masses, 1.44, 7, true);
   cellforce::IntegratorSettings settings;
   settings.kT = 1.44;
   settings.friction = 0;
