@@ -538,6 +538,7 @@ struct GpuEngine::Impl {
         lean ? (gathered ? 0 : n * sizeof(cuda::RankedParticle)) + (energies.capacity() >= n ? 0 : n * sizeof(double))
              : 0;
     list.forced_threads = o.list_threads.value_or(0);
+    list.forced_block = o.list_block.value_or(0);
     // The build's fixed part ends before the count pass (cuda/build_graph.cuh).
     const cuda::ListBuildHead head{graph.queuing(), [&] {
                                      if (graph.open()) graph.end(build_key(o, g, ff, n), stream);
@@ -734,6 +735,8 @@ GpuEngine::GpuEngine(GpuOptions options)
   validate_reuse(options_.reuse);
   if (const std::optional<int> t = options_.list_threads; t && *t != 1 && *t != 2 && *t != 4 && *t != 8)
     throw Error("CUDA engine: list_threads must be 1, 2, 4 or 8 threads per particle, not " + std::to_string(*t));
+  if (const std::optional<int> b = options_.list_block; b && *b != 128 && *b != 256)
+    throw Error("CUDA engine: list_block must be 128 or 256 threads a block, not " + std::to_string(*b));
   const std::string why = unavailable();
   if (!why.empty()) throw DeviceError("CUDA engine: " + why);
   int count = 0;
@@ -997,6 +1000,7 @@ void GpuEngine::settle_gate(int64_t served, double served_d2) {
   stats_.max_displacement = std::sqrt(served_d2);
   stats_.missed_pairs = stats_.repeated_pairs = 0;
   stats_.builds = reuse_.builds();
+  if (impl_->list.fused_block) stats_.list_block = impl_->list.fused_block;
 }
 
 const double* GpuEngine::device_forces() const { return impl_->forces.data(); }

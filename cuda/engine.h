@@ -35,6 +35,9 @@ struct GpuOptions {
                                       // (cuda/pair_list.cuh build_splits) instead of the rule
   std::optional<int> list_threads;    // tests only: the list force kernel's threads per particle (1, 2,
                                       // 4 or 8) instead of the rule (1 from ~135,000 particles on an H100)
+  std::optional<int> list_block;      // tests only: threads a block (128 or 256) of the list force kernel
+                                      // that runs the next step's kick-drift, instead of the rule (pair_list.cu
+                                      // fused_block)
   std::optional<bool> list_masks;     // tests only (false): the list build's fill tests every pair
                                       // again instead of reading the count pass's masks (BuildMasks)
   std::optional<std::size_t> list_mask_words;  // tests only: the masks' room holds at most this many

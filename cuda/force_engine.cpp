@@ -16,6 +16,7 @@ GpuOptions options(const EngineChoice& choice) {
   o.grid_override = choice.grid_override;
   o.memory = choice.memory;
   o.list_threads = choice.list_threads;
+  o.list_block = choice.list_block;
   o.build_graph = choice.build_graph;
   o.build_graph_audit = choice.build_graph_audit;
   return o;

@@ -19,7 +19,7 @@
 namespace cellforce::cuda {
 namespace {
 
-constexpr int kBlock = 128;  // threads per block of every list kernel (4 warps)
+constexpr int kBlock = 128;  // threads per block of every list kernel (4 warps; fused_block may double it)
 
 // A sorted entry that is some particle's H entry (the key's phantom bit clear; invalid keys are
 // all ones).
@@ -618,12 +618,12 @@ static_assert(kChunk == 4, "a chunk is one uint4");
 // rank-ordered array: the partners' positions are read from `ranked` by the kernel's other blocks
 // meanwhile). The forces go through shared memory and are never stored. The arithmetic is
 // gated_kick_drift_kernel's (cuda/md_engine.cu), coordinate for coordinate (verlet_step.cuh).
-template <int D, int S, class Particle>
+template <int D, int S, int B, class Particle>
 __device__ __forceinline__ void next_kick_drift(const NextKickDrift& s, std::size_t n, std::size_t p, uint32_t part,
                                                 const double (&force)[D], uint32_t type, Particle* __restrict__ next,
                                                 const Grid& grid, uint32_t num_types, DeviceFlags* dflags,
                                                 const GateView& gate_next) {
-  constexpr int kParticles = kBlock / S;  // the block's ranks
+  constexpr int kParticles = B / S;  // the block's ranks
   __shared__ double value[kParticles * D];  // the forces, then the new positions
   __shared__ double square[kParticles * D];
   __shared__ uint32_t types[kParticles];
@@ -635,7 +635,7 @@ __device__ __forceinline__ void next_kick_drift(const NextKickDrift& s, std::siz
     types[local] = type;
   }
   __syncthreads();
-  for (int c = int(threadIdx.x); c < kParticles * D; c += kBlock) {
+  for (int c = int(threadIdx.x); c < kParticles * D; c += B) {
     const std::size_t q = first + std::size_t(c / D);
     double term = 0;
     if (q < n) {
@@ -685,8 +685,8 @@ __device__ __forceinline__ void pdl_wait() {
 #endif
 }
 
-template <class T, int S, bool Folded, bool Drift, class Particle, class Real, class Accum>
-__global__ void __launch_bounds__(kBlock)
+template <class T, int S, bool Folded, bool Drift, class Particle, class Real, class Accum, int B = kBlock>
+__global__ void __launch_bounds__(B)
     list_force_kernel(const ListArgs<Real, Accum> args, const uint32_t* __restrict__ order,
                       const Particle* __restrict__ ranked, const uint32_t* __restrict__ length,
                       const unsigned long long* __restrict__ group_chunks, const uint32_t* __restrict__ neighbors,
@@ -695,6 +695,7 @@ __global__ void __launch_bounds__(kBlock)
   static_assert(!Folded || (std::is_same_v<Particle, FixedParticle> && !T::kMultiType),
                 "the fold serves fixed-point pairs of one type");
   static_assert(!Drift || !T::kObservables, "the next step's kick-drift follows an evaluation of forces only");
+  static_assert(B == kBlock || Drift, "blocks of another size run the next step's kick-drift only");
   constexpr int D = T::kDim;
   const std::size_t n = args.n;
   const std::size_t t = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
@@ -852,7 +853,7 @@ __global__ void __launch_bounds__(kBlock)
     double force[D];
 #pragma unroll
     for (int c = 0; c < D; ++c) force[c] = double(f[c]);  // the values a stored force would hold
-    next_kick_drift<D, S>(then, n, p, part, force, P.type, next, args.grid, args.num_types, args.flags,
+    next_kick_drift<D, S, B>(then, n, p, part, force, P.type, next, args.grid, args.num_types, args.flags,
                           GateView{gate.gate, gate.step + 1, gate.limit});
     return;
   }
@@ -1236,6 +1237,42 @@ RankOrder rank_order(const ListArgs<Real, Accum>& args, PairList& list, bool for
   return to;
 }
 
+// The fused force kernel's block size (change 76): kBlock threads, or 2 kBlock where the kernel runs
+// one thread a particle (from ~135,000 particles on an H100), kBlock's blocks fill at least one wave
+// (the device's resident blocks), 2 kBlock's need no more waves (rounded up) and they hold fewer
+// threads a multiprocessor. The force kernel's blocks all take about as long, and a last wave that
+// leaves multiprocessors part idle costs nearly a whole one; with fewer resident threads every wave
+// runs faster (the gathers share the L1/TEX pipe with fewer warps). On an H100 the in.lj kernel holds
+// 9 blocks of 128 a multiprocessor (56 registers) or 4 of 256: 256,000 particles take 2 waves either
+// way, 1M 7 against 8. Below one wave, larger blocks would leave multiprocessors idle; with 8 threads
+// a particle (32,000) blocks of 256 measured 2.2% slower. Resident blocks from the occupancy
+// calculator, asked once per kernel.
+namespace {
+int fused_block(PairList& list, const void* narrow, const void* wide, std::size_t threads) {
+  if (list.forced_block) return list.forced_block;
+  if (list.threads_per_particle != 1) return kBlock;
+  PairList::BlockShape& shape = list.shape;
+  if (shape.kernel != narrow) {
+    int device = 0;
+    CF_CUDA_CHECK(cudaGetDevice(&device));
+    CF_CUDA_CHECK(cudaDeviceGetAttribute(&shape.multiprocessors, cudaDevAttrMultiProcessorCount, device));
+    CF_CUDA_CHECK(cudaOccupancyMaxActiveBlocksPerMultiprocessor(&shape.resident[0], narrow, kBlock, 0));
+    CF_CUDA_CHECK(cudaOccupancyMaxActiveBlocksPerMultiprocessor(&shape.resident[1], wide, 2 * kBlock, 0));
+    shape.kernel = narrow;
+  }
+  auto waves = [&](std::size_t block, int resident) {
+    const std::size_t blocks = (threads + block - 1) / block;
+    const std::size_t wave = std::size_t(std::max(resident, 1)) * std::size_t(std::max(shape.multiprocessors, 1));
+    return (blocks + wave - 1) / wave;
+  };
+  const std::size_t narrow_blocks = (threads + kBlock - 1) / kBlock;
+  const bool full = narrow_blocks >= std::size_t(shape.resident[0]) * std::size_t(shape.multiprocessors);
+  const bool fewer = shape.resident[1] * 2 < shape.resident[0];
+  return full && fewer && waves(2 * kBlock, shape.resident[1]) <= waves(kBlock, shape.resident[0]) ? 2 * kBlock
+                                                                                                  : kBlock;
+}
+}  // namespace
+
 template <class Real, class Accum>
 void list_forces(const Switches& sw, const ListArgs<Real, Accum>& given, PairList& list, cudaStream_t stream,
                  const GateView& gate, bool by_rank, const NextKickDrift* then) {
@@ -1286,22 +1323,35 @@ void list_forces(const Switches& sw, const ListArgs<Real, Accum>& given, PairLis
               overlap.id = cudaLaunchAttributeProgrammaticStreamSerialization;
               overlap.val.programmaticStreamSerializationAllowed = 1;
               cudaLaunchConfig_t config{};
-              config.gridDim = dim3(blocks);
-              config.blockDim = dim3(kBlock);
               config.stream = stream;
               const bool overlapped = gate.gate && list.dependent_launch;
               config.attrs = overlapped ? &overlap : nullptr;
               config.numAttrs = overlapped ? 1 : 0;
-              CF_CUDA_CHECK(cudaLaunchKernelEx(
-                  &config,
-                  list_force_kernel<T, decltype(split)::value, decltype(folded)::value, decltype(drift)::value,
-                                    Particle, Real, Accum>,
-                  args, static_cast<const uint32_t*>(list.order.data()), static_cast<const Particle*>(ranked.data()),
-                  static_cast<const uint32_t*>(list.length.data()),
-                  static_cast<const unsigned long long*>(list.group_chunks.data()),
-                  static_cast<const uint32_t*>(list.neighbors.data()), scale, fold,
-                  reinterpret_cast<Accum*>(list.block_sums.data()), gate, by_rank, then ? *then : NextKickDrift{},
-                  next.data()));
+              const std::size_t threads = args.n * std::size_t(list.threads_per_particle);
+              auto go = [&](auto kernel, unsigned block) {
+                config.gridDim = dim3(unsigned((threads + block - 1) / block));
+                config.blockDim = dim3(block);
+                CF_CUDA_CHECK(cudaLaunchKernelEx(
+                    &config, kernel, args, static_cast<const uint32_t*>(list.order.data()),
+                    static_cast<const Particle*>(ranked.data()), static_cast<const uint32_t*>(list.length.data()),
+                    static_cast<const unsigned long long*>(list.group_chunks.data()),
+                    static_cast<const uint32_t*>(list.neighbors.data()), scale, fold,
+                    reinterpret_cast<Accum*>(list.block_sums.data()), gate, by_rank, then ? *then : NextKickDrift{},
+                    next.data()));
+              };
+              using Split = std::remove_reference_t<decltype(split)>;
+              using Fold = std::remove_reference_t<decltype(folded)>;
+              auto kernel = list_force_kernel<T, Split::value, Fold::value, decltype(drift)::value, Particle, Real,
+                                              Accum>;
+              if constexpr (decltype(drift)::value) {
+                // The next step's kick-drift: blocks of 2 kBlock where they fill the last wave
+                // better (fused_block, change 76).
+                auto wide = list_force_kernel<T, Split::value, Fold::value, true, Particle, Real, Accum, 2 * kBlock>;
+                list.fused_block = fused_block(list, reinterpret_cast<const void*>(kernel),
+                                               reinterpret_cast<const void*>(wide), threads);
+                if (list.fused_block == 2 * kBlock) return go(wide, 2 * kBlock);
+              }
+              go(kernel, kBlock);
             };
             if constexpr (!T::kObservables) {
               if (then) return with(std::true_type{});

@@ -169,6 +169,15 @@ struct PairList {
   int splits = 1;                      // the build's column splits per row tile (build_splits)
   int forced_splits = 0;               // tests only: this many splits (at most 8) instead of the rule
   int forced_threads = 0;              // tests only: this many threads per particle (1, 2, 4 or 8)
+  int forced_block = 0;                // tests only: this many threads a block (kBlock or 2 kBlock) for
+                                       // the force kernels that run the next step's kick-drift
+  int fused_block = 0;                 // the last such launch's threads a block (pair_list.cu fused_block)
+  struct BlockShape {                  // its kernel's resident blocks a multiprocessor, kBlock and
+    const void* kernel = nullptr;      // 2 kBlock threads a block (asked once per kernel)
+    int resident[2] = {0, 0};
+    int multiprocessors = 0;
+  };
+  BlockShape shape;
   bool dependent_launch = false;       // the device schedules a kernel before the last one ends
                                        // (programmatic dependent launch: compute capability 9.0 on)
   bool use_masks = true;               // false: every fill walks the columns again (tests; lean builds

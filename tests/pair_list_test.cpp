@@ -670,6 +670,23 @@ TEST(PairListThreads, AThreadCountWithNoKernelIsRefused) {
   }
 }
 
+// A block size the fused force kernel has no form for is refused when the engine is made, naming
+// the option and the value (no GPU needed).
+TEST(PairListThreads, ABlockSizeWithNoKernelIsRefused) {
+  for (const int block : {0, 64, 192, 512}) {
+    GpuOptions o = list_options(Precision::kMixed);
+    o.list_block = block;
+    try {
+      GpuEngine e(o);
+      FAIL() << block << " threads a block were accepted";
+    } catch (const cellforce::Error& err) {
+      const std::string text = err.what();
+      EXPECT_NE(text.find("list_block"), std::string::npos) << text;
+      EXPECT_TRUE(contains_number(text, std::size_t(block))) << text;
+    }
+  }
+}
+
 // The audit of a structure the lists serve audits the lists: with the check off, after moves below
 // and well beyond skin / 2, the missed pairs are those within rc now that were not within rc + skin
 // at the build (counted here pair by pair), and none repeat.
@@ -879,13 +896,18 @@ TEST(PairListMd, GatedRunsEqualTheStepwiseRunLeanOrNot) {
     const char* name;
     bool varied_masses = false;    // 1, 1.5 and 2 in turn (one mass for all: a number, change 60)
     const char* scene = nullptr;  // a scene file's text instead of the in.lj fluid
+    std::optional<int> block;      // the fused force kernel's threads a block (change 76) instead of the rule
   };
   for (const Form form : {Form{Precision::kMixed, std::nullopt, "mixed, the rule's threads"},
                           Form{Precision::kMixed, 1, "mixed, 1 thread a particle"},
                           Form{Precision::kDouble, 2, "double, 2 threads a particle"},
                           Form{Precision::kMixed, std::nullopt, "mixed, masses 1, 1.5 and 2", true},
                           Form{Precision::kMixed, std::nullopt, "mixed, 2D", false, kGated2d},
-                          Form{Precision::kMixed, std::nullopt, "mixed, two types", false, kGatedTwoTypes}}) {
+                          Form{Precision::kMixed, std::nullopt, "mixed, two types", false, kGatedTwoTypes},
+                          Form{Precision::kMixed, 1, "mixed, 1 thread a particle, blocks of 256", false, nullptr, 256},
+                          Form{Precision::kSingle, 2, "single, 2 threads a particle, blocks of 256", true, nullptr, 256},
+                          Form{Precision::kMixed, 1, "mixed, 2D, blocks of 256 (the last one part full)", false, kGated2d, 256},
+                          Form{Precision::kMixed, 1, "mixed, 1 thread a particle, blocks of 128", false, nullptr, 128}}) {
     SCOPED_TRACE(form.name);
     const cellforce::Scene scene = form.scene ? cellforce::parse_scene(form.scene, form.name) : fluid;
     cellforce::MdState start;
@@ -901,6 +923,7 @@ TEST(PairListMd, GatedRunsEqualTheStepwiseRunLeanOrNot) {
       auto run = [&](bool lean, bool one_call, cellforce::MdCounters* counters) {
         cellforce::EngineChoice choice = list_choice(form.precision, lean ? ListMemory::kLean : ListMemory::kFast);
         choice.list_threads = form.threads;
+        choice.list_block = form.block;
         auto md = cellforce::make_cuda_md_engine(std::make_unique<cellforce::CudaForceEngine>(choice));
         md->set_state(start, masses, scene.force_field);
         if (one_call) {

@@ -36,6 +36,8 @@ struct EngineChoice {
   ListMemory memory = ListMemory::kAuto;                  // CUDA pair lists' memory mode (option `memory`)
   std::optional<int> list_threads;                        // tests only (CUDA): the list force kernel's threads
                                                           // per particle (1, 2, 4 or 8)
+  std::optional<int> list_block;                          // tests only (CUDA): threads a block (128 or 256) of
+                                                          // the force kernel that runs the next step's kick-drift
   std::optional<bool> build_graph;                        // tests only (CUDA, false): no CUDA graph of the
                                                           // build's fixed part (cuda/build_graph.cuh)
   std::optional<bool> build_graph_audit;                  // tests only (CUDA, true): a replayed build must

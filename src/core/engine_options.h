@@ -115,6 +115,10 @@ struct PipelineStats {
   // CUDA pair lists: this evaluation's build ran its fixed part (cell IDs to the list's count pass)
   // as a replayed CUDA graph (cuda/build_graph.cuh).
   bool graph_build = false;
+  // CUDA pair lists: threads a block of the force kernel that ran the next step's kick-drift in the
+  // last steps served behind the step gate (128, or 256 where those fill its last wave better:
+  // cuda/pair_list.cu fused_block); 0 before any.
+  int list_block = 0;
 };
 
 inline const char* to_string(Precision precision) {
