@@ -587,6 +587,7 @@ struct GpuEngine::Impl {
   // more) (GpuEngine::rank_order).
   template <class Real, class Accum>
   cuda::RankOrder rank_order(const Grid& g, const SystemView& sys, const ForceField& ff, bool fused) {
+    list.fused_block = 0;  // a gated chunk begins: its fused force kernels, if any, set it
     return cuda::rank_order<Real, Accum>(list_args<Real, Accum>(g, sys, ff, Request{false, false}), list, !lean,
                                          fused && !lean);
   }
@@ -1000,7 +1001,7 @@ void GpuEngine::settle_gate(int64_t served, double served_d2) {
   stats_.max_displacement = std::sqrt(served_d2);
   stats_.missed_pairs = stats_.repeated_pairs = 0;
   stats_.builds = reuse_.builds();
-  if (impl_->list.fused_block) stats_.list_block = impl_->list.fused_block;
+  stats_.list_block = impl_->list.fused_block;  // 0: the chunk ran no such kernel
 }
 
 const double* GpuEngine::device_forces() const { return impl_->forces.data(); }

@@ -1,6 +1,7 @@
 // The pair-list build's arithmetic that needs no device (cuda/pair_list.cu): the column range of a
-// row tile's split walk, the rule for the number of splits, the hi-part prefilter's bound, and the
-// fixed-point coordinates the force kernel gathers (FixedParticle) with the rule for when it does.
+// row tile's split walk, the rule for the number of splits, the force kernel's block size with the
+// next step's kick-drift, the hi-part prefilter's bound, and the fixed-point coordinates the force
+// kernel gathers (FixedParticle) with the rule for when it does.
 // Plain C++ (CF_HD): the kernels and the tests use the same functions.
 #pragma once
 
@@ -42,6 +43,32 @@ inline int build_splits(std::size_t max_tiles, int multiprocessors) {
   int splits = 1;
   while (splits < 8 && max_tiles * std::size_t(splits) < wanted) splits *= 2;
   return splits;
+}
+
+// The threads a block of the force kernel that runs the next step's kick-drift (change 76): `narrow`
+// (128), or 2 x narrow where the kernel runs one thread a particle (per_particle), narrow blocks
+// fill at least one wave (resident[0] blocks a multiprocessor, times the multiprocessors), blocks of
+// 2 x narrow (resident[1] a multiprocessor) need no more waves, rounded up, and hold fewer threads a
+// multiprocessor. The kernel's blocks all take about as long, and a last wave that leaves
+// multiprocessors part idle costs nearly a whole one; with fewer resident threads every wave runs
+// faster (the gathers share the L1/TEX pipe with fewer warps). Below one wave, larger blocks would
+// leave multiprocessors idle; at 8 threads a particle (32,000 in.lj) blocks of 256 measured 2.2%
+// slower. On an H100 the in.lj kernel holds 9 blocks of 128 or 4 of 256 (56 registers): a wave is
+// 152,064 particles or 135,168, so 256 serves 152,065-270,336, 304,129-405,504, ... and nothing
+// above 1,081,344 (1,048,576: 7 waves against 8). A rule of the system and the device.
+inline int fused_block_size(std::size_t threads, int per_particle, int narrow, const int (&resident)[2],
+                            int multiprocessors) {
+  if (per_particle != 1 || resident[0] <= 0 || resident[1] <= 0 || multiprocessors <= 0) return narrow;
+  const std::size_t sms = std::size_t(multiprocessors);
+  auto waves = [&](std::size_t block, int per_sm) {
+    const std::size_t blocks = (threads + block - 1) / block, wave = std::size_t(per_sm) * sms;
+    return (blocks + wave - 1) / wave;
+  };
+  const std::size_t narrow_blocks = (threads + std::size_t(narrow) - 1) / std::size_t(narrow);
+  const bool full = narrow_blocks >= std::size_t(resident[0]) * sms;
+  const bool fewer = 2 * resident[1] < resident[0];
+  const std::size_t wide = 2 * std::size_t(narrow);
+  return full && fewer && waves(wide, resident[1]) <= waves(std::size_t(narrow), resident[0]) ? 2 * narrow : narrow;
 }
 
 // The hi-part prefilter's bound (list_rows, float coordinates): with staged coordinates at most

@@ -1000,6 +1000,7 @@ class CudaMdEngine final : public MdEngine {
     if (served > 0) {
       counters_.evaluations += served;
       add_reuse(counters_, gpu_.stats(), served);
+      if (gpu_.stats().list_block) counters_.list_block = gpu_.stats().list_block;  // change 76's choice
     }
     since_build_ += served;
     counters_.gated_steps += served;

@@ -698,7 +698,7 @@ __global__ void __launch_bounds__(B)
   static_assert(B == kBlock || Drift, "blocks of another size run the next step's kick-drift only");
   constexpr int D = T::kDim;
   const std::size_t n = args.n;
-  const std::size_t t = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
+  const std::size_t t = std::size_t(blockIdx.x) * B + threadIdx.x;  // launched with B threads a block
   const std::size_t p = t / S;
   const uint32_t part = uint32_t(t % S);
   // Programmatic dependent launch (change 75; the gated evaluations, list_forces): the next step's
@@ -1237,16 +1237,8 @@ RankOrder rank_order(const ListArgs<Real, Accum>& args, PairList& list, bool for
   return to;
 }
 
-// The fused force kernel's block size (change 76): kBlock threads, or 2 kBlock where the kernel runs
-// one thread a particle (from ~135,000 particles on an H100), kBlock's blocks fill at least one wave
-// (the device's resident blocks), 2 kBlock's need no more waves (rounded up) and they hold fewer
-// threads a multiprocessor. The force kernel's blocks all take about as long, and a last wave that
-// leaves multiprocessors part idle costs nearly a whole one; with fewer resident threads every wave
-// runs faster (the gathers share the L1/TEX pipe with fewer warps). On an H100 the in.lj kernel holds
-// 9 blocks of 128 a multiprocessor (56 registers) or 4 of 256: 256,000 particles take 2 waves either
-// way, 1M 7 against 8. Below one wave, larger blocks would leave multiprocessors idle; with 8 threads
-// a particle (32,000) blocks of 256 measured 2.2% slower. Resident blocks from the occupancy
-// calculator, asked once per kernel.
+// The fused force kernel's block size (change 76, list_build.h fused_block_size), from the
+// occupancy calculator's resident blocks of the kernel's two forms, asked once per kernel.
 namespace {
 int fused_block(PairList& list, const void* narrow, const void* wide, std::size_t threads) {
   if (list.forced_block) return list.forced_block;
@@ -1260,16 +1252,7 @@ int fused_block(PairList& list, const void* narrow, const void* wide, std::size_
     CF_CUDA_CHECK(cudaOccupancyMaxActiveBlocksPerMultiprocessor(&shape.resident[1], wide, 2 * kBlock, 0));
     shape.kernel = narrow;
   }
-  auto waves = [&](std::size_t block, int resident) {
-    const std::size_t blocks = (threads + block - 1) / block;
-    const std::size_t wave = std::size_t(std::max(resident, 1)) * std::size_t(std::max(shape.multiprocessors, 1));
-    return (blocks + wave - 1) / wave;
-  };
-  const std::size_t narrow_blocks = (threads + kBlock - 1) / kBlock;
-  const bool full = narrow_blocks >= std::size_t(shape.resident[0]) * std::size_t(shape.multiprocessors);
-  const bool fewer = shape.resident[1] * 2 < shape.resident[0];
-  return full && fewer && waves(2 * kBlock, shape.resident[1]) <= waves(kBlock, shape.resident[0]) ? 2 * kBlock
-                                                                                                  : kBlock;
+  return fused_block_size(threads, list.threads_per_particle, kBlock, shape.resident, shape.multiprocessors);
 }
 }  // namespace
 

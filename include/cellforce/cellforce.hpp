@@ -149,9 +149,9 @@ struct RunStatistics {
   // pass) the device ran as one replayed CUDA graph instead of operation by operation (once a system's
   // builds take nothing anew: from about its third build).
   int64_t graph_builds = 0;
-  // CUDA pair lists: threads a block of the force kernel that ran the next step's kick-drift in the
-  // last gated steps (128, or 256 where those fill its last wave better, from the device's
-  // occupancy); 0 where none ran.
+  // CUDA pair lists: threads a block of the force kernels that ran the next step's kick-drift in
+  // the steps since the statistics were reset (128, or 256 where those fill its last wave better,
+  // from the device's occupancy); 0 where none ran (lean memory, Langevin, no pair lists).
   int list_block = 0;
 };
 

@@ -543,7 +543,7 @@ RunStatistics Context::run_statistics() const {
   r.list_mask_words = impl_->md->forces().stats().list_mask_words;
   r.list_mask_words_held = impl_->md->forces().stats().list_mask_words_held;
   r.graph_builds = c.graph_builds;
-  r.list_block = impl_->md->forces().stats().list_block;
+  r.list_block = c.list_block;
   r.state_bytes = impl_->md->state_bytes();
   return r;
 }

@@ -46,6 +46,7 @@ struct MdCounters {
   int64_t gated_steps = 0;  // CUDA: steps the structure served behind the step gate (cuda/step_gate.h)
   int64_t list_evaluations = 0;  // CUDA: evaluations that walked pair lists (PipelineStats::listed)
   int64_t graph_builds = 0;  // CUDA: builds whose fixed part a CUDA graph replayed (PipelineStats::graph_build)
+  int list_block = 0;  // CUDA: the last nonzero PipelineStats::list_block of a gated chunk; 0: none ran
   std::size_t missed_pairs = 0, repeated_pairs = 0;
 };
 

@@ -115,9 +115,9 @@ struct PipelineStats {
   // CUDA pair lists: this evaluation's build ran its fixed part (cell IDs to the list's count pass)
   // as a replayed CUDA graph (cuda/build_graph.cuh).
   bool graph_build = false;
-  // CUDA pair lists: threads a block of the force kernel that ran the next step's kick-drift in the
-  // last steps served behind the step gate (128, or 256 where those fill its last wave better:
-  // cuda/pair_list.cu fused_block); 0 before any.
+  // CUDA pair lists: threads a block of the force kernels that ran the next step's kick-drift in the
+  // last chunk of steps served behind the step gate (128, or 256 where those fill its last wave
+  // better: cuda/list_build.h fused_block_size); 0 where it ran none (lean memory, Langevin).
   int list_block = 0;
 };
 
