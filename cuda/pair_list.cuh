@@ -171,7 +171,8 @@ struct PairList {
   int forced_threads = 0;              // tests only: this many threads per particle (1, 2, 4 or 8)
   int forced_block = 0;                // tests only: this many threads a block (kBlock or 2 kBlock) for
                                        // the force kernels that run the next step's kick-drift
-  int fused_block = 0;                 // the last such launch's threads a block (pair_list.cu fused_block)
+  int fused_block = 0;                 // the last such launch's threads a block (pair_list.cu fused_block;
+                                       // reset to 0 as a gated chunk begins: GpuEngine's list_block)
   struct BlockShape {                  // its kernel's resident blocks a multiprocessor, kBlock and
     const void* kernel = nullptr;      // 2 kBlock threads a block (asked once per kernel)
     int resident[2] = {0, 0};
