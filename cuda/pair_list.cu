@@ -1108,6 +1108,7 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
   // most 8.
   const std::size_t wanted = std::size_t(std::max(cells.multiprocessors, 1)) * 1024;
   list.threads_per_particle = 1;
+  list.multiprocessors = cells.multiprocessors;
   while (list.threads_per_particle < 8 && n * std::size_t(list.threads_per_particle) < wanted)
     list.threads_per_particle *= 2;
   if (list.forced_threads > 0) list.threads_per_particle = list.forced_threads;
@@ -1238,21 +1239,19 @@ RankOrder rank_order(const ListArgs<Real, Accum>& args, PairList& list, bool for
 }
 
 // The fused force kernel's block size (change 76, list_build.h fused_block_size), from the
-// occupancy calculator's resident blocks of the kernel's two forms, asked once per kernel.
+// occupancy calculator's resident blocks of the kernel's two forms, asked once per kernel, and the
+// build's multiprocessor count.
 namespace {
 int fused_block(PairList& list, const void* narrow, const void* wide, std::size_t threads) {
   if (list.forced_block) return list.forced_block;
   if (list.threads_per_particle != 1) return kBlock;
   PairList::BlockShape& shape = list.shape;
   if (shape.kernel != narrow) {
-    int device = 0;
-    CF_CUDA_CHECK(cudaGetDevice(&device));
-    CF_CUDA_CHECK(cudaDeviceGetAttribute(&shape.multiprocessors, cudaDevAttrMultiProcessorCount, device));
     CF_CUDA_CHECK(cudaOccupancyMaxActiveBlocksPerMultiprocessor(&shape.resident[0], narrow, kBlock, 0));
     CF_CUDA_CHECK(cudaOccupancyMaxActiveBlocksPerMultiprocessor(&shape.resident[1], wide, 2 * kBlock, 0));
     shape.kernel = narrow;
   }
-  return fused_block_size(threads, list.threads_per_particle, kBlock, shape.resident, shape.multiprocessors);
+  return fused_block_size(threads, list.threads_per_particle, kBlock, shape.resident, list.multiprocessors);
 }
 }  // namespace
 

@@ -176,9 +176,9 @@ struct PairList {
   struct BlockShape {                  // its kernel's resident blocks a multiprocessor, kBlock and
     const void* kernel = nullptr;      // 2 kBlock threads a block (asked once per kernel)
     int resident[2] = {0, 0};
-    int multiprocessors = 0;
   };
   BlockShape shape;
+  int multiprocessors = 0;             // the device's, as the build had them (threads_per_particle's rule)
   bool dependent_launch = false;       // the device schedules a kernel before the last one ends
                                        // (programmatic dependent launch: compute capability 9.0 on)
   bool use_masks = true;               // false: every fill walks the columns again (tests; lean builds
