@@ -48,6 +48,10 @@ struct GpuOptions {
                                     // operation by operation, never as a CUDA graph (cuda/build_graph.cuh)
   std::optional<bool> build_graph_audit;  // tests only (true): a replayed build's bookkeeping runs under
                                           // a stream capture that must record nothing (BuildGraph)
+  std::optional<bool> gate_notice;        // tests only (false): a gated chunk's host waits for the gate's
+                                          // copy at its end, not for a shut kernel's notice (gate_readback.cuh)
+  std::optional<bool> gate_notice_check;  // tests only (true): it waits for the copy, and the notice must be
+                                          // there exactly where the gate closed, with the copy's values
   int device = 0;                     // CUDA device ordinal
 };
 

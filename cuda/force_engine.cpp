@@ -19,6 +19,8 @@ GpuOptions options(const EngineChoice& choice) {
   o.list_block = choice.list_block;
   o.build_graph = choice.build_graph;
   o.build_graph_audit = choice.build_graph_audit;
+  o.gate_notice = choice.gate_notice;
+  o.gate_notice_check = choice.gate_notice_check;
   return o;
 }
 

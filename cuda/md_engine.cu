@@ -37,6 +37,7 @@
 #include "force_engine.h"  // cuda/force_engine.h
 #include "md/fire_step.h"
 #include "pair_list.cuh"  // place_ranked
+#include "gate_readback.cuh"
 #include "step_gate.cuh"
 #include "traversal.cuh"   // kCellSums
 #include "verlet_step.cuh"
@@ -878,6 +879,12 @@ class CudaMdEngine final : public MdEngine {
     CF_CUDA_CHECK(cudaMemsetAsync(&gate_.data()->closed, 0xff, sizeof(unsigned long long), stream_));
     const uint64_t first = uint64_t(step_) + 1;
     cuda::GateView view{gate_.data(), first, gpu_.gate_limit()};
+    // The host reads the gate's notice or its copy, whichever comes first (change 77; tests may
+    // ask for the copy alone, or for both, checked against each other).
+    const GpuOptions& options = gpu_.options();
+    const bool check_notice = options.gate_notice_check.value_or(false);
+    const bool notice_first = options.gate_notice.value_or(true) && !check_notice;
+    gate_read_.begin(view, options.gate_notice.value_or(true) || check_notice);
     const double* built = gpu_.device_build_positions();
     const DriftBox box = drift_box(settings.langevin ? 0.5 : 1.0);  // as the ungated steps' drifts
     const unsigned blocks = unsigned((n_ + kGateParticles - 1) / kGateParticles);
@@ -974,14 +981,25 @@ class CudaMdEngine final : public MdEngine {
       throw;
     }
     if (ranked) unrank_state(state, to.order);
-    cuda::StepGate g{};
     pause();
-    CF_CUDA_CHECK(cudaMemcpyAsync(&g, gate_.data(), sizeof g, cudaMemcpyDeviceToHost, stream_));
-    CF_CUDA_CHECK(cudaStreamSynchronize(stream_));  // control data, like the displacement: not counted
+    gate_read_.queue_copy(gate_.data(), stream_);  // control data, like the displacement: not counted
+    const cuda::GateReadback::Outcome read = gate_read_.wait(notice_first);
     const uint64_t last = first + uint64_t(count) - 1;
-    uint64_t closed = g.closed;
-    if (closed == cuda::kGateOpen && g.d2[last % 3] > view.limit) closed = last;  // no later drift closed it
+    // The step the gate closed at: the copy's, or where no later kernel closed it, the last step's
+    // own displacement past the limit (its shut evaluation posted the notice).
+    auto closed_at = [&](const cuda::StepGate& g) {
+      return g.closed == cuda::kGateOpen && g.d2[last % 3] > view.limit ? last : g.closed;
+    };
+    if (read.copy && check_notice) check_gate_notice(closed_at(*read.copy), *read.copy, read.notice);
+    // Where the gate closed, the notice's values (the same as the copy's); else the copy's.
+    const cuda::StepGate g = read.notice ? *read.notice : *read.copy;
+    const bool early = !read.copy;  // the chunk's tail (shut steps, write-back, copy) may still run
+    const uint64_t closed = closed_at(g);
     const int64_t served = closed == cuda::kGateOpen ? count : int64_t(closed - first);
+    if (closed != cuda::kGateOpen) {
+      ++counters_.gate_closings;
+      if (early) ++counters_.gate_closings_early;
+    }
     // Every step served: the last gated evaluation's forces are the state's, in the caller's order
     // for whatever comes next. (Where the gate closed, the closed step's kick-drift has read them and
     // its evaluation writes new ones.)
@@ -990,6 +1008,7 @@ class CudaMdEngine final : public MdEngine {
       gpu_.unrank_forces(n_);
     }
     if (served == 0) {  // the timed evaluation was shut: its slot is reused below, so read it now
+      if (early) CF_CUDA_CHECK(cudaEventSynchronize(force_events_[2 * timed + 1]));
       float ms = 0;
       CF_CUDA_CHECK(cudaEventElapsedTime(&ms, force_events_[2 * timed], force_events_[2 * timed + 1]));
       shut_ms_ += ms;
@@ -1191,6 +1210,23 @@ class CudaMdEngine final : public MdEngine {
 
   void reset_flags() { CF_CUDA_CHECK(cudaMemsetAsync(flags_.data(), 0xff, sizeof(MdFlags), stream_)); }
 
+  // gate_notice_check (tests): a chunk's notice must be there exactly where its gate closed
+  // (`closed`, from the copy), with the copy's values: the closed step, its displacement and the
+  // largest one served (change 77).
+  static void check_gate_notice(uint64_t closed, const cuda::StepGate& copy, const std::optional<cuda::StepGate>& notice) {
+    if (closed == cuda::kGateOpen) {
+      if (notice) throw Error("internal error: a gated chunk posted a notice at step " +
+                              std::to_string(notice->closed) + ", but its gate did not close");
+      return;
+    }
+    if (!notice)
+      throw Error("internal error: the step gate closed at step " + std::to_string(closed) +
+                  ", but no kernel posted its notice");
+    if (notice->closed != closed || notice->d2[closed % 3] != copy.d2[closed % 3] || notice->served != copy.served)
+      throw Error("internal error: the step gate closed at step " + std::to_string(closed) +
+                  ", but its notice says step " + std::to_string(notice->closed) + " or other values");
+  }
+
   // Reads the integration's and the force engine's flags (synchronises) and throws for the first
   // that is raised, naming the steps first..last of the call.
   void check(int64_t first, int64_t last) {
@@ -1234,6 +1270,7 @@ class CudaMdEngine final : public MdEngine {
   std::optional<double> uniform_mass_;  // every particle's mass, where they are all the same (change 60)
   bool at_build_ = false;  // the positions are those the structure in use was built from (change 60)
   DeviceBuffer<cuda::StepGate> gate_;
+  cuda::GateReadback gate_read_;  // the gate's copy and notice on the host (change 77)
   int64_t interval_ = 16;    // steps between the last two builds (a guess before there were two)
   int64_t since_build_ = 0;  // evaluations served since the last build
   MdCounters counters_;

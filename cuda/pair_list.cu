@@ -720,7 +720,7 @@ __global__ void __launch_bounds__(B)
   // The whole block: before any shuffle or barrier. Drift: the next step's first kernel's test, which
   // closes the gate where this step's displacement ran past the limit.
   if constexpr (Drift) {
-    if (step_gate_shut(GateView{gate.gate, gate.step + 1, gate.limit})) return;
+    if (step_gate_shut(next_step(gate))) return;
   } else {
     if (gate_shut(gate)) return;
   }
@@ -854,7 +854,7 @@ __global__ void __launch_bounds__(B)
 #pragma unroll
     for (int c = 0; c < D; ++c) force[c] = double(f[c]);  // the values a stored force would hold
     next_kick_drift<D, S, B>(then, n, p, part, force, P.type, next, args.grid, args.num_types, args.flags,
-                          GateView{gate.gate, gate.step + 1, gate.limit});
+                          next_step(gate));
     return;
   }
   if (p < n && part == 0) {

@@ -7,6 +7,20 @@
 
 namespace cellforce::cuda {
 
+// The notice of a shut gate (GateNotice, step_gate.h): the step it closed at and the gate's values
+// (final: every kernel before this one is complete), a fence, then the chunk's tag, which the host
+// waits for. One thread (block 0's first) of a kernel that found the gate shut.
+__device__ __forceinline__ void post_notice(const GateView& view, unsigned long long closed) {
+  if (!view.notice) return;
+  const volatile StepGate* g = view.gate;
+  volatile GateNotice* out = view.notice;
+  out->closed = closed;
+  out->d2 = g->d2[closed % 3];
+  out->served = g->served;
+  __threadfence_system();  // the values reach the host before the tag
+  out->tag = view.tag;
+}
+
 // Whether the evaluation of view.step must not run: the gate closed at an earlier step, or this
 // step's displacement is past the limit (the next kick-drift closes the gate here). The same
 // answer in every block of a launch: the gate is written only by earlier kernels. One thread per
@@ -18,10 +32,18 @@ __device__ __forceinline__ bool gate_shut(const GateView& view) {
   __shared__ int shut;
   if (threadIdx.x == 0) {
     const volatile StepGate* g = view.gate;
-    shut = g->closed != kGateOpen || g->d2[view.step % 3] > view.limit;
+    const unsigned long long closed = g->closed;
+    shut = closed != kGateOpen || g->d2[view.step % 3] > view.limit;
+    if (shut && blockIdx.x == 0) post_notice(view, closed != kGateOpen ? closed : view.step);
   }
   __syncthreads();
   return shut != 0;
+}
+
+// The same gate at the next step (a kernel that tests, or drifts, the step after its own).
+__device__ __forceinline__ GateView next_step(GateView view) {
+  ++view.step;
+  return view;
 }
 
 // A particle's squared displacement as the gate takes it: a NaN (a diverged particle) is +inf,
@@ -59,6 +81,7 @@ __device__ __forceinline__ bool step_gate_shut(const GateView& gate) {
       shut = 1;
       if (blockIdx.x == 0) g->closed = gate.step - 1;
     }
+    if (shut && blockIdx.x == 0) post_notice(gate, g->closed);
     if (!shut && blockIdx.x == 0) g->d2[(gate.step + 1) % 3] = 0;  // the next step's slot
   }
   __syncthreads();

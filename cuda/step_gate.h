@@ -12,6 +12,11 @@
 // the chunk's rank-order copy, written back at the chunk's end; change 58). The host reads the gate
 // once per chunk of steps and resumes at the closed step with an ordinary evaluation, which
 // rebuilds. Plain C++: engine.h includes it.
+//
+// The notice (change 77): the first kernel of a chunk that finds the gate shut also writes the
+// closed step and the gate's values into host memory the device maps (GateNotice), so that the host,
+// which waits for that or for the chunk's end, queues the rebuild while the chunk's tail (its shut
+// steps, the state's write-back, the gate's copy) still runs, instead of after it.
 #pragma once
 
 #include <cstdint>
@@ -31,12 +36,25 @@ struct StepGate {
   unsigned long long served;
 };
 
+// What the first shut kernel of a chunk tells the host (mapped host memory): the step the gate
+// closed at, that step's squared displacement and the largest one served (StepGate's bits), then,
+// after a system-wide fence, the chunk's tag. The values are final when it is written: every
+// kernel before it in the chunk is complete. Later shut kernels write the same values again.
+struct GateNotice {
+  unsigned long long closed;
+  unsigned long long d2;
+  unsigned long long served;
+  unsigned long long tag;  // written last; the host's chunk number (never 0), 0 before any chunk
+};
+
 // What a gated kernel of one step reads: the gate (null: no gate, the kernel always runs), the
-// step, and the bits of (skin / 2)^2.
+// step, the bits of (skin / 2)^2, and where to post the notice (null: nowhere) with the chunk's tag.
 struct GateView {
   StepGate* gate = nullptr;
   uint64_t step = 0;
   unsigned long long limit = 0;
+  GateNotice* notice = nullptr;
+  unsigned long long tag = 0;
 };
 
 }  // namespace cellforce::cuda

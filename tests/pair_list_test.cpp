@@ -10,6 +10,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <initializer_list>
 #include <optional>
 #include <string>
@@ -976,6 +977,51 @@ TEST(PairListMd, GatedRunsEqualTheStepwiseRunLeanOrNot) {
       EXPECT_EQ(fast.list_block, langevin ? 0 : form.block.value_or(128));
       EXPECT_EQ(lean.list_block, 0);
       EXPECT_EQ(stepwise.list_block, 0);
+    }
+  }
+}
+
+// The gate's notice (change 77, cuda/gate_readback.cuh): the first kernel of a gated chunk that finds
+// the gate shut posts the closed step and the gate's values into mapped host memory, and the host
+// queues the rebuild as soon as it sees them, before the chunk's end. Runs of the in.lj fluid
+// (mixed precision; fast and lean memory, Verlet and Langevin) whose host reads the notice first
+// (the default), the copy alone (gate_notice = false) or both (gate_notice_check: the notice must be
+// there exactly where the copy says the gate closed, with its values, else the run throws) give
+// bitwise the same state and count the same closings; only the default reads any early.
+TEST(PairListMd, GateNoticeIsTheGatesOwnCopy) {
+  CF_SKIP_WITHOUT_DEVICE();
+  const cellforce::Scene fluid = small_fluid();
+  std::vector<double> masses;
+  const cellforce::MdState start = unit_mass_start(fluid, masses);
+  for (const ListMemory memory : {ListMemory::kFast, ListMemory::kLean}) {
+    for (const bool langevin : {false, true}) {
+      SCOPED_TRACE(std::string(memory == ListMemory::kLean ? "lean, " : "fast, ") + (langevin ? "Langevin" : "Verlet"));
+      auto run = [&](std::optional<bool> notice, std::optional<bool> check, cellforce::MdCounters* counters) {
+        cellforce::EngineChoice choice = list_choice(Precision::kMixed, memory);
+        choice.gate_notice = notice;
+        choice.gate_notice_check = check;
+        auto md = cellforce::make_cuda_md_engine(std::make_unique<cellforce::CudaForceEngine>(choice));
+        md->set_state(start, masses, fluid.force_field);
+        md->advance(300, md_settings(langevin), false);
+        *counters = md->counters();
+        return end_state(*md);
+      };
+      cellforce::MdCounters first, copy, checked;
+      const std::vector<double> a = run(std::nullopt, std::nullopt, &first), b = run(false, std::nullopt, &copy),
+                                c = run(std::nullopt, true, &checked);
+      EXPECT_TRUE(a == b) << "reading the notice first changed the run";
+      EXPECT_TRUE(c == b) << "the checked run differs";
+      EXPECT_GE(checked.gate_closings, 5) << "too few closings to check the notice";
+      EXPECT_LE(checked.gate_closings, checked.builds);
+      EXPECT_EQ(first.gate_closings, checked.gate_closings);
+      EXPECT_EQ(copy.gate_closings, checked.gate_closings);
+      EXPECT_EQ(first.builds, copy.builds);
+      EXPECT_EQ(checked.gate_closings_early, 0) << "the checked run waits for the copy";
+      EXPECT_EQ(copy.gate_closings_early, 0) << "no notice was posted";
+      EXPECT_LE(first.gate_closings_early, first.gate_closings);
+      std::printf("[          ] %s memory, %s: %lld of %lld closings read early\n",
+                  memory == ListMemory::kLean ? "lean" : "fast", langevin ? "Langevin" : "Verlet",
+                  (long long)first.gate_closings_early, (long long)first.gate_closings);
     }
   }
 }

@@ -153,6 +153,10 @@ struct RunStatistics {
   // the steps since the statistics were reset (128, or 256 where those fill its last wave better,
   // from the device's occupancy); 0 where none ran (lean memory, Langevin, no pair lists).
   int list_block = 0;
+  // CUDA pair lists: runs of steps queued behind the step gate that ended in a rebuild, and of those
+  // the ones whose rebuild the host queued before the run's end, told by the first kernel that found
+  // the gate shut (the rest it queued once the run had ended).
+  int64_t gate_closings = 0, gate_closings_early = 0;
 };
 
 // The neighbour structure in use (skin > 0), for a bitwise restart: the positions it was built

@@ -544,6 +544,8 @@ RunStatistics Context::run_statistics() const {
   r.list_mask_words_held = impl_->md->forces().stats().list_mask_words_held;
   r.graph_builds = c.graph_builds;
   r.list_block = c.list_block;
+  r.gate_closings = c.gate_closings;
+  r.gate_closings_early = c.gate_closings_early;
   r.state_bytes = impl_->md->state_bytes();
   return r;
 }

@@ -42,6 +42,10 @@ struct EngineChoice {
                                                           // build's fixed part (cuda/build_graph.cuh)
   std::optional<bool> build_graph_audit;                  // tests only (CUDA, true): a replayed build must
                                                           // queue nothing of that part (BuildGraph)
+  std::optional<bool> gate_notice;                        // tests only (CUDA, false): the MD engine reads a
+                                                          // gated chunk's gate at its end only (no notice)
+  std::optional<bool> gate_notice_check;                  // tests only (CUDA, true): and checks the notice
+                                                          // against it (cuda/gate_readback.cuh)
 };
 
 class ForceEngine {

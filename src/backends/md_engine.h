@@ -47,6 +47,9 @@ struct MdCounters {
   int64_t list_evaluations = 0;  // CUDA: evaluations that walked pair lists (PipelineStats::listed)
   int64_t graph_builds = 0;  // CUDA: builds whose fixed part a CUDA graph replayed (PipelineStats::graph_build)
   int list_block = 0;  // CUDA: the last nonzero PipelineStats::list_block of a gated chunk; 0: none ran
+  int64_t gate_closings = 0;        // CUDA: gated chunks whose gate closed (each followed by a rebuild)
+  int64_t gate_closings_early = 0;  // of those, the ones the host read from the notice before the
+                                    // chunk's end (cuda/gate_readback.cuh)
   std::size_t missed_pairs = 0, repeated_pairs = 0;
 };
 

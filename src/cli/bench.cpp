@@ -240,6 +240,8 @@ SizeResult bench_size(const BenchArgs& args, const EngineChoice& engine, int cel
       row["list_mask_words_held"] = st.list_mask_words_held;
       row["graph_builds"] = st.graph_builds;
       row["list_block"] = st.list_block;
+      row["gate_closings"] = st.gate_closings;
+      row["gate_closings_early"] = st.gate_closings_early;
       row["state_bytes"] = st.state_bytes;
       row["bytes_per_particle"] = double(st.buffer_bytes + st.state_bytes) / double(n);
       row["energy_per_particle_start"] = e.front();
