@@ -7,7 +7,6 @@
 
 #include <cuda_runtime.h>
 
-#include <atomic>
 #include <optional>
 
 #include "check.cuh"
@@ -20,6 +19,8 @@ class GateReadback {
   GateReadback() = default;
   GateReadback(const GateReadback&) = delete;
   GateReadback& operator=(const GateReadback&) = delete;
+  // After an early read the chunk's tail may still run, but nothing of it writes the notice again
+  // (StepGate::posted), and every MD run() ends with a synchronisation before the engine can go.
   ~GateReadback() {  // a destructor cannot throw: errors are ignored
     if (copy_) cudaFreeHost(copy_);
     if (notice_) cudaFreeHost(notice_);
@@ -80,9 +81,9 @@ class GateReadback {
 
   // The notice of this chunk, where its tag has arrived: the gate it tells (d2 only at the closed step).
   std::optional<StepGate> posted() const {
+    // An acquire load of the tag: the values, written before it (the kernel's system fence), are read after.
+    if (__atomic_load_n(&notice_->tag, __ATOMIC_ACQUIRE) != tag_) return std::nullopt;
     const volatile GateNotice* n = notice_;
-    if (n->tag != tag_) return std::nullopt;
-    std::atomic_thread_fence(std::memory_order_acquire);  // the values were written before the tag
     StepGate g{};
     g.closed = n->closed;
     g.d2[g.closed % 3] = n->d2;

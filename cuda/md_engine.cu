@@ -35,9 +35,9 @@
 #include "core/text.h"
 #include "device_buffer.cuh"
 #include "force_engine.h"  // cuda/force_engine.h
+#include "gate_readback.cuh"  // GateReadback: the gate's copy and notice
 #include "md/fire_step.h"
 #include "pair_list.cuh"  // place_ranked
-#include "gate_readback.cuh"
 #include "step_gate.cuh"
 #include "traversal.cuh"   // kCellSums
 #include "verlet_step.cuh"
@@ -1210,10 +1210,11 @@ class CudaMdEngine final : public MdEngine {
 
   void reset_flags() { CF_CUDA_CHECK(cudaMemsetAsync(flags_.data(), 0xff, sizeof(MdFlags), stream_)); }
 
-  // gate_notice_check (tests): a chunk's notice must be there exactly where its gate closed
-  // (`closed`, from the copy), with the copy's values: the closed step, its displacement and the
-  // largest one served (change 77).
-  static void check_gate_notice(uint64_t closed, const cuda::StepGate& copy, const std::optional<cuda::StepGate>& notice) {
+  // gate_notice_check (tests): a chunk's notice (the first and only one posted) must be there exactly
+  // where its gate closed (`closed`, from the copy), with the copy's values: the closed step, its
+  // displacement and the largest one served (change 77).
+  static void check_gate_notice(uint64_t closed, const cuda::StepGate& copy,
+                                const std::optional<cuda::StepGate>& notice) {
     if (closed == cuda::kGateOpen) {
       if (notice) throw Error("internal error: a gated chunk posted a notice at step " +
                               std::to_string(notice->closed) + ", but its gate did not close");

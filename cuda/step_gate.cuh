@@ -9,10 +9,13 @@ namespace cellforce::cuda {
 
 // The notice of a shut gate (GateNotice, step_gate.h): the step it closed at and the gate's values
 // (final: every kernel before this one is complete), a fence, then the chunk's tag, which the host
-// waits for. One thread (block 0's first) of a kernel that found the gate shut.
+// waits for. One thread (block 0's first) of a kernel that found the gate shut, once a chunk: the
+// kernels run one after the other, so the first to find the gate shut posts and marks it posted.
 __device__ __forceinline__ void post_notice(const GateView& view, unsigned long long closed) {
   if (!view.notice) return;
-  const volatile StepGate* g = view.gate;
+  volatile StepGate* g = view.gate;
+  if (g->posted) return;
+  g->posted = 1;
   volatile GateNotice* out = view.notice;
   out->closed = closed;
   out->d2 = g->d2[closed % 3];

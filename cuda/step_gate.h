@@ -34,12 +34,14 @@ struct StepGate {
   unsigned long long closed;
   // The bits of the largest squared displacement that a gated evaluation served.
   unsigned long long served;
+  // Nonzero once a kernel posted the chunk's notice (GateNotice): the first post is the only one.
+  unsigned long long posted;
 };
 
 // What the first shut kernel of a chunk tells the host (mapped host memory): the step the gate
 // closed at, that step's squared displacement and the largest one served (StepGate's bits), then,
 // after a system-wide fence, the chunk's tag. The values are final when it is written: every
-// kernel before it in the chunk is complete. Later shut kernels write the same values again.
+// kernel before it in the chunk is complete. Later shut kernels post nothing (StepGate::posted).
 struct GateNotice {
   unsigned long long closed;
   unsigned long long d2;

@@ -986,13 +986,15 @@ TEST(PairListMd, GatedRunsEqualTheStepwiseRunLeanOrNot) {
 // queues the rebuild as soon as it sees them, before the chunk's end. Runs of the in.lj fluid
 // (mixed precision; fast and lean memory, Verlet and Langevin) whose host reads the notice first
 // (the default), the copy alone (gate_notice = false) or both (gate_notice_check: the notice must be
-// there exactly where the copy says the gate closed, with its values, else the run throws) give
-// bitwise the same state and count the same closings; only the default reads any early.
+// there exactly where the copy says the gate closed, with its values, else the run throws; the first
+// post is the only one, so it is the one checked) give bitwise the same state and count the same
+// closings; the default reads most of them early.
 TEST(PairListMd, GateNoticeIsTheGatesOwnCopy) {
   CF_SKIP_WITHOUT_DEVICE();
   const cellforce::Scene fluid = small_fluid();
   std::vector<double> masses;
   const cellforce::MdState start = unit_mass_start(fluid, masses);
+  int64_t closings = 0, early = 0;
   for (const ListMemory memory : {ListMemory::kFast, ListMemory::kLean}) {
     for (const bool langevin : {false, true}) {
       SCOPED_TRACE(std::string(memory == ListMemory::kLean ? "lean, " : "fast, ") + (langevin ? "Langevin" : "Verlet"));
@@ -1016,14 +1018,17 @@ TEST(PairListMd, GateNoticeIsTheGatesOwnCopy) {
       EXPECT_EQ(first.gate_closings, checked.gate_closings);
       EXPECT_EQ(copy.gate_closings, checked.gate_closings);
       EXPECT_EQ(first.builds, copy.builds);
-      EXPECT_EQ(checked.gate_closings_early, 0) << "the checked run waits for the copy";
-      EXPECT_EQ(copy.gate_closings_early, 0) << "no notice was posted";
-      EXPECT_LE(first.gate_closings_early, first.gate_closings);
-      std::printf("[          ] %s memory, %s: %lld of %lld closings read early\n",
+      closings += first.gate_closings;
+      early += first.gate_closings_early;
+      std::printf("gate notice, %s memory, %s: %lld of %lld closings read early\n",
                   memory == ListMemory::kLean ? "lean" : "fast", langevin ? "Langevin" : "Verlet",
                   (long long)first.gate_closings_early, (long long)first.gate_closings);
     }
   }
+  // Whether the host sees a notice before the chunk's end is a matter of timing (the chunk's tail
+  // after the closing: its shut steps, the write-back, the copy, tens of us); on the H100 it saw
+  // every one. Fewer than a quarter means the notices come late or not at all.
+  EXPECT_GT(early, closings / 4) << "the host read few closings from the notice";
 }
 
 // The build's fixed part replayed as a CUDA graph (change 74, cuda/build_graph.cuh) is the part
