@@ -1,6 +1,6 @@
 // Stage 3, collision cells (GPU Gems 3 ch. 32, section 32.2.5): the sorted keys are scanned for
-// transitions in parallel: (1) flag every entry that starts a cell, (2) compact the flagged
-// positions (CUB select), (3) describe each run, finding where its H entries end (they sort
+// transitions in parallel: (1-2) compact the positions of the entries that start a cell (CUB select
+// with the test as its predicate: change 80, where a kernel flagged them into an array first), (3) describe each run, finding where its H entries end (they sort
 // first), and compact those that are collision cells (H >= 1, H + P >= 2) (CUB select on the
 // descriptions). The list comes out in cell order, identical to the CPU stage's. Every count stays
 // in device memory (PipelineCounts); the launches cover the host's bounds.
@@ -23,12 +23,13 @@ constexpr int kBlock = 256;
 unsigned blocks_for(std::size_t n) { return unsigned((n + kBlock - 1) / kBlock); }
 
 // Entry i starts a cell: it is valid and its cell differs from entry i - 1's.
-__global__ void flag_cell_starts(const uint32_t* __restrict__ keys, std::size_t entries,
-                                 const PipelineCounts* __restrict__ counts, uint8_t* __restrict__ flags) {
-  const std::size_t i = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
-  if (i >= entries) return;
-  flags[i] = i < counts->valid && (i == 0 || (keys[i] >> 1) != (keys[i - 1] >> 1));
-}
+struct StartsCell {
+  const uint32_t* keys;
+  const PipelineCounts* counts;
+  __device__ bool operator()(uint32_t i) const {
+    return i < counts->valid && (i == 0 || (keys[i] >> 1) != (keys[i - 1] >> 1));
+  }
+};
 
 // Run r (one cell's entries) as a CollisionCell: where its H entries end (they sort first) by a
 // binary search over the phantom bit. Runs beyond the count come out empty (h = 0).
@@ -68,28 +69,27 @@ PipelineCounts read_counts(const PipelineCounts* counts, cudaStream_t stream) {
 
 void find_collision_cells(const uint32_t* sorted_keys, std::size_t entries, std::size_t run_bound,
                           std::size_t cell_bound, PipelineCounts* counts, DeviceBuffer<CollisionCell>& cells,
-                          CollisionScratch& s, cudaStream_t stream) {
+                          CollisionScratch& s, cudaStream_t stream, bool zeroed) {
   // cell_range[0] stays 0; the count goes to cell_range[1].
-  CF_CUDA_CHECK(cudaMemsetAsync(&counts->runs, 0, sizeof(counts->runs) + sizeof(counts->cell_range), stream));
+  if (!zeroed)
+    CF_CUDA_CHECK(cudaMemsetAsync(&counts->runs, 0, sizeof(counts->runs) + sizeof(counts->cell_range), stream));
   cells.reserve(std::max<std::size_t>(cell_bound, 1));
   if (entries == 0 || run_bound == 0) return;
   if (entries > std::size_t(INT32_MAX)) throw Error("collision cells of more than 2^31 entries");
-  s.flags.reserve(entries);
   s.run_start.reserve(run_bound);
-  flag_cell_starts<<<blocks_for(entries), kBlock, 0, stream>>>(sorted_keys, entries, counts, s.flags.data());
-  CF_CUDA_CHECK_LAUNCH();
   // The runs' first entries, then the runs that are collision cells, each compacted by CUB with
   // the count left in device memory.
   const thrust::counting_iterator<uint32_t> index(0);
+  const StartsCell starts{sorted_keys, counts};
   auto runs = thrust::make_transform_iterator(index, DescribeRun{sorted_keys, s.run_start.data(), counts});
   std::size_t starts_bytes = 0, cells_bytes = 0;
-  CF_CUDA_CHECK(cub::DeviceSelect::Flagged(nullptr, starts_bytes, index, s.flags.data(), s.run_start.data(),
-                                           &counts->runs, int(entries), stream));
+  CF_CUDA_CHECK(cub::DeviceSelect::If(nullptr, starts_bytes, index, s.run_start.data(), &counts->runs, int(entries),
+                                      starts, stream));
   CF_CUDA_CHECK(cub::DeviceSelect::If(nullptr, cells_bytes, runs, cells.data(), &counts->cell_range[1],
                                       int(run_bound), IsCollisionCell{}, stream));
   s.cub.reserve(std::max(starts_bytes, cells_bytes));
-  CF_CUDA_CHECK(cub::DeviceSelect::Flagged(s.cub.data(), starts_bytes, index, s.flags.data(), s.run_start.data(),
-                                           &counts->runs, int(entries), stream));
+  CF_CUDA_CHECK(cub::DeviceSelect::If(s.cub.data(), starts_bytes, index, s.run_start.data(), &counts->runs,
+                                      int(entries), starts, stream));
   CF_CUDA_CHECK(cub::DeviceSelect::If(s.cub.data(), cells_bytes, runs, cells.data(), &counts->cell_range[1],
                                       int(run_bound), IsCollisionCell{}, stream));
 }

@@ -138,7 +138,7 @@ struct GpuEngine::Impl {
     f(cells), f(counts), f(tile_start), f(staged), f(table), f(force_slots), f(energy_slots), f(cell_sums);
     f(forces), f(energies), f(totals), f(flags), f(pairs), f(build_positions);
     f(chapter_sort.keys), f(chapter_sort.values), f(chapter_sort.counts), f(chapter_sort.digit_totals);
-    f(collision.flags), f(collision.run_start), f(collision.cub);
+    f(collision.run_start), f(collision.cub);
     f(split.keys), f(split.keys_out), f(split.order), f(split.order_out), f(split.cells), f(split.counts);
     f(split.cub);
     list.for_each_buffer(f);
@@ -157,7 +157,7 @@ struct GpuEngine::Impl {
   template <class F>
   void for_each_part_buffer(F&& f) {
     f(keys), f(object_ids), f(sorted_keys), f(sorted_ids), f(control), f(cub), f(counts), f(cells);
-    f(collision.flags), f(collision.run_start), f(collision.cub), f(tile_start), f(build_positions), f(staged);
+    f(collision.run_start), f(collision.cub), f(tile_start), f(build_positions), f(staged);
     f(flags), f(table), f(forces);  // forces: reserved by the part's list_args, written after it
     list.for_each_head_buffer(f);
   }
@@ -391,8 +391,7 @@ struct GpuEngine::Impl {
       }
     }
     // A lean build's masks' room was sized to the memory it left (grow_masks, change 71): kept for
-    // lean builds of the same system whose keys are lent (they take no room anew: the collision
-    // flags they free and take again come back from the stream's pool); given up before
+    // lean builds of the same system whose keys are lent (they take no room anew); given up before
     // anything else is taken where that room may be wanted (a new system, the other mode, keys in
     // arrays of their own, or lean after fast mode's room, sized without regard to lean's), and asked
     // for again at the build's end where masks are used (build_list).
@@ -430,19 +429,16 @@ struct GpuEngine::Impl {
                 o.build_graph_audit.value_or(false));
     const bool queue = graph.queuing();
     if (queue) {
-      cuda::build_cell_ids(g, pos, n, unsorted_keys, unsorted_ids, control.data(), stream);
-      if (skin > 0) {
-        if (n)
-          CF_CUDA_CHECK(cudaMemcpyAsync(build_positions.data(), pos, n * g.dim * sizeof(double),
-                                        cudaMemcpyDeviceToDevice, stream));
-        if (o.reuse.audit) {  // before the sort (the chapter's may reuse the input); read after a sync
-          download(build_keys, unsorted_keys, entries, stream);
-          download(build_control, control.data(), n, stream);
-        }
+      // The cell-ID kernel also counts the valid entries (the counts zeroed before it) and, with a
+      // skin, keeps the build's positions (change 80: no CUB reduction over the keys, no copy).
+      cuda::build_cell_ids(g, pos, n, unsorted_keys, unsorted_ids, control.data(), stream, counts.data(),
+                           skin > 0 ? build_positions.data() : nullptr);
+      if (skin > 0 && o.reuse.audit) {  // before the sort (the chapter's may reuse the input); read after a sync
+        download(build_keys, unsorted_keys, entries, stream);
+        download(build_control, control.data(), n, stream);
       }
       stage_record(kCellIds);
-      cuda::count_valid(unsorted_keys, entries, counts.data(), cub, stream);
-      stage_record(kCounted);
+      stage_record(kCounted);  // counted with the cell IDs
       switch (o.sort) {
         case SortMethod::kCub:
           cuda::radix_sort_cub(unsorted_keys, unsorted_ids, sorted_keys.data(), sorted_ids.data(), entries,
@@ -462,7 +458,7 @@ struct GpuEngine::Impl {
     }
     if (queue) {
       cuda::find_collision_cells(sorted_keys.data(), entries, run_bound, max_cells, counts.data(), cells,
-                                 collision, stream);
+                                 collision, stream, true);
       if (o.accumulation == Accumulation::kGaussSeidel)
         cuda::split_by_type(g, cells, max_cells, counts.data(), split, stream);
       if (tiled) cuda::tile_starts(cells.data(), counts.data()->cell_range, max_cells, tile_start.data(), cub, stream);
@@ -545,7 +541,6 @@ struct GpuEngine::Impl {
                                    }};
     list_usable = cuda::build_pair_list<Real, Accum>(cell_args, sorted_keys.data(), control.data(), entries,
                                                      ff.cutoff + o.reuse.skin, la, list, stream, count_staged, head);
-    if (lean) collision.flags.release();
     if (!list_usable) list.ranked_forces.release();  // no gated evaluations: the cells serve
     list_built_for = builds;
   }

@@ -28,9 +28,12 @@ struct IsHome {
   __device__ bool operator()(uint32_t e) const { return (keys[e] & 1u) == 0u; }
 };
 
-__global__ void invert_order(const uint32_t* __restrict__ order, std::size_t n, uint32_t* __restrict__ rank) {
+// Also zeroes the two sizes sum_slot_counts adds to later in the build (change 80: no memset).
+__global__ void invert_order(const uint32_t* __restrict__ order, std::size_t n, uint32_t* __restrict__ rank,
+                             unsigned long long* __restrict__ sizes) {
   const std::size_t p = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
   if (p < n) rank[order[p]] = uint32_t(p);
+  if (p == 0) sizes[0] = sizes[1] = 0;
 }
 
 // The minimum-image separation a - b along axis `a` of the grid (positions already wrapped).
@@ -552,9 +555,11 @@ __global__ void __launch_bounds__(kBlock)
 template <int D>
 __global__ void sum_slot_counts(const uint32_t* __restrict__ slot_counts, std::size_t n, std::size_t groups,
                                 uint32_t* __restrict__ length, unsigned long long* __restrict__ group_chunks,
-                                unsigned long long* __restrict__ sizes) {
+                                unsigned long long* __restrict__ sizes, uint32_t force_blocks,
+                                uint32_t* __restrict__ force_blocks_out) {
   static_assert(kGroup == 32 && kBlock % kGroup == 0, "a group of ranks is one warp's");  // __reduce_max_sync: sm_80+
   const std::size_t p = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
+  if (p == 0) *force_blocks_out = force_blocks;  // for sum_cells (change 80: no copy from the host)
   uint32_t s = 0;
   if (p < n) {
     for (int t = 0; t < (1 << D); ++t) s += slot_counts[p * (1u << D) + t];
@@ -579,6 +584,17 @@ __global__ void sum_slot_counts(const uint32_t* __restrict__ slot_counts, std::s
     for (int w = 0; w < kBlock / 32; ++w) most = max(most, warp_longest[w]), sum += warp_total[w];
     if (most) atomicMax(&sizes[0], (unsigned long long)most);
     if (sum) atomicAdd(&sizes[1], sum);
+  }
+}
+
+// The last two of the sizes the host reads in one copy (change 80: one launch, where two
+// device-to-device copies were): the words every unit's masks take (masks_end null: none) and the
+// list's chunks.
+__global__ void gather_sizes(unsigned long long* __restrict__ sizes, const unsigned long long* __restrict__ masks_end,
+                             const unsigned long long* __restrict__ chunks_end) {
+  if (threadIdx.x == 0) {
+    if (masks_end) sizes[2] = *masks_end;
+    sizes[3] = *chunks_end;
   }
 }
 
@@ -989,7 +1005,7 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
   if (queue) {
     CF_CUDA_CHECK(cub::DeviceSelect::Flagged(list.scratch.data(), bytes, cells.sorted_ids, home, list.order.data(),
                                              list.selected.data(), int(entries), stream));
-    invert_order<<<blocks_for(n), kBlock, 0, stream>>>(list.order.data(), n, list.rank.data());
+    invert_order<<<blocks_for(n), kBlock, 0, stream>>>(list.order.data(), n, list.rank.data(), list.sizes.data());
     CF_CUDA_CHECK_LAUNCH();
   }
 
@@ -1098,12 +1114,6 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
   // then (the scan below) their first chunks.
   const std::size_t groups = (n + kGroup - 1) / kGroup;
   list.group_chunks.reserve(groups + 1);
-  CF_CUDA_CHECK(cudaMemsetAsync(list.sizes.data(), 0, 2 * sizeof(unsigned long long), stream));
-  with_dim(dim, [&](auto d) {
-    sum_slot_counts<decltype(d)::value><<<blocks_for(n + kGroup), kBlock, 0, stream>>>(
-        list.slot_counts.data(), n, groups, list.length.data(), list.group_chunks.data(), list.sizes.data());
-    CF_CUDA_CHECK_LAUNCH();
-  });
   // Threads per particle: enough threads to fill half the device (1,024 per multiprocessor), at
   // most 8.
   const std::size_t wanted = std::size_t(std::max(cells.multiprocessors, 1)) * 1024;
@@ -1112,10 +1122,16 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
   while (list.threads_per_particle < 8 && n * std::size_t(list.threads_per_particle) < wanted)
     list.threads_per_particle *= 2;
   if (list.forced_threads > 0) list.threads_per_particle = list.forced_threads;
-  // The force kernel's block count, for sum_cells (a pageable source is staged before the call returns).
+  // The lengths (sizes[0] and [1] were zeroed by invert_order), and the force kernel's block count
+  // for sum_cells.
   const uint32_t blocks = blocks_for(n * std::size_t(list.threads_per_particle));
   list.blocks.reserve(1);
-  CF_CUDA_CHECK(cudaMemcpyAsync(list.blocks.data(), &blocks, sizeof(blocks), cudaMemcpyHostToDevice, stream));
+  with_dim(dim, [&](auto d) {
+    sum_slot_counts<decltype(d)::value><<<blocks_for(n + kGroup), kBlock, 0, stream>>>(
+        list.slot_counts.data(), n, groups, list.length.data(), list.group_chunks.data(), list.sizes.data(), blocks,
+        list.blocks.data());
+    CF_CUDA_CHECK_LAUNCH();
+  });
   std::size_t scan_bytes = cub_bytes(list.scan_bytes, groups + 1, [&](std::size_t& b) {
     return cub::DeviceScan::ExclusiveSum(nullptr, b, list.group_chunks.data(), list.group_chunks.data(),
                                          int(groups + 1), stream);
@@ -1125,11 +1141,9 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
                                               list.group_chunks.data(), int(groups + 1), stream));
   // The host reads the four sizes in one copy, one wait (three waits in a row cost ~25 us a build):
   // the longest list, the pairs, the words every unit's masks would take and the list's chunks.
-  if (masks.base)
-    CF_CUDA_CHECK(cudaMemcpyAsync(list.sizes.data() + 2, masks.base + launched_units, sizeof(unsigned long long),
-                                  cudaMemcpyDeviceToDevice, stream));
-  CF_CUDA_CHECK(cudaMemcpyAsync(list.sizes.data() + 3, list.group_chunks.data() + groups, sizeof(unsigned long long),
-                                cudaMemcpyDeviceToDevice, stream));
+  gather_sizes<<<1, 32, 0, stream>>>(list.sizes.data(), masks.base ? masks.base + launched_units : nullptr,
+                                     list.group_chunks.data() + groups);
+  CF_CUDA_CHECK_LAUNCH();
   unsigned long long* sizes = list.readback.values();
   CF_CUDA_CHECK(cudaMemcpyAsync(sizes, list.sizes.data(), 4 * sizeof(unsigned long long), cudaMemcpyDeviceToHost,
                                 stream));

@@ -33,9 +33,14 @@ PipelineCounts read_counts(const PipelineCounts* counts, cudaStream_t stream);
 // Stage 1 (GPU Gems 3 ch. 32, section 32.2.2): one thread per particle. positions: n x grid.dim
 // doubles, user order. Writes keys and object_ids (n x 2^d, entry i * 2^d + t as on the CPU:
 // key = cell << 1 | phantom, kInvalidCell where unused) and control (n). keys and object_ids are
-// 16-byte aligned (the kernel stores 4 entries at a time).
+// 16-byte aligned (the kernel stores 4 entries at a time). With `counts`, every count is zeroed
+// first (stage 3 then needs no zeroing of its own: find_collision_cells' `zeroed`) and the valid
+// entries are counted into counts->valid by the kernel itself (an integer atomic add per block: the
+// same count as count_valid, without a second pass over the keys). With `copy` (n x grid.dim), the
+// positions as read are stored there too (the build's positions of a reused structure). Change 80.
 void build_cell_ids(const Grid& grid, const double* positions, std::size_t n, uint32_t* keys,
-                    uint32_t* object_ids, Control* control, cudaStream_t stream);
+                    uint32_t* object_ids, Control* control, cudaStream_t stream, PipelineCounts* counts = nullptr,
+                    double* copy = nullptr);
 
 // The count of valid entries into counts->valid, by a device reduction; `scratch` grows as CUB
 // asks.
@@ -77,14 +82,14 @@ void radix_sort_chapter(const uint32_t* keys_in, const uint32_t* values_in, uint
 // sorted keys, in cell order, written to `cells` with their number in counts->cell_range[1] (and
 // the runs in counts->runs). `run_bound` >= the runs and `cell_bound` >= the collision cells (see
 // PipelineCounts) size the buffers, which grow to them.
+// `zeroed`: counts->runs and cell_range were zeroed since the last stage 3 (build_cell_ids with counts).
 struct CollisionScratch {
-  DeviceBuffer<uint8_t> flags;
   DeviceBuffer<uint32_t> run_start;
   DeviceBuffer<std::byte> cub;
 };
 void find_collision_cells(const uint32_t* sorted_keys, std::size_t entries, std::size_t run_bound,
                           std::size_t cell_bound, PipelineCounts* counts, DeviceBuffer<CollisionCell>& cells,
-                          CollisionScratch& scratch, cudaStream_t stream);
+                          CollisionScratch& scratch, cudaStream_t stream, bool zeroed = false);
 
 // Stage 3's option for Gauss-Seidel: splits the counts->cell_range[1] cells (at most `cell_bound`)
 // stably by cell type (cell order kept within a type); counts->type_start[t] ..

@@ -53,6 +53,23 @@ void expect_stages_equal(const Configuration& c, double cutoff) {
   EXPECT_EQ(download(d_keys, entries), host.keys) << "cell-ID array";
   EXPECT_EQ(download(d_ids, entries), host.object_ids) << "object-ID array";
   EXPECT_EQ(download(d_control, sys.n), host.control) << "control bits";
+  // The engine's form (change 80): the kernel zeroes every count (they held another value before),
+  // counts the valid entries itself and keeps the positions it read; the same arrays.
+  {
+    CF_CUDA_CHECK(cudaMemset(d_counts.data(), 0x5a, sizeof(cuda::PipelineCounts)));
+    cuda::DeviceBuffer<double> d_copy(std::max<std::size_t>(c.positions.size(), 1));
+    cuda::build_cell_ids(g, d_pos.data(), sys.n, d_keys.data(), d_ids.data(), d_control.data(), 0, d_counts.data(),
+                         d_copy.data());
+    const cuda::PipelineCounts counted = cuda::read_counts(d_counts.data(), 0);
+    EXPECT_EQ(counted.valid, host.valid) << "valid entries counted by the cell-ID kernel";
+    EXPECT_EQ(counted.runs, 0u);
+    EXPECT_EQ(counted.cell_range[0], 0u);
+    EXPECT_EQ(counted.cell_range[1], 0u);
+    EXPECT_EQ(download(d_copy, c.positions.size()), c.positions) << "the positions the kernel kept";
+    EXPECT_EQ(download(d_keys, entries), host.keys) << "cell-ID array (engine's form)";
+    EXPECT_EQ(download(d_ids, entries), host.object_ids) << "object-ID array (engine's form)";
+    EXPECT_EQ(download(d_control, sys.n), host.control) << "control bits (engine's form)";
+  }
 
   cuda::radix_sort_cub(d_keys.data(), d_ids.data(), d_keys_sorted.data(), d_ids_sorted.data(),
                        entries, g.key_bits, scratch, 0);
@@ -117,9 +134,24 @@ void expect_stages_equal(const Configuration& c, double cutoff) {
   // min(n, grid cells).
   const std::size_t run_bound = std::min<std::size_t>(entries, g.num_cells);
   const std::size_t cell_bound = std::min<std::size_t>(sys.n, g.num_cells);
+  // The engine's form: the counts zeroed by the cell-ID kernel above (`zeroed`); and the same cells
+  // where the stage zeroes them itself (their old values garbage).
   cuda::find_collision_cells(d_keys_sorted.data(), entries, run_bound, cell_bound, d_counts.data(), d_cells,
-                             collision_scratch, 0);
+                             collision_scratch, 0, true);
   const cuda::PipelineCounts counts = cuda::read_counts(d_counts.data(), 0);
+  {
+    cuda::DeviceBuffer<CollisionCell> again;
+    CF_CUDA_CHECK(cudaMemset(&d_counts.data()->runs, 0x5a, sizeof(uint32_t) * 3));
+    cuda::find_collision_cells(d_keys_sorted.data(), entries, run_bound, cell_bound, d_counts.data(), again,
+                               collision_scratch, 0);
+    const cuda::PipelineCounts second = cuda::read_counts(d_counts.data(), 0);
+    EXPECT_EQ(second.runs, counts.runs);
+    EXPECT_EQ(second.cell_range[1], counts.cell_range[1]);
+    const auto a = download(again, counts.cell_range[1]), b = download(d_cells, counts.cell_range[1]);
+    for (std::size_t i = 0; i < a.size(); ++i)
+      ASSERT_TRUE(a[i].start == b[i].start && a[i].h == b[i].h && a[i].p == b[i].p && a[i].cell == b[i].cell)
+          << "collision cell " << i << " where the stage zeroed its counts";
+  }
   const std::size_t ncells = counts.cell_range[1];
   EXPECT_EQ(counts.cell_range[0], 0u);
   EXPECT_LE(counts.runs, run_bound);
