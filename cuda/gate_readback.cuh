@@ -1,8 +1,11 @@
-// How the host reads a gated chunk's outcome (step_gate.h), change 77: the gate's copy into pinned
-// memory at the chunk's end, or, where the gate closed, the notice the first shut kernel posts into
-// mapped host memory while the chunk's tail still runs (GateNotice). The host takes whichever comes
-// first: a closed gate's notice lets it queue the rebuild behind the chunk's tail (at 256,000
-// particles ~25 us of shut steps, the state's write-back and the copy) instead of after it.
+// How the host reads a gated chunk's outcome (step_gate.h), change 77: the gate's copy at the
+// chunk's end, or, where the gate closed, the notice the first shut kernel posts into mapped host
+// memory while the chunk's tail still runs (GateNotice). The host takes whichever comes first: a
+// closed gate's notice lets it queue the rebuild behind the chunk's tail (at 256,000 particles ~25
+// us of shut steps, the state's write-back and the copy) instead of after it.
+// Change 81: the copy is a one-thread kernel's (post_gate_kernel) into mapped host memory, which
+// then resets the gate for the next chunk: the device turned around ~7 us before a copy engine's
+// copy and ~7 us again from a chunk's closed step to the next chunk's two memsets of the gate.
 #pragma once
 
 #include <cuda_runtime.h>
@@ -10,9 +13,36 @@
 #include <optional>
 
 #include "check.cuh"
+#include "core/error.h"
 #include "step_gate.h"
 
 namespace cellforce::cuda {
+
+// The gate's copy in mapped host memory: its values, then (after a system-wide fence) the chunk's tag.
+struct PostedGate {
+  StepGate gate;
+  unsigned long long tag;  // the host's chunk number (never 0); 0 before any chunk
+};
+
+// The chunk's last kernel (one thread): the gate, final (every kernel of the chunk before it is
+// complete), into `out` with the chunk's tag, then the gate reset for the next chunk (zeros, the
+// closed step kGateOpen), as the chunk's memsets had it.
+template <int = 0>
+__global__ void post_gate_kernel(StepGate* gate, PostedGate* out, unsigned long long tag) {
+  if (threadIdx.x != 0 || blockIdx.x != 0) return;
+  volatile StepGate* g = gate;
+  volatile PostedGate* o = out;
+  for (int k = 0; k < 3; ++k) o->gate.d2[k] = g->d2[k];
+  o->gate.closed = g->closed;
+  o->gate.served = g->served;
+  o->gate.posted = g->posted;
+  __threadfence_system();  // the values reach the host before the tag
+  o->tag = tag;
+  for (int k = 0; k < 3; ++k) g->d2[k] = 0;
+  g->closed = kGateOpen;
+  g->served = 0;
+  g->posted = 0;
+}
 
 class GateReadback {
  public:
@@ -36,9 +66,11 @@ class GateReadback {
     view.tag = tag_;
   }
 
-  // Queues the gate's copy at the chunk's end (after every kernel of the chunk).
-  void queue_copy(const StepGate* gate, cudaStream_t stream) {
-    CF_CUDA_CHECK(cudaMemcpyAsync(copy_, gate, sizeof(StepGate), cudaMemcpyDeviceToHost, stream));
+  // Queues the gate's copy at the chunk's end (after every kernel of the chunk), which also resets
+  // the gate for the next chunk (post_gate_kernel).
+  void queue_copy(StepGate* gate, cudaStream_t stream) {
+    post_gate_kernel<<<1, 32, 0, stream>>>(gate, copy_device_, tag_);
+    CF_CUDA_CHECK(cudaGetLastError());
     CF_CUDA_CHECK(cudaEventRecord(arrived_, stream));
   }
 
@@ -52,23 +84,27 @@ class GateReadback {
     if (notice_first) {
       for (;;) {
         if (std::optional<StepGate> g = posted()) return {std::nullopt, g};
-        const cudaError_t done = cudaEventQuery(arrived_);
+        if (__atomic_load_n(&copy_->tag, __ATOMIC_ACQUIRE) == tag_) break;
+        const cudaError_t done = cudaEventQuery(arrived_);  // (an error stops the wait)
         if (done == cudaSuccess) break;
         if (done != cudaErrorNotReady) CF_CUDA_CHECK(done);
       }
     } else {
       CF_CUDA_CHECK(cudaEventSynchronize(arrived_));
     }
-    return {*copy_, posted()};
+    return {copied(), posted()};
   }
 
  private:
   void make() {
     void* p = nullptr;
     if (!copy_) {
-      CF_CUDA_CHECK(cudaHostAlloc(&p, sizeof(StepGate), cudaHostAllocDefault));
-      copy_ = static_cast<StepGate*>(p);
+      CF_CUDA_CHECK(cudaHostAlloc(&p, sizeof(PostedGate), cudaHostAllocMapped));
+      copy_ = static_cast<PostedGate*>(p);
+      *copy_ = PostedGate{};  // tag 0: no chunk's
     }
+    if (!copy_device_)
+      CF_CUDA_CHECK(cudaHostGetDevicePointer(reinterpret_cast<void**>(&copy_device_), copy_, 0));
     if (!notice_) {
       CF_CUDA_CHECK(cudaHostAlloc(&p, sizeof(GateNotice), cudaHostAllocMapped));
       notice_ = static_cast<GateNotice*>(p);
@@ -77,6 +113,19 @@ class GateReadback {
     if (!notice_device_)
       CF_CUDA_CHECK(cudaHostGetDevicePointer(reinterpret_cast<void**>(&notice_device_), notice_, 0));
     if (!arrived_) CF_CUDA_CHECK(cudaEventCreateWithFlags(&arrived_, cudaEventDisableTiming));
+  }
+
+  // The chunk's copy (its tag has arrived: the tag's acquire load, or the event after the kernel).
+  StepGate copied() const {
+    if (__atomic_load_n(&copy_->tag, __ATOMIC_ACQUIRE) != tag_)
+      throw Error("internal error: the gate's copy is not this chunk's");
+    const volatile StepGate* c = &copy_->gate;
+    StepGate g{};
+    for (int k = 0; k < 3; ++k) g.d2[k] = c->d2[k];
+    g.closed = c->closed;
+    g.served = c->served;
+    g.posted = c->posted;
+    return g;
   }
 
   // The notice of this chunk, where its tag has arrived: the gate it tells (d2 only at the closed step).
@@ -91,7 +140,8 @@ class GateReadback {
     return g;
   }
 
-  StepGate* copy_ = nullptr;     // pinned: the gate's copy
+  PostedGate* copy_ = nullptr;   // mapped: the gate's copy (post_gate_kernel)
+  PostedGate* copy_device_ = nullptr;
   GateNotice* notice_ = nullptr;  // mapped: what a shut kernel posts
   GateNotice* notice_device_ = nullptr;
   cudaEvent_t arrived_ = nullptr;

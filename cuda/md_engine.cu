@@ -874,9 +874,14 @@ class CudaMdEngine final : public MdEngine {
     const double dt = settings.dt;
     resume();
     observed_ = false;  // the state moves on: thermo() must evaluate again unless a later step observes
-    gate_.reserve(1);
-    CF_CUDA_CHECK(cudaMemsetAsync(gate_.data(), 0, sizeof(cuda::StepGate), stream_));
-    CF_CUDA_CHECK(cudaMemsetAsync(&gate_.data()->closed, 0xff, sizeof(unsigned long long), stream_));
+    // The gate zeroed, its closed step kGateOpen: by the last chunk's end (post_gate_kernel, change
+    // 81), else here.
+    if (!gate_reset_) {
+      gate_.reserve(1);
+      CF_CUDA_CHECK(cudaMemsetAsync(gate_.data(), 0, sizeof(cuda::StepGate), stream_));
+      CF_CUDA_CHECK(cudaMemsetAsync(&gate_.data()->closed, 0xff, sizeof(unsigned long long), stream_));
+    }
+    gate_reset_ = false;  // until this chunk's end queues the copy that resets it
     const uint64_t first = uint64_t(step_) + 1;
     cuda::GateView view{gate_.data(), first, gpu_.gate_limit()};
     // The host reads the gate's notice or its copy, whichever comes first (change 77; tests may
@@ -983,6 +988,7 @@ class CudaMdEngine final : public MdEngine {
     if (ranked) unrank_state(state, to.order);
     pause();
     gate_read_.queue_copy(gate_.data(), stream_);  // control data, like the displacement: not counted
+    gate_reset_ = true;
     const cuda::GateReadback::Outcome read = gate_read_.wait(notice_first);
     const uint64_t last = first + uint64_t(count) - 1;
     // The step the gate closed at: the copy's, or where no later kernel closed it, the last step's
@@ -1272,6 +1278,7 @@ class CudaMdEngine final : public MdEngine {
   bool at_build_ = false;  // the positions are those the structure in use was built from (change 60)
   DeviceBuffer<cuda::StepGate> gate_;
   cuda::GateReadback gate_read_;  // the gate's copy and notice on the host (change 77)
+  bool gate_reset_ = false;       // the last chunk's copy reset the gate (change 81)
   int64_t interval_ = 16;    // steps between the last two builds (a guess before there were two)
   int64_t since_build_ = 0;  // evaluations served since the last build
   MdCounters counters_;
