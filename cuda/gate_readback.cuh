@@ -49,8 +49,9 @@ class GateReadback {
   GateReadback() = default;
   GateReadback(const GateReadback&) = delete;
   GateReadback& operator=(const GateReadback&) = delete;
-  // After an early read the chunk's tail may still run, but nothing of it writes the notice again
-  // (StepGate::posted), and every MD run() ends with a synchronisation before the engine can go.
+  // After an early read the chunk's tail may still run: nothing of it writes the notice again
+  // (StepGate::posted), its post_gate_kernel writes the copy, and every MD run() ends with a
+  // synchronisation before the engine (and this memory) can go.
   ~GateReadback() {  // a destructor cannot throw: errors are ignored
     if (copy_) cudaFreeHost(copy_);
     if (notice_) cudaFreeHost(notice_);

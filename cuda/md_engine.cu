@@ -1014,7 +1014,8 @@ class CudaMdEngine final : public MdEngine {
       gpu_.unrank_forces(n_);
     }
     if (served == 0) {  // the timed evaluation was shut: its slot is reused below, so read it now
-      if (early) CF_CUDA_CHECK(cudaEventSynchronize(force_events_[2 * timed + 1]));
+      // (after its end event: the host may have read the notice or the gate's mapped copy first)
+      CF_CUDA_CHECK(cudaEventSynchronize(force_events_[2 * timed + 1]));
       float ms = 0;
       CF_CUDA_CHECK(cudaEventElapsedTime(&ms, force_events_[2 * timed], force_events_[2 * timed + 1]));
       shut_ms_ += ms;

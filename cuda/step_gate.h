@@ -27,7 +27,8 @@ constexpr unsigned long long kGateOpen = ~0ull;
 
 struct StepGate {
   // Per step mod 3: the bits of the largest squared displacement since the build (a double >= 0,
-  // +inf for one that is not finite: the bits order as the values do). Zeroed before a chunk.
+  // +inf for one that is not finite: the bits order as the values do). Zeroed before a chunk (by the
+  // last chunk's post_gate_kernel, change 81, or the chunk's memsets).
   unsigned long long d2[3];
   // The first step whose evaluation the structure could not serve, as the next step's kick-drift
   // finds it; kGateOpen while there is none (the host checks the chunk's last step itself).

@@ -68,9 +68,10 @@ inline ListMemory lists_memory(ListMemory asked, std::size_t n, std::size_t devi
                                                                                                  : ListMemory::kFast;
 }
 
-// Counts and stage times (seconds) of the last evaluation. The CPU folds the valid count into
-// t_cell_ids; the GPU times it apart (t_count) and includes staging the occupants (the
-// relative-coordinate gather) in t_traversal. t_transfer: host <-> device copies (GPU only).
+// Counts and stage times (seconds) of the last evaluation. Both backends fold the valid count into
+// t_cell_ids (the GPU's cell-ID kernel counts them, change 80: its t_count is ~0) and the GPU
+// includes staging the occupants (the relative-coordinate gather) in t_traversal. t_transfer:
+// host <-> device copies (GPU only).
 struct PipelineStats {
   Grid grid;
   std::size_t entries = 0;            // n x 2^d cell-ID entries

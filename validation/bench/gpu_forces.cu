@@ -47,8 +47,9 @@ int main(int argc, char** argv) {
 
   cudaDeviceProp prop{};
   CF_CUDA_CHECK(cudaGetDeviceProperties(&prop, 0));
-  std::printf("device: %s; request: forces%s; times in ms, median of %d\n\n", prop.name,
-              observables ? " + energy + virial" : " only", repeats);
+  std::printf("device: %s; request: forces%s; times in ms, median of %d; the valid count is the cell-ID "
+              "kernel's since change 80 (count ~0)\n\n",
+              prop.name, observables ? " + energy + virial" : " only", repeats);
   std::printf("| N | precision | traversal | sort | cell IDs | count | sort | collision cells | "
               "traversal | slot sum | pipeline | transfers | pairs/s (1e9) | candidates/s (1e9) |\n");
   std::printf("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n");
