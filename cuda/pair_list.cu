@@ -587,14 +587,22 @@ __global__ void sum_slot_counts(const uint32_t* __restrict__ slot_counts, std::s
   }
 }
 
-// The last two of the sizes the host reads in one copy (change 80: one launch, where two
-// device-to-device copies were): the words every unit's masks take (masks_end null: none) and the
-// list's chunks.
-__global__ void gather_sizes(unsigned long long* __restrict__ sizes, const unsigned long long* __restrict__ masks_end,
-                             const unsigned long long* __restrict__ chunks_end) {
+// The four sizes the host reads, posted into its mapped memory (SizesReadback; change 80: one launch
+// where two device copies were, change 82: no copy to the host after it): the longest list and the
+// sum of the lengths (sum_slot_counts), the words every unit's masks take (masks_end null: none,
+// 0) and the list's chunks; a system-wide fence, then the build's tag.
+__global__ void gather_sizes(const unsigned long long* __restrict__ sizes,
+                             const unsigned long long* __restrict__ masks_end,
+                             const unsigned long long* __restrict__ chunks_end, unsigned long long* out,
+                             unsigned long long tag) {
   if (threadIdx.x == 0) {
-    if (masks_end) sizes[2] = *masks_end;
-    sizes[3] = *chunks_end;
+    volatile unsigned long long* o = out;
+    o[0] = sizes[0];
+    o[1] = sizes[1];
+    o[2] = masks_end ? *masks_end : 0ull;
+    o[3] = *chunks_end;
+    __threadfence_system();  // the sizes reach the host before the tag
+    o[4] = tag;
   }
 }
 
@@ -990,7 +998,7 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
   list.rank.reserve(std::max<std::size_t>(n, 1));
   list.slot_counts.reserve(std::max<std::size_t>(n * slots, 1));
   list.length.reserve(std::max<std::size_t>(n, 1));
-  list.sizes.reserve(4);
+  list.sizes.reserve(2);
   list.selected.reserve(1);
   list.width = list.pairs = list.slots = 0;
   if (n == 0) return true;
@@ -1139,16 +1147,15 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
   list.scratch.reserve(std::max<std::size_t>(scan_bytes, 1));
   CF_CUDA_CHECK(cub::DeviceScan::ExclusiveSum(list.scratch.data(), scan_bytes, list.group_chunks.data(),
                                               list.group_chunks.data(), int(groups + 1), stream));
-  // The host reads the four sizes in one copy, one wait (three waits in a row cost ~25 us a build):
-  // the longest list, the pairs, the words every unit's masks would take and the list's chunks.
+  // The host reads the four sizes with one wait (three waits in a row cost ~25 us a build): the
+  // longest list, the pairs, the words every unit's masks would take and the list's chunks, posted
+  // into its mapped memory (change 82).
+  unsigned long long tag = 0;
+  unsigned long long* post = list.readback.begin(tag);
   gather_sizes<<<1, 32, 0, stream>>>(list.sizes.data(), masks.base ? masks.base + launched_units : nullptr,
-                                     list.group_chunks.data() + groups);
+                                     list.group_chunks.data() + groups, post, tag);
   CF_CUDA_CHECK_LAUNCH();
-  unsigned long long* sizes = list.readback.values();
-  CF_CUDA_CHECK(cudaMemcpyAsync(sizes, list.sizes.data(), 4 * sizeof(unsigned long long), cudaMemcpyDeviceToHost,
-                                stream));
-  CF_CUDA_CHECK(cudaEventRecord(list.readback.arrived(), stream));
-  // Where the list has an array already, the fill is queued behind the sizes' copy before the host
+  // Where the list has an array already, the fill is queued behind the sizes' post before the host
   // reads them (change 65), so that the device fills while the host waits, decides and queues
   // what follows, instead of waiting for the host's launch (~17-23 us a build at 256k-1M). It
   // writes nothing where the list needs more chunks than the array holds (its guard reads the
@@ -1157,7 +1164,8 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
   const unsigned long long room = list.neighbors.capacity() / (std::size_t(kGroup) * kChunk);
   const bool early = row_blocks && room > 0;
   if (early) walk_rows(std::integral_constant<ListPass, ListPass::kFill>{}, list.group_chunks.data() + groups, room);
-  CF_CUDA_CHECK(cudaEventSynchronize(list.readback.arrived()));
+  const SizesReadback::Sizes read = list.readback.wait(stream);
+  const unsigned long long* sizes = read.value;
   const std::size_t width = std::size_t(sizes[0]), pairs = std::size_t(sizes[1]);
   const std::size_t mask_words = masks.base ? std::size_t(sizes[2]) : 0;  // what every unit's masks would take
   const std::size_t entries_total = std::size_t(sizes[3]) * kGroup * kChunk;  // the list's slots, padding included

@@ -31,6 +31,7 @@
 #include <functional>
 #include <type_traits>
 
+#include "core/error.h"
 #include "list_build.h"  // split_columns, build_splits, prefilter_bound, fixed-point coordinates
 #include "rank_order.h"
 #include "step_gate.h"
@@ -92,9 +93,11 @@ struct BuildMasks {
   __device__ bool kept(uint32_t unit) const { return words && base[unit + 1] <= capacity; }
 };
 
-// Pinned host memory for the build's four sizes, and the event of their copy's arrival (change 65:
-// the host waits for the sizes, not for the stream, so the device can fill meanwhile). Made when
-// first asked for, on the current device.
+// Mapped host memory for the build's four sizes and its tag (change 65: the host waits for the
+// sizes, not for the stream, so the device can fill meanwhile; change 82: the kernel that gathers
+// them posts them there, a system-wide fence, then the build's tag, where a copy engine's copy
+// and an event were, ~10 us of the device's turnaround a build). Made when first asked for, on the
+// current device; the host waits for every build's tag, so no post is pending when it goes.
 class SizesReadback {
  public:
   SizesReadback() = default;
@@ -102,24 +105,43 @@ class SizesReadback {
   SizesReadback& operator=(const SizesReadback&) = delete;
   ~SizesReadback() {  // a destructor cannot throw: errors are ignored
     if (values_) cudaFreeHost(values_);
-    if (arrived_) cudaEventDestroy(arrived_);
   }
-  unsigned long long* values() {
+  // A new build's tag (`tag`), and where its kernel posts the four sizes and then the tag (a device
+  // pointer to 5 words).
+  unsigned long long* begin(unsigned long long& tag) {
     if (!values_) {
       void* p = nullptr;
-      CF_CUDA_CHECK(cudaHostAlloc(&p, 4 * sizeof(unsigned long long), cudaHostAllocDefault));
+      CF_CUDA_CHECK(cudaHostAlloc(&p, 5 * sizeof(unsigned long long), cudaHostAllocMapped));
       values_ = static_cast<unsigned long long*>(p);
+      for (int k = 0; k < 5; ++k) values_[k] = 0;  // tag 0: no build's
+      CF_CUDA_CHECK(cudaHostGetDevicePointer(reinterpret_cast<void**>(&device_), values_, 0));
     }
-    return values_;
+    tag = ++builds_;
+    return device_;
   }
-  cudaEvent_t arrived() {
-    if (!arrived_) CF_CUDA_CHECK(cudaEventCreateWithFlags(&arrived_, cudaEventDisableTiming));
-    return arrived_;
+  // The last build's four sizes, once its tag has arrived (an acquire load: the values, written
+  // before it, are read after). An error in the stream's work stops the wait.
+  struct Sizes {
+    unsigned long long value[4];
+  };
+  Sizes wait(cudaStream_t stream) const {
+    for (;;) {
+      if (__atomic_load_n(&values_[4], __ATOMIC_ACQUIRE) == builds_) break;
+      const cudaError_t done = cudaStreamQuery(stream);
+      if (done == cudaSuccess) {
+        if (__atomic_load_n(&values_[4], __ATOMIC_ACQUIRE) == builds_) break;
+        throw Error("internal error: the list's sizes were not posted");
+      }
+      if (done != cudaErrorNotReady) CF_CUDA_CHECK(done);
+    }
+    const volatile unsigned long long* v = values_;
+    return Sizes{{v[0], v[1], v[2], v[3]}};
   }
 
  private:
-  unsigned long long* values_ = nullptr;
-  cudaEvent_t arrived_ = nullptr;
+  unsigned long long* values_ = nullptr;  // mapped: the sizes, then the tag
+  unsigned long long* device_ = nullptr;
+  unsigned long long builds_ = 0;
 };
 
 struct PairList {
@@ -138,9 +160,9 @@ struct PairList {
   DeviceBuffer<FixedParticle> fixed_next;    // kick-drift (change 59) places it; swapped with the
                                              // array it read after its launch
   DeviceBuffer<double> ranked_forces;  // n x dim: the gated evaluations' forces in rank order (RankOrder)
-  DeviceBuffer<unsigned long long> sizes;  // 4: the longest list, the sum of the lengths, the words
-                                           // every unit's masks would take, the list's chunks (the
-                                           // host reads them in one copy, into `readback`)
+  DeviceBuffer<unsigned long long> sizes;  // 2: the longest list and the sum of the lengths (posted
+                                           // with the masks' words and the list's chunks into
+                                           // `readback`)
   SizesReadback readback;
   DeviceBuffer<uint32_t> selected;     // 1: CUB's count of H entries (n)
   DeviceBuffer<uint32_t> split_counts; // splits > 1: the count pass's partners per work unit (row
