@@ -97,7 +97,8 @@ struct BuildMasks {
 // sizes, not for the stream, so the device can fill meanwhile; change 82: the kernel that gathers
 // them posts them there, a system-wide fence, then the build's tag, where a copy engine's copy
 // and an event were, ~10 us of the device's turnaround a build). Made when first asked for, on the
-// current device; the host waits for every build's tag, so no post is pending when it goes.
+// current device. A build that throws before its wait may leave its post pending: the engine
+// synchronises its stream before it (and this memory) goes (GpuEngine::Impl's destructor).
 class SizesReadback {
  public:
   SizesReadback() = default;
@@ -114,8 +115,8 @@ class SizesReadback {
       CF_CUDA_CHECK(cudaHostAlloc(&p, 5 * sizeof(unsigned long long), cudaHostAllocMapped));
       values_ = static_cast<unsigned long long*>(p);
       for (int k = 0; k < 5; ++k) values_[k] = 0;  // tag 0: no build's
-      CF_CUDA_CHECK(cudaHostGetDevicePointer(reinterpret_cast<void**>(&device_), values_, 0));
     }
+    if (!device_) CF_CUDA_CHECK(cudaHostGetDevicePointer(reinterpret_cast<void**>(&device_), values_, 0));
     tag = ++builds_;
     return device_;
   }
