@@ -169,7 +169,7 @@ struct GpuEngine::Impl {
     using cuda::add_to_key;
     cuda::BuildGraph::Key k;
     k.reserve(192);
-    for (const auto v : {n, entries, max_cells, std::size_t(form), std::size_t(multiprocessors), std::size_t(g.dim),
+    for (const auto v : {n, entries, max_cells, std::size_t(timing), std::size_t(form), std::size_t(multiprocessors), std::size_t(g.dim),
                          std::size_t(g.num_cells), std::size_t(g.key_bits), std::size_t(accumulate_flags),
                          std::size_t(o.precision), std::size_t(ff.num_types()), std::size_t(ff.mode),
                          std::size_t(o.list_splits.value_or(0)), std::size_t(o.list_masks.value_or(true)),
@@ -193,6 +193,7 @@ struct GpuEngine::Impl {
   // A stage event of the build's fixed part: a node of its graph while it is captured (recorded at
   // every replay), else recorded.
   void stage_record(Event e) {
+    if (!timing) return;
     if (graph.capturing()) CF_CUDA_CHECK(cudaEventRecordWithFlags(events[e], stream, cudaEventRecordExternal));
     else record(e);
   }
@@ -210,7 +211,14 @@ struct GpuEngine::Impl {
     if (stream) cudaStreamDestroy(stream);
   }
 
-  void record(Event e) { CF_CUDA_CHECK(cudaEventRecord(events[e], stream)); }
+  void record(Event e) {
+    if (timing) CF_CUDA_CHECK(cudaEventRecord(events[e], stream));
+  }
+  // Whether this evaluation records its stage events (evaluate_resident's time_stages, change 83).
+  // Each held the device between its two operations: at 256,000 particles ~3-6 us around each of
+  // the build graph's four event nodes (against ~0.1 us between two kernels of the graph) and ~7-8
+  // us in all around an MD chunk's closing evaluation (change 82's CUPTI timeline).
+  bool timing = true;
   double seconds(Event from, Event to) const {
     float ms = 0;
     CF_CUDA_CHECK(cudaEventElapsedTime(&ms, events[from], events[to]));
@@ -890,9 +898,15 @@ void GpuEngine::synchronize(const ForceField& ff) {
 }
 
 void GpuEngine::evaluate_resident(const Box& box, std::size_t n, const double* positions, const uint32_t* types,
-                                  const ForceField& ff, const Request& request, std::optional<double> known_d2) {
+                                  const ForceField& ff, const Request& request, std::optional<double> known_d2,
+                                  bool time_stages) {
   const DeviceScope scope(options_.device);
   Impl& s = *impl_;
+  s.timing = time_stages;
+  struct TimedAgain {  // every other evaluation records its stage events, whatever this one throws
+    Impl& s;
+    ~TimedAgain() { s.timing = true; }
+  } timed_again{s};
   if (!s.accumulate_flags) {  // the first resident evaluation: flags from here on accumulate
     s.reset_flags();
     s.accumulate_flags = true;

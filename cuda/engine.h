@@ -107,8 +107,13 @@ class GpuEngine {
   // displacement reads +inf: a rebuild, where the reduction's NaN would not; the divergence is
   // flagged either way): the reuse check takes it instead of reducing it again on the device and
   // waiting for it (~60-100 us a build, the device idle).
+  // `time_stages` false: the evaluation records none of its stage events, so collect_timing() and
+  // stats()' stage times are not for it (change 83: each event held the device ~1-4 us, a build's
+  // graph then holds none). For an evaluation whose stage times nothing reads: the MD engine's run
+  // samples its last evaluation's and leaves them out of every other.
   void evaluate_resident(const Box& box, std::size_t n, const double* positions, const uint32_t* types,
-                         const ForceField& ff, const Request& request, std::optional<double> known_d2 = {});
+                         const ForceField& ff, const Request& request, std::optional<double> known_d2 = {},
+                         bool time_stages = true);
   // Reads the flags raised since the last check (synchronises the stream) and clears them; throws
   // cellforce::Error naming both particles of a pair whose force was not finite (the positions
   // come to the host only then, for the message).

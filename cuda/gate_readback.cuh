@@ -14,6 +14,7 @@
 
 #include "check.cuh"
 #include "core/error.h"
+#include "mapped_post.h"
 #include "step_gate.h"
 
 namespace cellforce::cuda {
@@ -51,19 +52,19 @@ class GateReadback {
   GateReadback& operator=(const GateReadback&) = delete;
   // After an early read the chunk's tail may still run: nothing of it writes the notice again
   // (StepGate::posted), its post_gate_kernel writes the copy, and every MD run() ends with a
-  // synchronisation before the engine (and this memory) can go.
+  // synchronisation before the engine (and this memory: MappedPost) can go.
   ~GateReadback() {  // a destructor cannot throw: errors are ignored
-    if (copy_) cudaFreeHost(copy_);
-    if (notice_) cudaFreeHost(notice_);
     if (arrived_) cudaEventDestroy(arrived_);
   }
 
   // A new chunk's tag, and where its kernels post the notice (`notice` false: nowhere); the memory
   // is made on the current device when first asked for.
   void begin(GateView& view, bool notice) {
-    make();
+    GateNotice* notice_device = notice_.device();
+    copy_device_ = copy_.device();
+    if (!arrived_) CF_CUDA_CHECK(cudaEventCreateWithFlags(&arrived_, cudaEventDisableTiming));
     tag_ = ++chunks_;
-    view.notice = notice ? notice_device_ : nullptr;
+    view.notice = notice ? notice_device : nullptr;
     view.tag = tag_;
   }
 
@@ -85,7 +86,7 @@ class GateReadback {
     if (notice_first) {
       for (;;) {
         if (std::optional<StepGate> g = posted()) return {std::nullopt, g};
-        if (__atomic_load_n(&copy_->tag, __ATOMIC_ACQUIRE) == tag_) break;
+        if (copy_.arrived(tag_)) break;
         const cudaError_t done = cudaEventQuery(arrived_);  // (an error stops the wait)
         if (done == cudaSuccess) break;
         if (done != cudaErrorNotReady) CF_CUDA_CHECK(done);
@@ -97,54 +98,32 @@ class GateReadback {
   }
 
  private:
-  void make() {
-    void* p = nullptr;
-    if (!copy_) {
-      CF_CUDA_CHECK(cudaHostAlloc(&p, sizeof(PostedGate), cudaHostAllocMapped));
-      copy_ = static_cast<PostedGate*>(p);
-      *copy_ = PostedGate{};  // tag 0: no chunk's
-    }
-    if (!copy_device_)
-      CF_CUDA_CHECK(cudaHostGetDevicePointer(reinterpret_cast<void**>(&copy_device_), copy_, 0));
-    if (!notice_) {
-      CF_CUDA_CHECK(cudaHostAlloc(&p, sizeof(GateNotice), cudaHostAllocMapped));
-      notice_ = static_cast<GateNotice*>(p);
-      *notice_ = GateNotice{};  // tag 0: no chunk's
-    }
-    if (!notice_device_)
-      CF_CUDA_CHECK(cudaHostGetDevicePointer(reinterpret_cast<void**>(&notice_device_), notice_, 0));
-    if (!arrived_) CF_CUDA_CHECK(cudaEventCreateWithFlags(&arrived_, cudaEventDisableTiming));
-  }
-
   // The chunk's copy (its tag has arrived: the tag's acquire load, or the event after the kernel).
   StepGate copied() const {
-    if (__atomic_load_n(&copy_->tag, __ATOMIC_ACQUIRE) != tag_)
-      throw Error("internal error: the gate's copy is not this chunk's");
-    const volatile StepGate* c = &copy_->gate;
+    if (!copy_.arrived(tag_)) throw Error("internal error: the gate's copy is not this chunk's");
+    const volatile StepGate& c = copy_.values().gate;
     StepGate g{};
-    for (int k = 0; k < 3; ++k) g.d2[k] = c->d2[k];
-    g.closed = c->closed;
-    g.served = c->served;
-    g.posted = c->posted;
+    for (int k = 0; k < 3; ++k) g.d2[k] = c.d2[k];
+    g.closed = c.closed;
+    g.served = c.served;
+    g.posted = c.posted;
     return g;
   }
 
   // The notice of this chunk, where its tag has arrived: the gate it tells (d2 only at the closed step).
   std::optional<StepGate> posted() const {
-    // An acquire load of the tag: the values, written before it (the kernel's system fence), are read after.
-    if (__atomic_load_n(&notice_->tag, __ATOMIC_ACQUIRE) != tag_) return std::nullopt;
-    const volatile GateNotice* n = notice_;
+    if (!notice_.arrived(tag_)) return std::nullopt;
+    const volatile GateNotice& n = notice_.values();
     StepGate g{};
-    g.closed = n->closed;
-    g.d2[g.closed % 3] = n->d2;
-    g.served = n->served;
+    g.closed = n.closed;
+    g.d2[g.closed % 3] = n.d2;
+    g.served = n.served;
     return g;
   }
 
-  PostedGate* copy_ = nullptr;   // mapped: the gate's copy (post_gate_kernel)
+  MappedPost<PostedGate> copy_;    // the gate's copy (post_gate_kernel)
   PostedGate* copy_device_ = nullptr;
-  GateNotice* notice_ = nullptr;  // mapped: what a shut kernel posts
-  GateNotice* notice_device_ = nullptr;
+  MappedPost<GateNotice> notice_;  // what a shut kernel posts
   cudaEvent_t arrived_ = nullptr;
   unsigned long long chunks_ = 0, tag_ = 0;
 };

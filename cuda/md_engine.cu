@@ -778,7 +778,10 @@ class CudaMdEngine final : public MdEngine {
         }
         step_ += 1;
         time_ = double(step_) * dt;  // not summed: the same after a restart
-        timed_evaluation(timed, [&] { evaluate(observe && last); });
+        // Only the run's last evaluation records its stage events (change 83): its stage times are
+        // the run's sample (advance, collect_timing), and a build between (`every`) is then keyed as
+        // the gated chunks' closing ones, so that their graph serves it.
+        timed_evaluation(timed, [&] { evaluate(observe && last, std::nullopt, last); });
         if (last) kick(0.5 * dt, 1);  // before the last: deferred into the next step's first kernel
         ++k;
       }
@@ -1039,7 +1042,9 @@ class CudaMdEngine final : public MdEngine {
     resume();
     double closed_d2 = 0;  // its displacement, as the gated kick-drift measured it: the check's value
     std::memcpy(&closed_d2, &g.d2[closed % 3], sizeof closed_d2);
-    timed_evaluation(timed, [&] { evaluate(false, closed_d2); });
+    // Its stage events are left out (change 83): the run samples its last evaluation's stage times
+    // (run(): the last step is never gated).
+    timed_evaluation(timed, [&] { evaluate(false, closed_d2, false); });
     return served + 1;
   }
 
@@ -1096,9 +1101,9 @@ class CudaMdEngine final : public MdEngine {
   }
 
   // known_d2: the step gate's displacement at these positions, where it closed (the reuse check's value).
-  void evaluate(bool observe, std::optional<double> known_d2 = {}) {
+  void evaluate(bool observe, std::optional<double> known_d2 = {}, bool time_stages = true) {
     gpu_.evaluate_resident(box_, n_, positions_.data(), ff_.num_types() > 1 ? types_.data() : nullptr, ff_,
-                           Request{observe, observe}, known_d2);
+                           Request{observe, observe}, known_d2, time_stages);
     observed_ = observe;
     at_build_ = gpu_.stats().rebuilt;  // the build's positions are the positions now
     ++counters_.evaluations;

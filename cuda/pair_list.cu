@@ -593,16 +593,16 @@ __global__ void sum_slot_counts(const uint32_t* __restrict__ slot_counts, std::s
 // 0) and the list's chunks; a system-wide fence, then the build's tag.
 __global__ void gather_sizes(const unsigned long long* __restrict__ sizes,
                              const unsigned long long* __restrict__ masks_end,
-                             const unsigned long long* __restrict__ chunks_end, unsigned long long* out,
+                             const unsigned long long* __restrict__ chunks_end, PostedSizes* out,
                              unsigned long long tag) {
   if (threadIdx.x == 0) {
-    volatile unsigned long long* o = out;
-    o[0] = sizes[0];
-    o[1] = sizes[1];
-    o[2] = masks_end ? *masks_end : 0ull;
-    o[3] = *chunks_end;
+    volatile PostedSizes* o = out;
+    o->value[0] = sizes[0];
+    o->value[1] = sizes[1];
+    o->value[2] = masks_end ? *masks_end : 0ull;
+    o->value[3] = *chunks_end;
     __threadfence_system();  // the sizes reach the host before the tag
-    o[4] = tag;
+    o->tag = tag;
   }
 }
 
@@ -1151,7 +1151,7 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
   // longest list, the pairs, the words every unit's masks would take and the list's chunks, posted
   // into its mapped memory (change 82).
   unsigned long long tag = 0;
-  unsigned long long* post = list.readback.begin(tag);
+  PostedSizes* post = list.readback.begin(tag);
   gather_sizes<<<1, 32, 0, stream>>>(list.sizes.data(), masks.base ? masks.base + launched_units : nullptr,
                                      list.group_chunks.data() + groups, post, tag);
   CF_CUDA_CHECK_LAUNCH();

@@ -33,6 +33,7 @@
 
 #include "core/error.h"
 #include "list_build.h"  // split_columns, build_splits, prefilter_bound, fixed-point coordinates
+#include "mapped_post.h"
 #include "rank_order.h"
 #include "step_gate.h"
 #include "traversal.cuh"
@@ -93,55 +94,46 @@ struct BuildMasks {
   __device__ bool kept(uint32_t unit) const { return words && base[unit + 1] <= capacity; }
 };
 
-// Mapped host memory for the build's four sizes and its tag (change 65: the host waits for the
-// sizes, not for the stream, so the device can fill meanwhile; change 82: the kernel that gathers
-// them posts them there, a system-wide fence, then the build's tag, where a copy engine's copy
-// and an event were, ~10 us of the device's turnaround a build). Made when first asked for, on the
-// current device. A build that throws before its wait may leave its post pending: the engine
-// synchronises its stream before it (and this memory) goes (GpuEngine::Impl's destructor).
+// The build's four sizes as the kernel that gathers them posts them into mapped host memory, then
+// the build's tag (change 65: the host waits for the sizes, not for the stream, so the device can
+// fill meanwhile; change 82: posted by that kernel, where a copy engine's copy and an event were,
+// ~10 us of the device's turnaround a build).
+struct PostedSizes {
+  unsigned long long value[4];
+  unsigned long long tag;  // the host's build number (never 0); 0 before any build
+};
+
+// The host's side of the post (MappedPost: made on the current device when first asked for). A
+// build that throws before its wait may leave its post pending: the engine synchronises its stream
+// before it (and this memory) goes (GpuEngine::Impl's destructor).
 class SizesReadback {
  public:
-  SizesReadback() = default;
-  SizesReadback(const SizesReadback&) = delete;
-  SizesReadback& operator=(const SizesReadback&) = delete;
-  ~SizesReadback() {  // a destructor cannot throw: errors are ignored
-    if (values_) cudaFreeHost(values_);
-  }
-  // A new build's tag (`tag`), and where its kernel posts the four sizes and then the tag (a device
-  // pointer to 5 words).
-  unsigned long long* begin(unsigned long long& tag) {
-    if (!values_) {
-      void* p = nullptr;
-      CF_CUDA_CHECK(cudaHostAlloc(&p, 5 * sizeof(unsigned long long), cudaHostAllocMapped));
-      values_ = static_cast<unsigned long long*>(p);
-      for (int k = 0; k < 5; ++k) values_[k] = 0;  // tag 0: no build's
-    }
-    if (!device_) CF_CUDA_CHECK(cudaHostGetDevicePointer(reinterpret_cast<void**>(&device_), values_, 0));
+  // A new build's tag (`tag`), and where its kernel posts the sizes and then the tag.
+  PostedSizes* begin(unsigned long long& tag) {
+    PostedSizes* device = posted_.device();
     tag = ++builds_;
-    return device_;
+    return device;
   }
-  // The last build's four sizes, once its tag has arrived (an acquire load: the values, written
-  // before it, are read after). An error in the stream's work stops the wait.
+  // The last build's four sizes, once its tag has arrived. An error in the stream's work stops the wait.
   struct Sizes {
     unsigned long long value[4];
   };
   Sizes wait(cudaStream_t stream) const {
     for (;;) {
-      if (__atomic_load_n(&values_[4], __ATOMIC_ACQUIRE) == builds_) break;
+      if (posted_.arrived(builds_)) break;
       const cudaError_t done = cudaStreamQuery(stream);
       if (done == cudaSuccess) {
-        if (__atomic_load_n(&values_[4], __ATOMIC_ACQUIRE) == builds_) break;
+        if (posted_.arrived(builds_)) break;
         throw Error("internal error: the list's sizes were not posted");
       }
       if (done != cudaErrorNotReady) CF_CUDA_CHECK(done);
     }
-    const volatile unsigned long long* v = values_;
-    return Sizes{{v[0], v[1], v[2], v[3]}};
+    const volatile PostedSizes& v = posted_.values();
+    return Sizes{{v.value[0], v.value[1], v.value[2], v.value[3]}};
   }
 
  private:
-  unsigned long long* values_ = nullptr;  // mapped: the sizes, then the tag
-  unsigned long long* device_ = nullptr;
+  MappedPost<PostedSizes> posted_;
   unsigned long long builds_ = 0;
 };
 

@@ -5,6 +5,7 @@
 // coincident pair. Skips with a message where no CUDA device exists; compiled only with CUDA.
 #ifdef CELLFORCE_HAVE_CUDA
 
+#include <cuda_runtime.h>
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
@@ -1128,6 +1129,81 @@ TEST(PairListGraph, ReplayedRunIsTheQueuedRun) {
     EXPECT_GE(int64_t(with), builds_with - 4) << "builds after the first few should replay the graph";
     EXPECT_EQ(without, 0u);
   }
+}
+
+// Change 83: a resident evaluation with time_stages false records no stage event, so its build's
+// graph holds none; its graph key is not a timed build's, so a timed build never replays it (a
+// replay of an eventless graph would leave the stage events of an earlier evaluation: stage times
+// out of order). One periodic system rebuilt at every evaluation (positions moved by up to 0.2 >
+// skin / 2 and back): the untimed builds capture and replay a graph, the timed builds between them
+// replay none and time every stage (each positive, their sum at most the total), and every
+// evaluation's forces are bitwise those of an engine without graphs.
+TEST(PairListGraph, UntimedBuildsLeaveTheirEventsOut) {
+  CF_SKIP_WITHOUT_DEVICE();
+  const Scene s = make_scene("random3d_periodic");
+  ASSERT_TRUE(lists_fit(s, kSkin));
+  const cellforce::Box& box = s.config.box;
+  const std::size_t n = s.config.size(), nd = n * std::size_t(box.dim);
+  auto wrapped = [&](const Configuration& c) {
+    std::vector<double> x = c.positions;
+    for (std::size_t i = 0; i < n; ++i)
+      for (int a = 0; a < box.dim; ++a) x[i * box.dim + a] = cellforce::wrap_coordinate(x[i * box.dim + a], box.length[a]);
+    return x;
+  };
+  const std::vector<double> at[2] = {wrapped(s.config), wrapped(moved(s.config, 0.2, 12))};
+  // One positions array, as an MD run has (its address is in the graph's key): each configuration
+  // is copied in while both engines are idle (check_flags synchronises their streams).
+  double* d_pos = nullptr;
+  ASSERT_EQ(cudaMalloc(reinterpret_cast<void**>(&d_pos), nd * sizeof(double)), cudaSuccess);
+  const std::vector<uint32_t>& types = s.config.types;
+  uint32_t* d_types = nullptr;
+  ASSERT_EQ(cudaMalloc(reinterpret_cast<void**>(&d_types), std::max<std::size_t>(n, 1) * sizeof(uint32_t)), cudaSuccess);
+  if (!types.empty()) {
+    ASSERT_EQ(cudaMemcpy(d_types, types.data(), n * sizeof(uint32_t), cudaMemcpyHostToDevice), cudaSuccess);
+  }
+  const uint32_t* t = types.empty() ? nullptr : d_types;
+  GpuOptions graphed = list_options(Precision::kMixed), queued = list_options(Precision::kMixed);
+  graphed.memory = queued.memory = ListMemory::kFast;
+  graphed.build_graph_audit = true;
+  queued.build_graph = false;
+  GpuEngine x(graphed), y(queued);
+  // Untimed builds 0-4 (a graph captured once the buffers have settled, replayed after), timed 5,
+  // untimed 6-7, timed 8 (the evaluations alternate between the two configurations: every one rebuilds).
+  const bool timed[] = {false, false, false, false, false, true, false, false, true};
+  std::size_t untimed_replays = 0;
+  for (std::size_t e = 0; e < std::size(timed); ++e) {
+    SCOPED_TRACE("evaluation " + std::to_string(e) + (timed[e] ? ", timed" : ", untimed"));
+    ASSERT_EQ(cudaMemcpy(d_pos, at[e % 2].data(), nd * sizeof(double), cudaMemcpyHostToDevice), cudaSuccess);
+    const std::size_t before = x.build_replays();
+    x.evaluate_resident(box, n, d_pos, t, s.ff, Request{false, false}, std::nullopt, timed[e]);
+    y.evaluate_resident(box, n, d_pos, t, s.ff, Request{false, false}, std::nullopt, timed[e]);
+    x.check_flags(box, n, d_pos, s.ff);
+    y.check_flags(box, n, d_pos, s.ff);
+    std::vector<double> fx(nd), fy(nd);
+    ASSERT_EQ(cudaMemcpy(fx.data(), x.device_forces(), nd * sizeof(double), cudaMemcpyDeviceToHost), cudaSuccess);
+    ASSERT_EQ(cudaMemcpy(fy.data(), y.device_forces(), nd * sizeof(double), cudaMemcpyDeviceToHost), cudaSuccess);
+    EXPECT_TRUE(x.stats().rebuilt);
+    EXPECT_TRUE(fx == fy) << "the graphed engine's forces differ";
+    if (!timed[e]) {
+      untimed_replays += x.build_replays() - before;
+      continue;
+    }
+    EXPECT_EQ(x.build_replays(), before) << "a timed build replayed an untimed build's graph";
+    for (GpuEngine* engine : {&x, &y}) {
+      engine->collect_timing();
+      const cellforce::PipelineStats& st = engine->stats();
+      EXPECT_GT(st.t_cell_ids, 0.0);
+      EXPECT_GE(st.t_count, 0.0);  // counted with the cell IDs (change 80): two events back to back
+      EXPECT_GT(st.t_sort, 0.0);
+      EXPECT_GT(st.t_collision_cells, 0.0);
+      EXPECT_GT(st.t_traversal, 0.0);
+      EXPECT_LE(st.t_cell_ids + st.t_count + st.t_sort + st.t_collision_cells + st.t_traversal, st.t_total);
+    }
+  }
+  EXPECT_GE(untimed_replays, 3u) << "the untimed builds should replay their graph";
+  EXPECT_EQ(y.build_captures() + y.build_replays(), 0u);
+  cudaFree(d_pos);
+  cudaFree(d_types);
 }
 
 // A gated chunk runs on a copy of the state in the list's rank order (change 58): a particle whose
