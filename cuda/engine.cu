@@ -164,7 +164,8 @@ struct GpuEngine::Impl {
 
   // The key of the build's fixed part (cuda/build_graph.cuh): the address and capacity of every
   // buffer it names, and what else shapes its operations and their arguments: the system's size
-  // and grid, the positions and types it reads, whether it resets the flags, the options and the device.
+  // and grid, the positions and types it reads, whether it resets the flags, whether it records its
+  // stage events (`timing`: a timed build must not replay an untimed graph), the options and the device.
   cuda::BuildGraph::Key build_key(const GpuOptions& o, const Grid& g, const ForceField& ff, std::size_t n) {
     using cuda::add_to_key;
     cuda::BuildGraph::Key k;
@@ -191,7 +192,7 @@ struct GpuEngine::Impl {
   }
 
   // A stage event of the build's fixed part: a node of its graph while it is captured (recorded at
-  // every replay), else recorded.
+  // every replay), else recorded; nothing in an untimed evaluation (`timing`, change 83).
   void stage_record(Event e) {
     if (!timing) return;
     if (graph.capturing()) CF_CUDA_CHECK(cudaEventRecordWithFlags(events[e], stream, cudaEventRecordExternal));
@@ -212,13 +213,18 @@ struct GpuEngine::Impl {
   }
 
   void record(Event e) {
-    if (timing) CF_CUDA_CHECK(cudaEventRecord(events[e], stream));
+    if (!timing) return;
+    CF_CUDA_CHECK(cudaEventRecord(events[e], stream));
+    if (e == kDownloaded) timed_events = true;
   }
   // Whether this evaluation records its stage events (evaluate_resident's time_stages, change 83).
   // Each held the device between its two operations: at 256,000 particles ~3-6 us around each of
   // the build graph's four event nodes (against ~0.1 us between two kernels of the graph) and ~7-8
   // us in all around an MD chunk's closing evaluation (change 82's CUPTI timeline).
   bool timing = true;
+  // Whether a timed evaluation has recorded its events to the last (kDownloaded): stage times are
+  // read only then (an engine whose evaluations were all untimed has events never recorded).
+  bool timed_events = false;
   double seconds(Event from, Event to) const {
     float ms = 0;
     CF_CUDA_CHECK(cudaEventElapsedTime(&ms, events[from], events[to]));
@@ -345,6 +351,18 @@ struct GpuEngine::Impl {
 
   cudaEvent_t joined = nullptr, finished = nullptr;  // the caller's stream <-> the engine's
   std::size_t device_bytes = 0;  // the device's memory (cudaMemGetInfo's total), once asked
+  // CUB's scratch bytes for the sort of `sort_entries` keys of `sort_bits` bits (a host query of
+  // CUB's dispatch: asked again only when either changes, as pair_list.cu's CubBytes).
+  std::size_t sort_entries = 0, sort_scratch = 0;
+  int sort_bits = -1;
+  std::size_t sort_scratch_bytes(std::size_t n_entries, int bits) {
+    if (n_entries != sort_entries || bits != sort_bits) {
+      sort_scratch = cuda::radix_sort_cub_bytes(n_entries, bits);
+      sort_entries = n_entries;
+      sort_bits = bits;
+    }
+    return sort_scratch;
+  }
 
   // Stages 1-3 on the uploaded positions: cell IDs, count, sort, collision cells (split by type
   // for Gauss-Seidel). With a skin, keeps the build's positions (and, for the audit, its keys).
@@ -390,7 +408,7 @@ struct GpuEngine::Impl {
         // lean engine holds its longest list, as a fast one does.
         lend = o.sort == SortMethod::kCub &&
                list.neighbors.capacity() >=
-                   2 * lent_words(cap) + (cuda::radix_sort_cub_bytes(entries, g.key_bits) + 3) / 4;
+                   2 * lent_words(cap) + (sort_scratch_bytes(entries, g.key_bits) + 3) / 4;
         if (!lend) list.neighbors.release();
         list.ranked_forces.release();  // lean gated evaluations store in the caller's order
         list.fixed_next.release();     // and run no kick-drift (change 59)
@@ -405,17 +423,32 @@ struct GpuEngine::Impl {
     // for again at the build's end where masks are used (build_list).
     const bool keep_room = lean && was_lean && entries == last_entries && lend;
     if ((lean || was_lean) && !keep_room) cuda::give_up_masks(list);
+    // Fast memory (change 85): the unsorted keys and IDs and the sort's scratch are dead from the
+    // sort to the next build, the count pass's masks from the fill to the next count pass, so the
+    // masks' room holds the former where it is large enough (every build of a system after its first,
+    // in a liquid: ~236 bytes a particle of masks against 64 of keys and IDs and ~70 of scratch), as
+    // the dead list's array does in lean memory. A build with no room yet (a system's first) frees
+    // them after its sort instead, so that they and the masks the build then asks for are never held
+    // together. Where the room is too small (tests' capped rooms) they keep arrays of their own.
+    const bool masks_to_come = listed && !lean && o.sort == SortMethod::kCub && o.list_lend_masks.value_or(true) &&
+                               o.list_masks.value_or(true);
+    const bool lend_masks =
+        masks_to_come && list.masks.capacity() >= 2 * lent_words(cap) + (sort_scratch_bytes(entries, g.key_bits) + 3) / 4;
+    const bool free_after_sort = masks_to_come && !lend_masks && list.masks.capacity() == 0;
     // The unsorted keys and IDs: their own arrays, or (lean, a list array kept above) the dead list's
     // first words, the sort's scratch after them.
     uint32_t *unsorted_keys = nullptr, *unsorted_ids = nullptr;
     cuda::ScratchLoan loan;
-    if (lend) {
+    if (lend || lend_masks) {
+      uint32_t* room = lend ? list.neighbors.data() : list.masks.data();
+      const std::size_t room_words = lend ? list.neighbors.capacity() : list.masks.capacity();
+      if (lend_masks && keys.capacity() > 0) cub.release();  // it held the sort's scratch: the room holds it now
       keys.release();
       object_ids.release();
-      unsorted_keys = list.neighbors.data();
+      unsorted_keys = room;
       unsorted_ids = unsorted_keys + lent_words(cap);
       loan.data = reinterpret_cast<std::byte*>(unsorted_ids + lent_words(cap));
-      loan.bytes = (list.neighbors.capacity() - 2 * lent_words(cap)) * sizeof(uint32_t);
+      loan.bytes = (room_words - 2 * lent_words(cap)) * sizeof(uint32_t);
     } else {
       keys.reserve(cap);
       object_ids.reserve(cap);
@@ -459,8 +492,8 @@ struct GpuEngine::Impl {
       }
       stage_record(kSorted);
     }
-    if (lean && o.sort == SortMethod::kCub) {  // dead until the next build (the chapter's sort may reuse them)
-      keys.release();
+    if ((lean || free_after_sort) && o.sort == SortMethod::kCub) {  // dead until the next build (the chapter's
+      keys.release();                                               // sort may reuse them)
       object_ids.release();
       cub.release();
     }
@@ -476,7 +509,7 @@ struct GpuEngine::Impl {
     st.valid_entries = st.collision_cells = 0;  // on the device until read_counts()
   }
 
-  // Words of a dead list's array lent to an unsorted array of `cap` entries: whole 256-byte blocks
+  // Words of a dead list's array (or the masks' room) lent to an unsorted array of `cap` entries: whole 256-byte blocks
   // (the keys' kernel stores 16 bytes at a time; CUB's scratch wants 256-byte alignment).
   static std::size_t lent_words(std::size_t cap) { return (cap + 63) / 64 * 64; }
 
@@ -1028,7 +1061,8 @@ const double* GpuEngine::device_totals() const { return impl_->totals.data(); }
 void* GpuEngine::stream() const { return impl_->stream; }
 void GpuEngine::collect_timing() {
   const DeviceScope scope(options_.device);
-  CF_CUDA_CHECK(cudaEventSynchronize(impl_->events[kDownloaded]));
+  if (impl_->timed_events) CF_CUDA_CHECK(cudaEventSynchronize(impl_->events[kDownloaded]));
+  else CF_CUDA_CHECK(cudaStreamSynchronize(impl_->stream));
   finish_timing();
   impl_->read_counts(stats_);
 }
@@ -1038,15 +1072,17 @@ void GpuEngine::finish_timing() {
   Impl& s = *impl_;
   // Pair counts come from count_pairs()/visited_pairs(), not from the force kernels.
   stats_.candidate_pairs = stats_.interacting_pairs = stats_.max_occupancy = 0;
-  stats_.t_transfer = s.seconds(kStart, kUploaded) + s.seconds(kAccumulated, kDownloaded);
-  stats_.t_check = s.seconds(kUploaded, kChecked);
-  stats_.t_cell_ids = s.seconds(kChecked, kCellIds);
-  stats_.t_count = s.seconds(kCellIds, kCounted);
-  stats_.t_sort = s.seconds(kCounted, kSorted);
-  stats_.t_collision_cells = s.seconds(kSorted, kCellsFound);
-  stats_.t_traversal = s.seconds(kCellsFound, kTraversed);
-  stats_.t_accumulate = s.seconds(kTraversed, kAccumulated);
-  stats_.t_total = s.seconds(kStart, kDownloaded);
+  // The last timed evaluation's (none: zeros, its events never recorded).
+  auto seconds = [&](Event from, Event to) { return s.timed_events ? s.seconds(from, to) : 0.0; };
+  stats_.t_transfer = seconds(kStart, kUploaded) + seconds(kAccumulated, kDownloaded);
+  stats_.t_check = seconds(kUploaded, kChecked);
+  stats_.t_cell_ids = seconds(kChecked, kCellIds);
+  stats_.t_count = seconds(kCellIds, kCounted);
+  stats_.t_sort = seconds(kCounted, kSorted);
+  stats_.t_collision_cells = seconds(kSorted, kCellsFound);
+  stats_.t_traversal = seconds(kCellsFound, kTraversed);
+  stats_.t_accumulate = seconds(kTraversed, kAccumulated);
+  stats_.t_total = seconds(kStart, kDownloaded);
   stats_.buffer_bytes = s.bytes();
   stats_.list_pairs = listed_pairs();
   stats_.list_slots = stats_.list_pairs ? s.list.slots : 0;

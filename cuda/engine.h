@@ -40,6 +40,8 @@ struct GpuOptions {
                                       // fused_block)
   std::optional<bool> list_masks;     // tests only (false): the list build's fill tests every pair
                                       // again instead of reading the count pass's masks (BuildMasks)
+  std::optional<bool> list_lend_masks;  // tests only (false): fast memory's unsorted keys, IDs and sort
+                                        // scratch keep arrays of their own, never the masks' room (change 85)
   std::optional<std::size_t> list_mask_words;  // tests only: the masks' room holds at most this many
                                                // words (as lean memory's room on a full device)
   std::optional<bool> list_count_masked;  // tests only (true): count the units each fill writes from
@@ -86,7 +88,8 @@ class GpuEngine {
   void evaluate_device(const DeviceSystemView& system, const ForceField& ff, const DeviceOutputs& out,
                        void* stream);
   // Waits for the engine's work, reads what the kernels flagged since the last synchronize() and
-  // the stage times and counts of the last evaluation (stats()), and throws cellforce::Error for
+  // the counts of the last evaluation and the stage times of the last timed one (stats(); zeros
+  // where none was timed: evaluate_resident's time_stages), and throws cellforce::Error for
   // the first problem found (naming the particle, or both particles of a pair; the outputs of the
   // calls since the last synchronize() are then not to be used).
   void synchronize(const ForceField& ff);
@@ -101,14 +104,14 @@ class GpuEngine {
   // device (device_forces(), n x dim); with `request`, so do the energy and virial totals
   // (device_totals(): energy, then w_xx, w_yy, w_zz, w_xy, w_xz, w_yz). The kernels' flags are
   // not read: they accumulate until check_flags() (or synchronize()). Stage times are not read either
-  // (collect_timing() reads the last evaluation's). The reuse audit does not run here.
+  // (collect_timing() reads the last timed evaluation's). The reuse audit does not run here.
   // `known_d2`: where the step gate closed at these positions, the largest squared displacement
   // its kick-drift measured (the bits max_displacement2 would reduce to, but that a non-finite
   // displacement reads +inf: a rebuild, where the reduction's NaN would not; the divergence is
   // flagged either way): the reuse check takes it instead of reducing it again on the device and
   // waiting for it (~60-100 us a build, the device idle).
   // `time_stages` false: the evaluation records none of its stage events, so collect_timing() and
-  // stats()' stage times are not for it (change 83: each event held the device ~1-4 us, a build's
+  // stats()' stage times are not for it (change 83: each event held the device ~1-6 us, a build's
   // graph then holds none). For an evaluation whose stage times nothing reads: the MD engine's run
   // samples its last evaluation's and leaves them out of every other.
   void evaluate_resident(const Box& box, std::size_t n, const double* positions, const uint32_t* types,
@@ -155,7 +158,9 @@ class GpuEngine {
   const double* device_forces() const;
   const double* device_totals() const;
   void* stream() const;   // the engine's cudaStream_t
-  void collect_timing();  // stats() gets the stage times and counts of the last evaluation (synchronises)
+  // stats() gets the counts of the last evaluation and the stage times of the last timed one (zeros
+  // where none was timed); synchronises (the timed one's last event, else the stream).
+  void collect_timing();
 
   // Every pair the traversal finds with r < rc, once per evaluation (a pair found twice appears
   // twice), as (min index, max index), in no particular order. Also sets the candidate and

@@ -61,7 +61,7 @@ class GateReadback {
   // is made on the current device when first asked for.
   void begin(GateView& view, bool notice) {
     GateNotice* notice_device = notice_.device();
-    copy_device_ = copy_.device();
+    copy_.device();  // made here, so that queue_copy cannot fail on it
     if (!arrived_) CF_CUDA_CHECK(cudaEventCreateWithFlags(&arrived_, cudaEventDisableTiming));
     tag_ = ++chunks_;
     view.notice = notice ? notice_device : nullptr;
@@ -71,7 +71,7 @@ class GateReadback {
   // Queues the gate's copy at the chunk's end (after every kernel of the chunk), which also resets
   // the gate for the next chunk (post_gate_kernel).
   void queue_copy(StepGate* gate, cudaStream_t stream) {
-    post_gate_kernel<<<1, 32, 0, stream>>>(gate, copy_device_, tag_);
+    post_gate_kernel<<<1, 32, 0, stream>>>(gate, copy_.device(), tag_);
     CF_CUDA_CHECK(cudaGetLastError());
     CF_CUDA_CHECK(cudaEventRecord(arrived_, stream));
   }
@@ -122,7 +122,6 @@ class GateReadback {
   }
 
   MappedPost<PostedGate> copy_;    // the gate's copy (post_gate_kernel)
-  PostedGate* copy_device_ = nullptr;
   MappedPost<GateNotice> notice_;  // what a shut kernel posts
   cudaEvent_t arrived_ = nullptr;
   unsigned long long chunks_ = 0, tag_ = 0;

@@ -7,6 +7,8 @@
 
 #include <cuda_runtime.h>
 
+#include <type_traits>
+
 #include "check.cuh"
 
 namespace cellforce::cuda {
@@ -17,6 +19,9 @@ namespace cellforce::cuda {
 // its owner synchronises the stream before (the engines' destructors and each MD run's end).
 template <class T>
 class MappedPost {
+  static_assert(std::is_trivially_copyable_v<T>, "a kernel writes it, the host reads it");
+  static_assert(std::is_same_v<decltype(T::tag), unsigned long long>, "the tag the host spins on");
+
  public:
   MappedPost() = default;
   MappedPost(const MappedPost&) = delete;
@@ -45,7 +50,8 @@ class MappedPost {
     return host_ && __atomic_load_n(&host_->tag, __ATOMIC_ACQUIRE) == tag;
   }
 
-  // The posted values, read once the tag has arrived (volatile: the device writes them).
+  // The posted values, read once the tag has arrived (volatile: the device writes them; only after
+  // arrived() is true, so the memory exists).
   const volatile T& values() const { return *host_; }
 
  private:

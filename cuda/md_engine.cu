@@ -569,6 +569,9 @@ class CudaMdEngine final : public MdEngine {
   ~CudaMdEngine() override {
     try {
       const OnDevice on(gpu_.options().device);  // the buffers are freed on their own device
+      // Queued kernels may still post into the gate's mapped memory (a run left by an exception
+      // before its synchronisation): wait for them before it goes (errors ignored).
+      if (stream_) cudaStreamSynchronize(stream_);
       release();
     } catch (...) {
       release();  // a destructor cannot throw
@@ -612,7 +615,7 @@ class CudaMdEngine final : public MdEngine {
     // At most kRun steps are queued between two reads of the flags (and of the timing events).
     for (int64_t done = 0; done < steps;) {
       const int64_t k = std::min<int64_t>(steps - done, kRun);
-      run(k, settings, observe && done + k == steps);
+      run(k, settings, observe && done + k == steps, done + k == steps);
       done += k;
     }
     counters_.host_wait_seconds += std::chrono::duration<double>(Clock::now() - t0).count();
@@ -741,7 +744,8 @@ class CudaMdEngine final : public MdEngine {
   // Steps before the last go behind the step gate in chunks wherever the force engine can serve
   // them from its pair list (run_gated): one host wait per chunk instead of one per step. A step's
   // closing half kick is deferred into the next step's first kernel, but for the last step's.
-  void run(int64_t steps, const IntegratorSettings& settings, bool observe) {
+  // `sampled`: the last run of an advance() call, whose last evaluation's stage times it samples.
+  void run(int64_t steps, const IntegratorSettings& settings, bool observe, bool sampled) {
     const int dim = box_.dim;
     const double dt = settings.dt;
     const int64_t first = step_ + 1;
@@ -778,10 +782,10 @@ class CudaMdEngine final : public MdEngine {
         }
         step_ += 1;
         time_ = double(step_) * dt;  // not summed: the same after a restart
-        // Only the run's last evaluation records its stage events (change 83): its stage times are
-        // the run's sample (advance, collect_timing), and a build between (`every`) is then keyed as
-        // the gated chunks' closing ones, so that their graph serves it.
-        timed_evaluation(timed, [&] { evaluate(observe && last, std::nullopt, last); });
+        // Only the sampled run's last evaluation records its stage events (change 83): its stage
+        // times are advance()'s sample (collect_timing), and a build between (`every`) is then keyed
+        // as the gated chunks' closing ones, so that their graph serves it.
+        timed_evaluation(timed, [&] { evaluate(observe && last, std::nullopt, last && sampled); });
         if (last) kick(0.5 * dt, 1);  // before the last: deferred into the next step's first kernel
         ++k;
       }
@@ -1042,8 +1046,8 @@ class CudaMdEngine final : public MdEngine {
     resume();
     double closed_d2 = 0;  // its displacement, as the gated kick-drift measured it: the check's value
     std::memcpy(&closed_d2, &g.d2[closed % 3], sizeof closed_d2);
-    // Its stage events are left out (change 83): the run samples its last evaluation's stage times
-    // (run(): the last step is never gated).
+    // Its stage events are left out (change 83): advance() samples its last evaluation's stage
+    // times (run(): the last step is never gated).
     timed_evaluation(timed, [&] { evaluate(false, closed_d2, false); });
     return served + 1;
   }

@@ -1136,8 +1136,9 @@ TEST(PairListGraph, ReplayedRunIsTheQueuedRun) {
 // replay of an eventless graph would leave the stage events of an earlier evaluation: stage times
 // out of order). One periodic system rebuilt at every evaluation (positions moved by up to 0.2 >
 // skin / 2 and back): the untimed builds capture and replay a graph, the timed builds between them
-// replay none and time every stage (each positive, their sum at most the total), and every
-// evaluation's forces are bitwise those of an engine without graphs.
+// replay none and time every stage (each positive, their sum at most the total), an untimed build
+// after a timed one leaves its stage times as they were (it recorded no event, in the graph or
+// not), and every evaluation's forces are bitwise those of an engine without graphs.
 TEST(PairListGraph, UntimedBuildsLeaveTheirEventsOut) {
   CF_SKIP_WITHOUT_DEVICE();
   const Scene s = make_scene("random3d_periodic");
@@ -1153,57 +1154,108 @@ TEST(PairListGraph, UntimedBuildsLeaveTheirEventsOut) {
   const std::vector<double> at[2] = {wrapped(s.config), wrapped(moved(s.config, 0.2, 12))};
   // One positions array, as an MD run has (its address is in the graph's key): each configuration
   // is copied in while both engines are idle (check_flags synchronises their streams).
-  double* d_pos = nullptr;
-  ASSERT_EQ(cudaMalloc(reinterpret_cast<void**>(&d_pos), nd * sizeof(double)), cudaSuccess);
+  struct DeviceArrays {
+    double* pos = nullptr;
+    uint32_t* types = nullptr;
+    ~DeviceArrays() {
+      cudaFree(pos);
+      cudaFree(types);
+    }
+  } d;
+  ASSERT_EQ(cudaMalloc(reinterpret_cast<void**>(&d.pos), nd * sizeof(double)), cudaSuccess);
   const std::vector<uint32_t>& types = s.config.types;
-  uint32_t* d_types = nullptr;
-  ASSERT_EQ(cudaMalloc(reinterpret_cast<void**>(&d_types), std::max<std::size_t>(n, 1) * sizeof(uint32_t)), cudaSuccess);
+  ASSERT_EQ(cudaMalloc(reinterpret_cast<void**>(&d.types), std::max<std::size_t>(n, 1) * sizeof(uint32_t)), cudaSuccess);
   if (!types.empty()) {
-    ASSERT_EQ(cudaMemcpy(d_types, types.data(), n * sizeof(uint32_t), cudaMemcpyHostToDevice), cudaSuccess);
+    ASSERT_EQ(cudaMemcpy(d.types, types.data(), n * sizeof(uint32_t), cudaMemcpyHostToDevice), cudaSuccess);
   }
-  const uint32_t* t = types.empty() ? nullptr : d_types;
+  const uint32_t* t = types.empty() ? nullptr : d.types;
   GpuOptions graphed = list_options(Precision::kMixed), queued = list_options(Precision::kMixed);
   graphed.memory = queued.memory = ListMemory::kFast;
   graphed.build_graph_audit = true;
   queued.build_graph = false;
   GpuEngine x(graphed), y(queued);
+  auto stage_times = [](const cellforce::PipelineStats& st) {
+    return std::vector<double>{st.t_transfer, st.t_check, st.t_cell_ids, st.t_count, st.t_sort,
+                               st.t_collision_cells, st.t_traversal, st.t_accumulate, st.t_total};
+  };
   // Untimed builds 0-4 (a graph captured once the buffers have settled, replayed after), timed 5,
   // untimed 6-7, timed 8 (the evaluations alternate between the two configurations: every one rebuilds).
   const bool timed[] = {false, false, false, false, false, true, false, false, true};
   std::size_t untimed_replays = 0;
+  std::vector<double> last_timed[2];  // x's and y's stage times at the last timed evaluation
   for (std::size_t e = 0; e < std::size(timed); ++e) {
     SCOPED_TRACE("evaluation " + std::to_string(e) + (timed[e] ? ", timed" : ", untimed"));
-    ASSERT_EQ(cudaMemcpy(d_pos, at[e % 2].data(), nd * sizeof(double), cudaMemcpyHostToDevice), cudaSuccess);
+    ASSERT_EQ(cudaMemcpy(d.pos, at[e % 2].data(), nd * sizeof(double), cudaMemcpyHostToDevice), cudaSuccess);
     const std::size_t before = x.build_replays();
-    x.evaluate_resident(box, n, d_pos, t, s.ff, Request{false, false}, std::nullopt, timed[e]);
-    y.evaluate_resident(box, n, d_pos, t, s.ff, Request{false, false}, std::nullopt, timed[e]);
-    x.check_flags(box, n, d_pos, s.ff);
-    y.check_flags(box, n, d_pos, s.ff);
+    x.evaluate_resident(box, n, d.pos, t, s.ff, Request{false, false}, std::nullopt, timed[e]);
+    y.evaluate_resident(box, n, d.pos, t, s.ff, Request{false, false}, std::nullopt, timed[e]);
+    x.check_flags(box, n, d.pos, s.ff);
+    y.check_flags(box, n, d.pos, s.ff);
     std::vector<double> fx(nd), fy(nd);
     ASSERT_EQ(cudaMemcpy(fx.data(), x.device_forces(), nd * sizeof(double), cudaMemcpyDeviceToHost), cudaSuccess);
     ASSERT_EQ(cudaMemcpy(fy.data(), y.device_forces(), nd * sizeof(double), cudaMemcpyDeviceToHost), cudaSuccess);
     EXPECT_TRUE(x.stats().rebuilt);
     EXPECT_TRUE(fx == fy) << "the graphed engine's forces differ";
+    GpuEngine* engines[2] = {&x, &y};
     if (!timed[e]) {
       untimed_replays += x.build_replays() - before;
+      for (int k = 0; k < 2; ++k) {
+        engines[k]->collect_timing();
+        if (last_timed[k].empty()) {  // no evaluation was timed yet: no stage time
+          EXPECT_EQ(engines[k]->stats().t_total, 0.0);
+        } else {
+          EXPECT_TRUE(stage_times(engines[k]->stats()) == last_timed[k]) << "an untimed evaluation recorded stage events";
+        }
+      }
       continue;
     }
     EXPECT_EQ(x.build_replays(), before) << "a timed build replayed an untimed build's graph";
-    for (GpuEngine* engine : {&x, &y}) {
-      engine->collect_timing();
-      const cellforce::PipelineStats& st = engine->stats();
+    for (int k = 0; k < 2; ++k) {
+      engines[k]->collect_timing();
+      const cellforce::PipelineStats& st = engines[k]->stats();
       EXPECT_GT(st.t_cell_ids, 0.0);
       EXPECT_GE(st.t_count, 0.0);  // counted with the cell IDs (change 80): two events back to back
       EXPECT_GT(st.t_sort, 0.0);
       EXPECT_GT(st.t_collision_cells, 0.0);
       EXPECT_GT(st.t_traversal, 0.0);
       EXPECT_LE(st.t_cell_ids + st.t_count + st.t_sort + st.t_collision_cells + st.t_traversal, st.t_total);
+      last_timed[k] = stage_times(st);
     }
   }
   EXPECT_GE(untimed_replays, 3u) << "the untimed builds should replay their graph";
   EXPECT_EQ(y.build_captures() + y.build_replays(), 0u);
-  cudaFree(d_pos);
-  cudaFree(d_types);
+}
+
+// Change 85: in fast memory the builds after a system's first put the unsorted keys and IDs and the
+// sort's scratch in the count pass's masks' room (dead from the fill to the next count pass). An
+// engine that does (x) and one that keeps them in arrays of their own (y) list the same pairs and
+// give bitwise the same results over a sequence of rebuilds (positions moved by up to 0.2 > skin /
+// 2 and back), in every precision; from the second build on x holds at least the keys' and IDs'
+// 8 bytes an entry less (and the sort's scratch), and its builds still replay their graph.
+TEST(PairListMasks, FastBuildsLendTheMasksRoomToTheSort) {
+  CF_SKIP_WITHOUT_DEVICE();
+  const Scene s = make_scene("random3d_periodic");
+  ASSERT_TRUE(lists_fit(s, kSkin));
+  const Configuration m = moved(s.config, 0.2, 13), m2 = moved(s.config, 0.2, 14);
+  const Configuration* sequence[] = {&s.config, &m, &s.config, &m2, &s.config, &m, &s.config, &m2};
+  const std::size_t entries = s.config.size() << s.config.box.dim;
+  for (Precision p : {Precision::kSingle, Precision::kMixed, Precision::kDouble}) {
+    SCOPED_TRACE(cellforce::to_string(p));
+    GpuOptions lending = list_options(p), own = list_options(p);
+    lending.memory = own.memory = ListMemory::kFast;
+    own.list_lend_masks = false;
+    GpuEngine x(lending), y(own);
+    for (std::size_t b = 0; b < std::size(sequence); ++b) {
+      SCOPED_TRACE("build " + std::to_string(b));
+      expect_same_lists(x, y, *sequence[b], s);
+      EXPECT_TRUE(x.stats().rebuilt);
+      if (b == 0) continue;  // the first build has no masks' room yet
+      EXPECT_GT(x.list_masked_fills(), 0u);
+      EXPECT_LE(x.stats().buffer_bytes + 8 * entries, y.stats().buffer_bytes)
+          << "the lending engine holds the keys' and IDs' arrays";
+    }
+    EXPECT_GE(x.build_replays(), 3u) << "lending the room should leave the build's graph to replay";
+  }
 }
 
 // A gated chunk runs on a copy of the state in the list's rank order (change 58): a particle whose
