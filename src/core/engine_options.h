@@ -49,7 +49,7 @@ enum class SortMethod : uint8_t {
 
 // The CUDA pair lists' memory mode. Lean: no staged array of the cells' own, the sort's arrays in
 // the dead list's room, the count pass's masks only in the memory the device has left (~700 bytes a
-// particle against fast's ~1,440, up to ~930 with every mask; builds up to ~2x slower where the
+// particle against fast's ~1,300, up to ~930 with every mask; builds up to ~2x slower where the
 // masks find no room); auto: lean where fast would not fit in 90% of the device (lists_memory).
 enum class ListMemory : uint8_t { kAuto, kFast, kLean };
 
@@ -57,7 +57,9 @@ enum class ListMemory : uint8_t { kAuto, kFast, kLean };
 // no device): as asked, or (auto) lean where the fast layout, about kFastListBytesPerParticle with
 // a 0.6 skin and the MD state (1,433-1,441 measured on the H100 from 256k up: a staged array, the
 // sort's arrays, the list, the gated evaluations' forces, a second rank-ordered array and the MD
-// engine's rank-order copy of the state side by side), would not fit in 90% of the device. A rule
+// engine's rank-order copy of the state side by side; 1,291-1,304 since change 85 put the sort's
+// unsorted arrays and scratch in the masks' room, which the rule does not yet count on: not measured
+// near the device's capacity), would not fit in 90% of the device. A rule
 // of the system and the device: cuda/engine.cu applies it at every build, and the automatic skin
 // follows it (resolve_reuse). The mode itself changes no result; the skin it leads to changes when
 // the builds come and the order of the sums (so the bits), not which pairs are summed.
