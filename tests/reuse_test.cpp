@@ -137,13 +137,14 @@ TEST(ReuseOptions, AutoIsARuleOfTheBackendAndTheBox) {
   EXPECT_FALSE(cellforce::pair_lists_serve(given, Accumulation::kJacobi, small, rc));
 }
 
-// The lists' memory mode (lists_memory): as asked, or (auto) lean exactly where n x 1,440 bytes
+// The lists' memory mode (lists_memory): as asked, or (auto) lean exactly where n x 1,320 bytes
 // exceeds 90% of the device's memory; fast where the device's memory is unknown (0).
 TEST(ReuseOptions, ListsMemoryIsARuleOfTheSystemAndTheDevice) {
   using cellforce::ListMemory;
   using cellforce::lists_memory;
-  const std::size_t h100 = 85'520'809'984;  // an H100's 81,559 MiB
-  const std::size_t limit = std::size_t(0.9 * double(h100) / 1440.0);  // the largest fast system
+  const std::size_t h100 = 85'017'493'504;  // an H100 80GB's total as cudaMemGetInfo gives it
+  const std::size_t limit = std::size_t(0.9 * double(h100) / 1320.0);  // the largest fast system (57.97M)
+  EXPECT_GT(limit, 56'000'000u);  // 55,990,084 particles ran fast at 1,290 B/particle (performance.md, change 85)
   EXPECT_EQ(lists_memory(ListMemory::kAuto, 16'777'216, h100), ListMemory::kFast);
   EXPECT_EQ(lists_memory(ListMemory::kAuto, limit, h100), ListMemory::kFast);
   EXPECT_EQ(lists_memory(ListMemory::kAuto, limit + 1, h100), ListMemory::kLean);

@@ -77,7 +77,7 @@ CELLFORCE_API cf_status cf_set_pair(cf_context* ctx, uint32_t a, uint32_t b, dou
  *   cell-rule     tight | chapter          sort          cub | chapter
  *   traversal     auto | warp | thread | tile (CUDA; auto, the default, picks tile or warp)
  *   memory        auto | fast | lean (CUDA pair lists: lean takes ~700 bytes a particle against
- *                 ~1,440, and for its builds' masks up to ~230 more of the memory the device has
+ *                 ~1,300, and for its builds' masks up to ~230 more of the memory the device has
  *                 left (builds up to ~2x slower without them); auto, the default, is lean where
  *                 fast would not fit in 90% of the device) */
 CELLFORCE_API cf_status cf_set_option(cf_context* ctx, const char* key, const char* value);

@@ -226,7 +226,7 @@ class CELLFORCE_API Context {
   //   memory        auto | fast | lean       (CUDA pair lists: lean keeps no staged occupants,
   //                                           holds the sort's arrays in the dead list's room and
   //                                           keeps the build's masks only in the memory the device
-  //                                           has left: ~700 against ~1,440 bytes a particle, up to
+  //                                           has left: ~700 against ~1,300 bytes a particle, up to
   //                                           ~930 with every mask; builds up to ~2x slower where
   //                                           the masks find no room; auto, the default: lean where
   //                                           fast would not fit in 90% of the device; lean memory

@@ -331,7 +331,7 @@ int main(int argc, char** argv) {
       ->default_str("lattice");
   bench_cmd
       ->add_option("--memory", ba.engine.memory,
-                   "CUDA pair lists' memory: auto (lean where the fast layout's ~1,440 bytes a particle would not "
+                   "CUDA pair lists' memory: auto (lean where the fast layout's ~1,320 bytes a particle would not "
                    "fit in 90% of the device; the default), fast, or lean (no staged array, occupants staged as the build "
                    "loads them, the sort's arrays in the dead list's room, the count pass's masks only in the memory "
                    "left: ~700 bytes a particle and up to ~930 with every mask; builds up to ~2x slower where the "

@@ -55,15 +55,16 @@ enum class ListMemory : uint8_t { kAuto, kFast, kLean };
 
 // The memory mode the lists run in for `n` particles on a device of `device_bytes` (0: unknown, or
 // no device): as asked, or (auto) lean where the fast layout, about kFastListBytesPerParticle with
-// a 0.6 skin and the MD state (1,433-1,441 measured on the H100 from 256k up: a staged array, the
-// sort's arrays, the list, the gated evaluations' forces, a second rank-ordered array and the MD
-// engine's rank-order copy of the state side by side; 1,291-1,304 since change 85 put the sort's
-// unsorted arrays and scratch in the masks' room, which the rule does not yet count on: not measured
-// near the device's capacity), would not fit in 90% of the device. A rule
+// a 0.6 skin and the MD state (1,291-1,304 measured on the H100 from 256k up since change 85, which
+// put the sort's unsorted arrays and scratch in the masks' room: a staged array, the sorted arrays,
+// the list, the masks, the gated evaluations' forces, a second rank-ordered array and the MD
+// engine's rank-order copy of the state side by side; 1,290 and 1,295 at 56.0M and 58.8M, which ran
+// in fast memory at 30.2 and 28.8 steps/s against lean memory's 25.8 at 56.0M; 1,440 before change
+// 85), would not fit in 90% of the device. A rule
 // of the system and the device: cuda/engine.cu applies it at every build, and the automatic skin
 // follows it (resolve_reuse). The mode itself changes no result; the skin it leads to changes when
 // the builds come and the order of the sums (so the bits), not which pairs are summed.
-inline constexpr double kFastListBytesPerParticle = 1440.0;
+inline constexpr double kFastListBytesPerParticle = 1320.0;
 inline ListMemory lists_memory(ListMemory asked, std::size_t n, std::size_t device_bytes) {
   if (asked != ListMemory::kAuto) return asked;
   return device_bytes > 0 && double(n) * kFastListBytesPerParticle > 0.9 * double(device_bytes) ? ListMemory::kLean
