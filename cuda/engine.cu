@@ -509,8 +509,9 @@ struct GpuEngine::Impl {
     st.valid_entries = st.collision_cells = 0;  // on the device until read_counts()
   }
 
-  // Words of a dead list's array (or the masks' room) lent to an unsorted array of `cap` entries: whole 256-byte blocks
-  // (the keys' kernel stores 16 bytes at a time; CUB's scratch wants 256-byte alignment).
+  // Words of a dead list's array (or the masks' room) lent to an unsorted array of `cap` entries:
+  // whole 256-byte blocks (the keys' kernel stores 16 bytes at a time; CUB's scratch wants 256-byte
+  // alignment).
   static std::size_t lent_words(std::size_t cap) { return (cap + 63) / 64 * 64; }
 
   // Whether evaluations walk pair lists (core/reuse.h states the condition).

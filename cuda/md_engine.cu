@@ -615,7 +615,8 @@ class CudaMdEngine final : public MdEngine {
     // At most kRun steps are queued between two reads of the flags (and of the timing events).
     for (int64_t done = 0; done < steps;) {
       const int64_t k = std::min<int64_t>(steps - done, kRun);
-      run(k, settings, observe && done + k == steps, done + k == steps);
+      const bool final_run = done + k == steps;  // its last evaluation is the call's: observed, sampled
+      run(k, settings, observe && final_run, final_run);
       done += k;
     }
     counters_.host_wait_seconds += std::chrono::duration<double>(Clock::now() - t0).count();
