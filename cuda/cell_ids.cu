@@ -33,11 +33,12 @@ __global__ void __launch_bounds__(kCellIdBlock)
     if (copy)
       for (int a = 0; a < D; ++a) copy[i * D + a] = x[a];
     uint32_t ids[kMaxCellTypes];
-    control[i] = bin_particle_in<D>(grid, x, ids);
+    uint32_t slab = 0;
+    control[i] = bin_particle_in<D>(grid, x, ids, &slab);
     uint32_t key[kSlots];
     for (int t = 0; t < kSlots; ++t) {
       const bool ok = ids[t] != kInvalidCell;
-      key[t] = ok ? (ids[t] << 1) | uint32_t(t != 0) : kInvalidCell;
+      key[t] = ok ? sort_key(grid, ids[t], t != 0, slab) : kInvalidCell;
       found += ok ? 1u : 0u;
     }
     const uint32_t id = uint32_t(i);

@@ -26,9 +26,10 @@ unsigned blocks_for(std::size_t n) { return unsigned((n + kBlock - 1) / kBlock);
 // Entry i starts a cell: it is valid and its cell differs from entry i - 1's.
 struct StartsCell {
   const uint32_t* keys;
+  int slab_bits;
   const PipelineCounts* counts;
   __device__ bool operator()(uint32_t i) const {
-    return i < counts->valid && (i == 0 || (keys[i] >> 1) != (keys[i - 1] >> 1));
+    return i < counts->valid && (i == 0 || key_cell(keys[i], slab_bits) != key_cell(keys[i - 1], slab_bits));
   }
 };
 
@@ -36,6 +37,7 @@ struct StartsCell {
 // binary search over the phantom bit. Runs beyond the count come out empty (h = 0).
 struct DescribeRun {
   const uint32_t* keys;
+  int slab_bits;
   const uint32_t* run_start;
   const PipelineCounts* counts;
   __device__ CollisionCell operator()(uint32_t r) const {
@@ -43,14 +45,14 @@ struct DescribeRun {
     if (r >= runs) return CollisionCell{0, 0, 0, 0};
     const uint32_t start = run_start[r];
     const uint32_t end = r + 1 < runs ? run_start[r + 1] : uint32_t(counts->valid);
-    uint32_t lo = start, hi = end;  // first P entry: keys are H (low bit 0) then P (low bit 1)
+    uint32_t lo = start, hi = end;  // first P entry: keys are H (phantom bit 0) then P (phantom bit 1)
     while (lo < hi) {
       const uint32_t mid = lo + (hi - lo) / 2;
-      if (keys[mid] & 1u) hi = mid;
+      if (key_is_phantom(keys[mid], slab_bits)) hi = mid;
       else lo = mid + 1;
     }
     const uint32_t h = lo - start, total = end - start;
-    return CollisionCell{start, h, total - h, keys[start] >> 1};
+    return CollisionCell{start, h, total - h, key_cell(keys[start], slab_bits)};
   }
 };
 
@@ -68,7 +70,7 @@ PipelineCounts read_counts(const PipelineCounts* counts, cudaStream_t stream) {
   return host;
 }
 
-void find_collision_cells(const uint32_t* sorted_keys, std::size_t entries, std::size_t run_bound,
+void find_collision_cells(const uint32_t* sorted_keys, int slab_bits, std::size_t entries, std::size_t run_bound,
                           std::size_t cell_bound, PipelineCounts* counts, DeviceBuffer<CollisionCell>& cells,
                           CollisionScratch& s, cudaStream_t stream, bool zeroed) {
   // cell_range[0] stays 0; the count goes to cell_range[1].
@@ -81,8 +83,8 @@ void find_collision_cells(const uint32_t* sorted_keys, std::size_t entries, std:
   // The runs' first entries, then the runs that are collision cells, each compacted by CUB with
   // the count left in device memory.
   const thrust::counting_iterator<uint32_t> index(0);
-  const StartsCell starts{sorted_keys, counts};
-  auto runs = thrust::make_transform_iterator(index, DescribeRun{sorted_keys, s.run_start.data(), counts});
+  const StartsCell starts{sorted_keys, slab_bits, counts};
+  auto runs = thrust::make_transform_iterator(index, DescribeRun{sorted_keys, slab_bits, s.run_start.data(), counts});
   std::size_t starts_bytes = 0, cells_bytes = 0;
   CF_CUDA_CHECK(cub::DeviceSelect::If(nullptr, starts_bytes, index, s.run_start.data(), &counts->runs, int(entries),
                                       starts, stream));

@@ -498,7 +498,7 @@ struct GpuEngine::Impl {
       cub.release();
     }
     if (queue) {
-      cuda::find_collision_cells(sorted_keys.data(), entries, run_bound, max_cells, counts.data(), cells,
+      cuda::find_collision_cells(sorted_keys.data(), g.slab_bits, entries, run_bound, max_cells, counts.data(), cells,
                                  collision, stream, true);
       if (o.accumulation == Accumulation::kGaussSeidel)
         cuda::split_by_type(g, cells, max_cells, counts.data(), split, stream);

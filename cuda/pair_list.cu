@@ -25,7 +25,8 @@ constexpr int kBlock = 128;  // threads per block of every list kernel (4 warps;
 // all ones).
 struct IsHome {
   const uint32_t* keys;
-  __device__ bool operator()(uint32_t e) const { return (keys[e] & 1u) == 0u; }
+  int slab_bits;
+  __device__ bool operator()(uint32_t e) const { return !key_is_phantom(keys[e], slab_bits); }
 };
 
 // Also zeroes the two sizes sum_slot_counts adds to later in the build (change 80: no memset).
@@ -1004,7 +1005,7 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
   if (n == 0) return true;
 
   // Ranks: the particles of the H entries in sorted order (each particle has exactly one).
-  const auto home = thrust::make_transform_iterator(thrust::counting_iterator<uint32_t>(0), IsHome{sorted_keys});
+  const auto home = thrust::make_transform_iterator(thrust::counting_iterator<uint32_t>(0), IsHome{sorted_keys, cells.grid.slab_bits});
   std::size_t bytes = cub_bytes(list.select_bytes, entries, [&](std::size_t& b) {
     return cub::DeviceSelect::Flagged(nullptr, b, cells.sorted_ids, home, list.order.data(), list.selected.data(),
                                       int(entries), stream);

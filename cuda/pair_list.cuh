@@ -256,7 +256,7 @@ struct ListArgs {
 
 // What the build stages its occupants from (as stage_kernel would: no staged array is needed).
 struct ListStaging {
-  const uint32_t* sorted_keys = nullptr;  // the sorted cell-ID array (cell << 1 | phantom)
+  const uint32_t* sorted_keys = nullptr;  // the sorted cell-ID array (sort_key())
   const double* positions = nullptr;      // n x dim, user order
   const uint32_t* types = nullptr;        // n or null
   uint32_t num_types = 1;

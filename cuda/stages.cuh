@@ -32,7 +32,7 @@ PipelineCounts read_counts(const PipelineCounts* counts, cudaStream_t stream);
 
 // Stage 1 (GPU Gems 3 ch. 32, section 32.2.2): one thread per particle. positions: n x grid.dim
 // doubles, user order. Writes keys and object_ids (n x 2^d, entry i * 2^d + t as on the CPU:
-// key = cell << 1 | phantom, kInvalidCell where unused) and control (n). keys and object_ids are
+// sort_key(): (cell << 1 | phantom) << slab bits | slab, kInvalidCell where unused) and control (n). keys and object_ids are
 // 16-byte aligned (the kernel stores 4 entries at a time). With `counts`, every count is zeroed
 // first (stage 3 then needs no zeroing of its own: find_collision_cells' `zeroed`) and the valid
 // entries are counted into counts->valid by the kernel itself (an integer atomic add per block: the
@@ -87,7 +87,7 @@ struct CollisionScratch {
   DeviceBuffer<uint32_t> run_start;
   DeviceBuffer<std::byte> cub;
 };
-void find_collision_cells(const uint32_t* sorted_keys, std::size_t entries, std::size_t run_bound,
+void find_collision_cells(const uint32_t* sorted_keys, int slab_bits, std::size_t entries, std::size_t run_bound,
                           std::size_t cell_bound, PipelineCounts* counts, DeviceBuffer<CollisionCell>& cells,
                           CollisionScratch& scratch, cudaStream_t stream, bool zeroed = false);
 

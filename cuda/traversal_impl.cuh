@@ -52,7 +52,7 @@ __device__ __forceinline__ StagedEntry<Real> stage_entry(const Grid& grid, uint3
                                                          const uint32_t* __restrict__ types, uint32_t num_types,
                                                          const Control* __restrict__ control) {
   int k[kMaxDim];
-  cell_coords(grid, key >> 1, k);
+  cell_coords(grid, key_cell(key, grid.slab_bits), k);
   StagedCoordinate<Real> r[kMaxDim] = {};
   for (int a = 0; a < grid.dim; ++a)
     r[a] = StagedCoordinate<Real>::from(relative_coordinate(

@@ -127,7 +127,7 @@ void expect_stages_equal(const Configuration& c, double cutoff) {
       << "chapter sort object IDs against CUB, key bits " << g.key_bits;
 
   std::vector<CollisionCell> host_cells;
-  cpu::find_collision_cells(host.keys.data(), host.valid, host_cells);
+  cpu::find_collision_cells(host.keys.data(), host.valid, g.slab_bits, host_cells);
   cuda::DeviceBuffer<CollisionCell> d_cells;
   cuda::CollisionScratch collision_scratch;
   // Buffers sized by the engine's bounds: runs <= min(entries, grid cells), collision cells <=
@@ -136,13 +136,13 @@ void expect_stages_equal(const Configuration& c, double cutoff) {
   const std::size_t cell_bound = std::min<std::size_t>(sys.n, g.num_cells);
   // The engine's form: the counts zeroed by the cell-ID kernel above (`zeroed`); and the same cells
   // where the stage zeroes them itself (their old values garbage).
-  cuda::find_collision_cells(d_keys_sorted.data(), entries, run_bound, cell_bound, d_counts.data(), d_cells,
+  cuda::find_collision_cells(d_keys_sorted.data(), g.slab_bits, entries, run_bound, cell_bound, d_counts.data(), d_cells,
                              collision_scratch, 0, true);
   const cuda::PipelineCounts counts = cuda::read_counts(d_counts.data(), 0);
   {
     cuda::DeviceBuffer<CollisionCell> again;
     CF_CUDA_CHECK(cudaMemset(&d_counts.data()->runs, 0x5a, sizeof(uint32_t) * 3));
-    cuda::find_collision_cells(d_keys_sorted.data(), entries, run_bound, cell_bound, d_counts.data(), again,
+    cuda::find_collision_cells(d_keys_sorted.data(), g.slab_bits, entries, run_bound, cell_bound, d_counts.data(), again,
                                collision_scratch, 0);
     const cuda::PipelineCounts second = cuda::read_counts(d_counts.data(), 0);
     EXPECT_EQ(second.runs, counts.runs);
@@ -291,7 +291,7 @@ TEST_P(GpuSort, SizesNotMultiplesOfTheTile) {
   EXPECT_TRUE(sorts_like_stable_sort(random_keys(1000003, 1u << 17, 6), 17));
 }
 
-// Keys as stage 1 writes them (cell << 1 | phantom below 2^key_bits - 1, and kInvalidCell): every
+// Keys as stage 1 writes them (below 2^key_bits - 1, and kInvalidCell): every
 // invalid entry sorts after every valid one, in input order.
 TEST_P(GpuSort, InvalidEntriesSortLast) {
   constexpr int kBits = 13;

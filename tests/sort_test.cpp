@@ -4,6 +4,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <bit>
 #include <map>
 #include <numeric>
 #include <random>
@@ -96,16 +97,17 @@ TEST(CollisionCells, CountsMatchDirectTally) {
       continue;
     }
     ++valid;
-    EXPECT_EQ(e % slots == 0, (ids.keys[e] & 1u) == 0) << "phantom bit of entry " << e;
-    auto& t = tally[ids.keys[e] >> 1];
-    ((ids.keys[e] & 1u) ? t.second : t.first)++;
+    const bool phantom = key_is_phantom(ids.keys[e], g.slab_bits);
+    EXPECT_EQ(e % slots == 0, !phantom) << "phantom bit of entry " << e;
+    auto& t = tally[key_cell(ids.keys[e], g.slab_bits)];
+    (phantom ? t.second : t.first)++;
   }
   EXPECT_EQ(ids.valid, valid);
 
   cpu::SortScratch scratch;
   cpu::radix_sort(ids.keys, ids.object_ids, g.key_bits, scratch);
   std::vector<cpu::CollisionCell> cells;
-  cpu::find_collision_cells(ids.keys.data(), ids.valid, cells);
+  cpu::find_collision_cells(ids.keys.data(), ids.valid, g.slab_bits, cells);
   std::size_t expected_cells = 0;
   for (const auto& [cell, hp] : tally) expected_cells += hp.first >= 1 && hp.first + hp.second >= 2;
   ASSERT_EQ(cells.size(), expected_cells);
@@ -114,8 +116,8 @@ TEST(CollisionCells, CountsMatchDirectTally) {
     EXPECT_EQ(cc.h, hp.first) << "cell " << cc.cell;
     EXPECT_EQ(cc.p, hp.second) << "cell " << cc.cell;
     for (uint32_t e = cc.start; e < cc.start + cc.h + cc.p; ++e) {
-      EXPECT_EQ(ids.keys[e] >> 1, cc.cell);
-      EXPECT_EQ((ids.keys[e] & 1u) != 0, e >= cc.start + cc.h) << "H entries must come first";
+      EXPECT_EQ(key_cell(ids.keys[e], g.slab_bits), cc.cell);
+      EXPECT_EQ(key_is_phantom(ids.keys[e], g.slab_bits), e >= cc.start + cc.h) << "H entries must come first";
     }
   }
 }
@@ -131,7 +133,7 @@ TEST(CollisionCells, SplitByTypeIsAStablePartition) {
   cpu::SortScratch scratch;
   cpu::radix_sort(ids.keys, ids.object_ids, g.key_bits, scratch);
   std::vector<cpu::CollisionCell> cells, split;
-  cpu::find_collision_cells(ids.keys.data(), ids.valid, cells);
+  cpu::find_collision_cells(ids.keys.data(), ids.valid, g.slab_bits, cells);
   split = cells;
   std::vector<std::size_t> start;
   cpu::split_by_type(g, split, start);
@@ -149,3 +151,85 @@ TEST(CollisionCells, SplitByTypeIsAStablePartition) {
 }
 
 }  // namespace
+
+// The slab bits (change 86): the sort key's cell part keeps its width, the slab takes 2-3 bits, and
+// it adds no 8-bit sort pass where the last digit has 2 or more bits free; every valid key, whatever
+// its slab, stays below an invalid entry masked to the key's width.
+TEST(SortKey, SlabBitsFillTheSortsLastDigit) {
+  using namespace cellforce;
+  for (double edge : {10.0, 16.0, 33.6, 53.0, 67.7, 107.5, 111.5, 170.6, 270.9, 491.0, 1350.0}) {
+    Box box;
+    box.dim = 3;
+    for (int a = 0; a < 3; ++a) {
+      box.length[a] = edge;
+      box.periodic[a] = true;
+    }
+    const Grid g = plan_grid(box, 2.5, nullptr, 0);
+    const int cell_bits = int(std::bit_width(uint64_t(2) * g.num_cells));
+    SCOPED_TRACE("edge " + std::to_string(edge) + ", " + std::to_string(g.num_cells) + " cells");
+    EXPECT_EQ(g.key_bits, cell_bits + g.slab_bits);
+    EXPECT_LE(g.key_bits, 32);
+    EXPECT_GE(g.slab_bits, 2);
+    EXPECT_LE(g.slab_bits, kMaxSlabBits);
+    const int free_bits = (8 - cell_bits % 8) % 8;
+    if (free_bits >= 2) EXPECT_EQ((g.key_bits + 7) / 8, (cell_bits + 7) / 8) << "a sort pass more";
+    if (free_bits >= kMaxSlabBits) EXPECT_EQ(g.slab_bits, kMaxSlabBits);
+    const uint32_t largest = sort_key(g, g.num_cells - 1, true, (1u << g.slab_bits) - 1);
+    const uint32_t window = g.key_bits >= 32 ? 0xffffffffu : (uint32_t(1) << g.key_bits) - 1;
+    EXPECT_LT(largest, kInvalidCell & window);
+    EXPECT_EQ(key_cell(largest, g.slab_bits), g.num_cells - 1);
+    EXPECT_TRUE(key_is_phantom(largest, g.slab_bits));
+  }
+}
+
+// After the sort a cell's H entries, then its P entries, run by slab (the particle's layer inside
+// its own H cell along the last axis, found here from its position), and within a slab by particle
+// index: with the particles numbered at random, consecutive entries of a cell still lie in one
+// layer. The layer is checked against the position independently of bin_particle().
+TEST(SortKey, CellEntriesRunBySlabThenParticle) {
+  using namespace cellforce;
+  Configuration c = make_lattice(Lattice::kFcc, 8, 0.8442);
+  jitter(c, 0.3, 5);
+  // The caller's numbering at random.
+  const std::size_t n = c.size();
+  std::vector<std::size_t> perm(n);
+  std::iota(perm.begin(), perm.end(), 0);
+  std::shuffle(perm.begin(), perm.end(), std::mt19937(17));
+  std::vector<double> shuffled(c.positions.size());
+  for (std::size_t i = 0; i < n; ++i)
+    for (int a = 0; a < 3; ++a) shuffled[i * 3 + a] = c.positions[perm[i] * 3 + a];
+  c.positions = shuffled;
+  const SystemView sys = c.view();
+  const Grid g = plan_grid(sys.box, 2.5, sys.positions, sys.n);
+  ASSERT_GE(g.slab_bits, 2);
+  const uint32_t layers = 1u << g.slab_bits;
+  auto layer_of = [&](uint32_t i) {
+    const double z = wrap_coordinate(sys.positions[std::size_t(i) * 3 + 2], g.length[2]);
+    const double u = z * g.inv_cell[2];  // the origin is 0 on a periodic axis
+    const double f = u - std::floor(u);
+    return std::min(uint32_t(f * layers), layers - 1);
+  };
+  cpu::CellIdArrays ids;
+  cpu::build_cell_ids(g, sys, ids);
+  cpu::SortScratch scratch;
+  cpu::radix_sort(ids.keys, ids.object_ids, g.key_bits, scratch);
+  std::vector<cpu::CollisionCell> cells;
+  cpu::find_collision_cells(ids.keys.data(), ids.valid, g.slab_bits, cells);
+  ASSERT_FALSE(cells.empty());
+  std::size_t checked = 0, layer_changes = 0;
+  for (const auto& cc : cells) {
+    for (uint32_t e = cc.start; e < cc.start + cc.h + cc.p; ++e) {
+      const uint32_t i = ids.object_ids[e];
+      EXPECT_EQ(ids.keys[e] & (layers - 1), layer_of(i)) << "entry " << e << ", particle " << i;
+      ++checked;
+      if (e == cc.start || e == cc.start + cc.h) continue;  // a group's first entry
+      const uint32_t prev = ids.object_ids[e - 1];
+      const uint32_t lp = layer_of(prev), li = layer_of(i);
+      EXPECT_LE(lp, li) << "cell " << cc.cell << ": entries " << e - 1 << ", " << e << " out of layer order";
+      if (lp == li) EXPECT_LT(prev, i) << "cell " << cc.cell << ": ties by particle index";
+      layer_changes += lp != li;
+    }
+  }
+  EXPECT_EQ(checked, ids.valid);
+  EXPECT_GT(layer_changes, cells.size()) << "the layers split the cells";
+}

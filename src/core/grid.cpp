@@ -48,9 +48,15 @@ void finish(Grid& g) {
   }
   const uint64_t cells = uint64_t(g.n[0]) * g.n[1] * g.n[2];  // <= 2^30: exact
   g.num_cells = uint32_t(cells);
-  // Valid keys are < 2 * num_cells; an invalid entry masked to key_bits is 2^key_bits - 1, which
-  // must stay above every valid key so that invalid entries sort last.
-  g.key_bits = int(std::bit_width(uint64_t(2) * cells));
+  // Valid keys' (cell << 1 | phantom) parts are < 2 * num_cells; an invalid entry masked to
+  // key_bits is 2^key_bits - 1, which stays above every valid key (whatever its slab) so that
+  // invalid entries sort last. The slab takes the bits left free in the sort's last 8-bit digit
+  // (CUB's radix sort takes 8 bits a pass), up to kMaxSlabBits; where fewer than 2 are free it takes
+  // 2 and the sort one more pass (measured in performance.md, change 86).
+  const int cell_bits = int(std::bit_width(uint64_t(2) * cells));
+  const int free_bits = (8 - cell_bits % 8) % 8;
+  g.slab_bits = std::min({kMaxSlabBits, std::max(free_bits, 2), 32 - cell_bits});
+  g.key_bits = cell_bits + g.slab_bits;
 }
 
 void set_axis_geometry(Grid& g, const Box& box, int a, uint32_t n, double lo, double extent,

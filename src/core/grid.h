@@ -19,8 +19,11 @@ inline constexpr uint32_t kInvalidCell = 0xffffffffu;  // unused P-cell entry, a
 inline constexpr int kMaxCellTypes = 1 << kMaxDim;
 
 // Largest grid plan_grid() builds. Cells are never allocated (the structure is sorted entries),
-// but the sort key is (cell ID << 1 | phantom) and must fit 31 bits.
+// but the sort key's (cell ID << 1 | phantom) part must fit 31 bits.
 inline constexpr uint64_t kMaxCells = uint64_t(1) << 30;
+
+// Most bits of a particle's slab (below) in the sort key.
+inline constexpr int kMaxSlabBits = 3;
 
 // The rule that bounds the cell edge from below (condition 3 of the design note).
 enum class CellRule : uint8_t {
@@ -48,7 +51,8 @@ struct Grid {
   double half_width = 0;                    // h, half-width of each particle's box
   double half_width_cells[kMaxDim] = {0, 0, 0};  // h / c_a
   uint32_t num_cells = 1;
-  int key_bits = 1;  // bits of the sort key (cell ID << 1 | phantom); invalid entries sort last
+  int slab_bits = 0;  // bits of the slab in the sort key (0..kMaxSlabBits; sort_key() below)
+  int key_bits = 1;   // bits of the sort key; invalid entries sort last
 
   int num_types() const { return 1 << dim; }
   // An axis with one cell that wraps: pairs inside a cell may need the minimum image there.
@@ -133,15 +137,32 @@ struct StagedCoordinate<float> {
   }
 };
 
+// ---- the sort key (stage 1 writes it, stage 2 sorts it, stage 3 and the traversal read it) -----
+// key = (cell ID << 1 | phantom) << slab_bits | slab. Sorted, a cell's H entries come before its P
+// entries (the design note's stage 2), and each group runs by slab: the particle's place inside its
+// own H cell along the grid's last axis, in 2^slab_bits layers. Ties keep stage 1's order, the
+// particles' own. Without the slab a cell's entries ran in the caller's numbering; a numbering that
+// is not in space (any after a long run: diffusion mixes a cell's particles within a few thousand
+// steps of in.lj) scattered the partners that a warp of consecutive ranks gathers (performance.md,
+// change 86). The slab depends on the particle alone, so the P entries that one H cell sends to a
+// neighbour keep their H order there.
+CF_HD uint32_t sort_key(const Grid& g, uint32_t cell, bool phantom, uint32_t slab) {
+  return ((cell << 1) | uint32_t(phantom)) << g.slab_bits | slab;
+}
+CF_HD uint32_t key_cell(uint32_t key, int slab_bits) { return key >> (slab_bits + 1); }
+CF_HD bool key_is_phantom(uint32_t key, int slab_bits) { return (key >> slab_bits) & 1u; }
+
 // Bins one particle. x is its position (any image on periodic axes). Writes the H cell ID to
 // ids[0] and, for t = 1 .. 2^d - 1, the P cell reached by stepping along the axes whose bit is set
-// in t, or kInvalidCell where the box does not reach that far. Returns the control bits. D is the
+// in t, or kInvalidCell where the box does not reach that far; and, where slab is given, the
+// particle's slab in its H cell (sort_key()). Returns the control bits. D is the
 // grid's dimension (g.dim): with it known at compile time every loop unrolls and every array and
 // Grid field is indexed by a constant, so a kernel keeps them in registers (with a run-time
 // dimension the CUDA cell-ID kernel copied the Grid and the arrays to local memory: performance.md,
 // change 27).
 template <int D>
-CF_HD Control bin_particle_in(const Grid& g, const double x[kMaxDim], uint32_t ids[kMaxCellTypes]) {
+CF_HD Control bin_particle_in(const Grid& g, const double x[kMaxDim], uint32_t ids[kMaxCellTypes],
+                              uint32_t* slab = nullptr) {
   static_assert(D == 2 || D == 3, "two or three axes");
   int k[kMaxDim] = {0, 0, 0};
   int step[kMaxDim] = {0, 0, 0};  // -1 or +1: the neighbour the box reaches along the axis
@@ -162,6 +183,11 @@ CF_HD Control bin_particle_in(const Grid& g, const double x[kMaxDim], uint32_t i
     }
     k[a] = ka;
     step[a] = s;
+    if (a == D - 1 && slab) {  // f is in [0, 1] but for rounding; a NaN coordinate takes slab 0
+      const uint32_t layers = 1u << g.slab_bits;
+      const double l = f * double(layers);
+      *slab = !(l > 0.0) ? 0u : (l >= double(layers - 1) ? layers - 1 : uint32_t(l));
+    }
   }
   const unsigned home = cell_type(k);
   unsigned mask = 1u << home;
@@ -187,8 +213,9 @@ CF_HD Control bin_particle_in(const Grid& g, const double x[kMaxDim], uint32_t i
 }
 
 // g.dim is 2 or 3 (a scene, the API and the readers reject any other: validate.cpp, context.cpp).
-CF_HD Control bin_particle(const Grid& g, const double x[kMaxDim], uint32_t ids[kMaxCellTypes]) {
-  return g.dim == 2 ? bin_particle_in<2>(g, x, ids) : bin_particle_in<3>(g, x, ids);
+CF_HD Control bin_particle(const Grid& g, const double x[kMaxDim], uint32_t ids[kMaxCellTypes],
+                           uint32_t* slab = nullptr) {
+  return g.dim == 2 ? bin_particle_in<2>(g, x, ids, slab) : bin_particle_in<3>(g, x, ids, slab);
 }
 
 // ---- collision cells (stage 3, both backends) ---------------------------------------------------

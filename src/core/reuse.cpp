@@ -223,14 +223,15 @@ ReuseAudit audit_reuse(const Grid& grid, const uint32_t* build_keys, const Contr
   for (const auto& [i, j] : pairs) {
     const uint32_t* ki = build_keys + std::size_t(i) * slots;
     const uint32_t* kj = build_keys + std::size_t(j) * slots;
-    const uint32_t home_i = ki[0] >> 1, home_j = kj[0] >> 1;
+    const int sb = grid.slab_bits;
+    const uint32_t home_i = key_cell(ki[0], sb), home_j = key_cell(kj[0], sb);
     int visits = 0;
     for (std::size_t t = 0; t < slots; ++t) {
       if (ki[t] == kInvalidCell) continue;
-      const uint32_t cell = ki[t] >> 1;
+      const uint32_t cell = key_cell(ki[t], sb);
       if (cell != home_i && cell != home_j) continue;  // P x P pairs are never tested
       for (std::size_t u = 0; u < slots; ++u)
-        if (kj[u] != kInvalidCell && (kj[u] >> 1) == cell &&
+        if (kj[u] != kInvalidCell && key_cell(kj[u], sb) == cell &&
             !skip_pair(cell_type_of_id(grid, cell), control[i], control[j]) && staged_r2(cell, i, j) < rc2)
           ++visits;
     }

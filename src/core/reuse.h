@@ -186,7 +186,7 @@ struct ReuseAudit {
 // separation of the coordinates staged relative to that cell's centre (as the traversal stages
 // them, in double) is below the cutoff; a particle that moved too far is staged as another image
 // and the pair is then out of range there. build_keys: n x 2^d, user order, as stage 1 wrote them
-// (cell << 1 | phantom, or kInvalidCell); control: n, from the same build; system: now.
+// (sort_key(), or kInvalidCell); control: n, from the same build; system: now.
 ReuseAudit audit_reuse(const Grid& grid, const uint32_t* build_keys, const Control* control,
                        const SystemView& system, double cutoff,
                        const std::vector<std::pair<uint32_t, uint32_t>>& pairs);

@@ -21,10 +21,11 @@ void build_cell_ids(const Grid& grid, const SystemView& system, CellIdArrays& ou
     double x[kMaxDim] = {0, 0, 0};
     for (int a = 0; a < dim; ++a) x[a] = system.positions[i * dim + a];
     uint32_t ids[kMaxCellTypes];
-    out.control[i] = bin_particle(grid, x, ids);
+    uint32_t slab = 0;
+    out.control[i] = bin_particle(grid, x, ids, &slab);
     for (std::size_t t = 0; t < slots; ++t) {
       const bool ok = ids[t] != kInvalidCell;
-      out.keys[i * slots + t] = ok ? (ids[t] << 1) | uint32_t(t != 0) : kInvalidCell;
+      out.keys[i * slots + t] = ok ? sort_key(grid, ids[t], t != 0, slab) : kInvalidCell;
       out.object_ids[i * slots + t] = uint32_t(i);
       valid += ok;
     }

@@ -7,15 +7,15 @@
 
 namespace cellforce::cpu {
 
-void find_collision_cells(const uint32_t* sorted_keys, std::size_t valid,
+void find_collision_cells(const uint32_t* sorted_keys, std::size_t valid, int slab_bits,
                           std::vector<CollisionCell>& cells) {
   cells.clear();
   std::size_t begin = 0;
   while (begin < valid) {
-    const uint32_t cell = sorted_keys[begin] >> 1;
+    const uint32_t cell = key_cell(sorted_keys[begin], slab_bits);
     std::size_t end = begin, h = 0;
-    while (end < valid && (sorted_keys[end] >> 1) == cell) {
-      h += (sorted_keys[end] & 1u) == 0;
+    while (end < valid && key_cell(sorted_keys[end], slab_bits) == cell) {
+      h += !key_is_phantom(sorted_keys[end], slab_bits);
       ++end;
     }
     const std::size_t total = end - begin;

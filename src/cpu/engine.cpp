@@ -95,7 +95,7 @@ void CpuEngine::build(const SystemView& system, const ForceField& ff) {
   stats.t_sort = seconds_since(t);
 
   t = Clock::now();
-  cpu::find_collision_cells(s.ids.keys.data(), s.ids.valid, s.cells);
+  cpu::find_collision_cells(s.ids.keys.data(), s.ids.valid, stats.grid.slab_bits, s.cells);
   // Gauss-Seidel passes need the cells by type; the split is part of the (reusable) build.
   if (options.accumulation == Accumulation::kGaussSeidel)
     cpu::split_by_type(stats.grid, s.cells, s.type_start);

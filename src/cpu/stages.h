@@ -13,8 +13,9 @@
 namespace cellforce::cpu {
 
 // Stage 1 output. Entry e = i * 2^d + t belongs to particle i: t = 0 is its H cell, t > 0 a P
-// cell (see bin_particle). Keys are (cell ID << 1 | phantom), so that a sort by key puts every
-// cell's H entries before its P entries; kInvalidCell marks an unused entry.
+// cell (see bin_particle). Keys are sort_key()'s ((cell ID << 1 | phantom) << slab bits | slab), so
+// that a sort by key puts every cell's H entries before its P entries, each group by slab;
+// kInvalidCell marks an unused entry.
 struct CellIdArrays {
   std::vector<uint32_t> keys;        // n * 2^d; after the sort: sorted_keys
   std::vector<uint32_t> object_ids;  // n * 2^d particle index (user order); after the sort: in cell order
@@ -36,8 +37,9 @@ void radix_sort(std::vector<uint32_t>& keys, std::vector<uint32_t>& values, int 
 
 using cellforce::CollisionCell;
 
-// Scans the first `valid` sorted keys for transitions and lists the collision cells in cell order.
-void find_collision_cells(const uint32_t* sorted_keys, std::size_t valid,
+// Scans the first `valid` sorted keys (sort_key(), the grid's slab_bits) for transitions and lists
+// the collision cells in cell order.
+void find_collision_cells(const uint32_t* sorted_keys, std::size_t valid, int slab_bits,
                           std::vector<CollisionCell>& cells);
 
 // Reorders `cells` so that cells of type 0 come first, then type 1, ... (stable), and writes the
