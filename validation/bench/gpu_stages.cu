@@ -95,7 +95,7 @@ int main(int argc, char** argv) {
     cuda::DeviceBuffer<CollisionCell> cells_out;
     cuda::CollisionScratch collision_scratch;
     const double t_cells = time_ms([&] {
-      cuda::find_collision_cells(keys_out.data(), entries, std::min<std::size_t>(entries, g.num_cells),
+      cuda::find_collision_cells(keys_out.data(), g.slab_bits, entries, std::min<std::size_t>(entries, g.num_cells),
                                  std::min<std::size_t>(n, g.num_cells), counts.data(), cells_out,
                                  collision_scratch, 0);
     });
