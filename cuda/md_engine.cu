@@ -988,12 +988,12 @@ class CudaMdEngine final : public MdEngine {
       steps();
     } catch (...) {
       try {
-        if (gathered) unrank_state(state, to.order);  // the state as the queued kernels left it, for the diagnosis
+        if (gathered) unrank_state(state, to.rank);  // the state as the queued kernels left it, for the diagnosis
       } catch (...) {
       }
       throw;
     }
-    if (ranked) unrank_state(state, to.order);
+    if (ranked) unrank_state(state, to.rank);
     pause();
     gate_read_.queue_copy(gate_.data(), stream_);  // control data, like the displacement: not counted
     gate_reset_ = true;
@@ -1064,9 +1064,9 @@ class CudaMdEngine final : public MdEngine {
   }
 
   // A rank-order chunk's positions and velocities back into the caller's order (change 58).
-  void unrank_state(const GatedState& state, const uint32_t* order) {
-    cuda::unrank(order, state.x_ranked, n_, box_.dim, state.x, stream_);
-    cuda::unrank(order, state.v_ranked, n_, box_.dim, state.v, stream_);
+  void unrank_state(const GatedState& state, const uint32_t* rank) {
+    cuda::unrank(rank, state.x_ranked, n_, box_.dim, state.x, stream_);
+    cuda::unrank(rank, state.v_ranked, n_, box_.dim, state.v, stream_);
   }
 
   void kick(double h, int kicks) {

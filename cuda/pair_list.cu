@@ -1393,26 +1393,30 @@ void list_forces(const Switches& sw, const ListArgs<Real, Accum>& given, PairLis
 }
 
 namespace {
+// A thread per coordinate of the caller's order (change 87): the stores coalesced, the loads
+// gathered by rank. With the scattered stores of a thread per rank the kernel ran 31.6 us at 1M
+// particles in lattice order and 99.8 shuffled (Nsight Compute, 7e818de).
 template <int D>
-__global__ void unrank_kernel(const uint32_t* __restrict__ order, const double* __restrict__ ranked, std::size_t n,
+__global__ void unrank_kernel(const uint32_t* __restrict__ rank, const double* __restrict__ ranked, std::size_t n,
                               double* __restrict__ out) {
-  const std::size_t p = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
-  if (p >= n) return;
-  const std::size_t i = order[p];
-  for (int a = 0; a < D; ++a) out[i * D + a] = ranked[p * D + a];
+  const std::size_t k = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
+  if (k >= n * D) return;
+  const std::size_t i = k / D, a = k % D;
+  out[k] = ranked[std::size_t(rank[i]) * D + a];
 }
 }  // namespace
 
-void unrank(const uint32_t* order, const double* ranked, std::size_t n, int dim, double* out, cudaStream_t stream) {
+void unrank(const uint32_t* rank, const double* ranked, std::size_t n, int dim, double* out, cudaStream_t stream) {
   if (n == 0) return;
   with_dim(dim, [&](auto d) {
-    unrank_kernel<decltype(d)::value><<<blocks_for(n), kBlock, 0, stream>>>(order, ranked, n, out);
+    constexpr int D = decltype(d)::value;
+    unrank_kernel<D><<<blocks_for(n * D), kBlock, 0, stream>>>(rank, ranked, n, out);
   });
   CF_CUDA_CHECK_LAUNCH();
 }
 
 void unrank_forces(const PairList& list, std::size_t n, int dim, double* forces, cudaStream_t stream) {
-  unrank(list.order.data(), list.ranked_forces.data(), n, dim, forces, stream);
+  unrank(list.rank.data(), list.ranked_forces.data(), n, dim, forces, stream);
 }
 
 #define CF_PAIR_LIST(Real, Accum)                                                                              \

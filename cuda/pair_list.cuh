@@ -347,8 +347,9 @@ void list_forces(const Switches& sw, const ListArgs<Real, Accum>& args, PairList
 template <class Real, class Accum>
 RankOrder rank_order(const ListArgs<Real, Accum>& args, PairList& list, bool forces_by_rank, bool fused);
 
-// `ranked` (n x dim, rank p's row at p) into `out` in the caller's order (row order[p]).
-void unrank(const uint32_t* order, const double* ranked, std::size_t n, int dim, double* out, cudaStream_t stream);
+// `ranked` (n x dim, rank p's row at p) into `out` in the caller's order (particle i's row from
+// rank[i]'s).
+void unrank(const uint32_t* rank, const double* ranked, std::size_t n, int dim, double* out, cudaStream_t stream);
 
 // list.ranked_forces (n x dim, rank order) into `forces` (user order).
 void unrank_forces(const PairList& list, std::size_t n, int dim, double* forces, cudaStream_t stream);
