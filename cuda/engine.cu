@@ -371,8 +371,10 @@ struct GpuEngine::Impl {
     if (o.grid_override) {
       st.grid = *o.grid_override;
     } else {
-      st.grid = plan_from_corners ? plan_grid(sys.box, ff.cutoff, corners, corner_count, o.grid, skin)
-                                  : plan_grid(sys.box, ff.cutoff, sys.positions, sys.n, o.grid, skin);
+      GridOptions go = o.grid;
+      go.slabs = lists(o, sys.box, ff.cutoff);  // the list's ranks by layer in a cell (change 86)
+      st.grid = plan_from_corners ? plan_grid(sys.box, ff.cutoff, corners, corner_count, go, skin)
+                                  : plan_grid(sys.box, ff.cutoff, sys.positions, sys.n, go, skin);
       check_grid(st.grid, sys.box, ff.cutoff, o.grid.rule, skin);
       check_staging(st.grid, ff.cutoff, o.precision);
     }

@@ -232,12 +232,12 @@ TEST_F(CoreOnDevice, FloatReciprocalIsTheCorrectlyRoundedQuotient) {
 }
 
 // ---- bin_particle --------------------------------------------------------------------------------
-__global__ void bin_kernel(Grid g, const double* x, int n, uint32_t* ids, Control* control) {
+__global__ void bin_kernel(Grid g, const double* x, int n, uint32_t* ids, Control* control, uint32_t* slab) {
   const int i = int(blockIdx.x * blockDim.x + threadIdx.x);
   if (i < n) {
     uint32_t local[kMaxCellTypes];
     for (int t = 0; t < kMaxCellTypes; ++t) local[t] = 0xdeadbeefu;
-    control[i] = cellforce::bin_particle(g, x + std::size_t(i) * 3, local);
+    control[i] = cellforce::bin_particle(g, x + std::size_t(i) * 3, local, slab + i);
     for (int t = 0; t < kMaxCellTypes; ++t) ids[std::size_t(i) * kMaxCellTypes + t] = local[t];
   }
 }
@@ -250,7 +250,7 @@ struct AxisSpec {
 };
 
 // A grid built by hand the way core/grid.h documents its fields (this binary does not link the
-// library's plan_grid).
+// library's plan_grid), with the most slab bits (change 86).
 Grid make_grid(int dim, const AxisSpec (&axes)[3], double cutoff) {
   Grid g;
   g.dim = dim;
@@ -268,6 +268,7 @@ Grid make_grid(int dim, const AxisSpec (&axes)[3], double cutoff) {
     total *= s.cells;
   }
   g.num_cells = total;
+  g.slab_bits = cellforce::kMaxSlabBits;
   return g;
 }
 
@@ -282,6 +283,12 @@ std::vector<double> special_values(const Grid& g, int a) {
                      f + g.half_width, f - g.half_width, f + g.half_width * (1 + 1e-12),
                      f + 0.5 * g.cell[a]})
       if (periodic || (x >= g.origin[a] && x <= g.origin[a] + l)) v.push_back(x);
+    // The slab's layer boundaries along the last axis (an fcc start puts particles on them).
+    if (a == g.dim - 1 && k < g.n[a])
+      for (uint32_t q = 1; q < (1u << g.slab_bits); ++q) {
+        const double b = f + g.cell[a] * q / double(1u << g.slab_bits);
+        for (double x : {b, std::nextafter(b, -1e300), std::nextafter(b, 1e300)}) v.push_back(x);
+      }
   }
   return v;
 }
@@ -317,25 +324,29 @@ void compare_binning(const char* name, const Grid& g) {
 
   std::vector<uint32_t> host_ids(std::size_t(n) * kMaxCellTypes, 0xdeadbeefu);
   std::vector<Control> host_control(static_cast<std::size_t>(n));
+  std::vector<uint32_t> host_slab(static_cast<std::size_t>(n), 0xdeadbeefu);
   for (int i = 0; i < n; ++i)
-    host_control[std::size_t(i)] =
-        cellforce::bin_particle(g, &x[std::size_t(i) * 3], &host_ids[std::size_t(i) * kMaxCellTypes]);
+    host_control[std::size_t(i)] = cellforce::bin_particle(g, &x[std::size_t(i) * 3],
+                                                           &host_ids[std::size_t(i) * kMaxCellTypes], &host_slab[std::size_t(i)]);
 
   DeviceBuffer<double> d_x;
   DeviceBuffer<uint32_t> d_ids(std::max<std::size_t>(host_ids.size(), 1));
   DeviceBuffer<Control> d_control(std::max<std::size_t>(host_control.size(), 1));
+  DeviceBuffer<uint32_t> d_slab(std::max<std::size_t>(host_slab.size(), 1));
   upload(d_x, x);
-  bin_kernel<<<(n + 127) / 128, 128>>>(g, d_x.data(), n, d_ids.data(), d_control.data());
+  bin_kernel<<<(n + 127) / 128, 128>>>(g, d_x.data(), n, d_ids.data(), d_control.data(), d_slab.data());
   CF_CUDA_CHECK_LAUNCH();
   CF_CUDA_CHECK(cudaDeviceSynchronize());
   std::vector<uint32_t> dev_ids;
   std::vector<Control> dev_control;
   dev_ids = download(d_ids, host_ids.size());
   dev_control = download(d_control, host_control.size());
+  const std::vector<uint32_t> dev_slab = download(d_slab, host_slab.size());
 
   std::size_t mismatches = 0;
   for (int i = 0; i < n; ++i) {
-    bool same = host_control[std::size_t(i)] == dev_control[std::size_t(i)];
+    bool same = host_control[std::size_t(i)] == dev_control[std::size_t(i)] &&
+                host_slab[std::size_t(i)] == dev_slab[std::size_t(i)] && host_slab[std::size_t(i)] < (1u << g.slab_bits);
     for (int t = 0; t < kMaxCellTypes; ++t)
       same = same && host_ids[std::size_t(i) * kMaxCellTypes + std::size_t(t)] ==
                          dev_ids[std::size_t(i) * kMaxCellTypes + std::size_t(t)];
@@ -345,12 +356,13 @@ void compare_binning(const char* name, const Grid& g) {
                     << "): host home " << host_ids[std::size_t(i) * kMaxCellTypes] << " control "
                     << host_control[std::size_t(i)] << ", device home "
                     << dev_ids[std::size_t(i) * kMaxCellTypes] << " control "
-                    << dev_control[std::size_t(i)];
+                    << dev_control[std::size_t(i)] << "; slab host " << host_slab[std::size_t(i)] << " device "
+                    << dev_slab[std::size_t(i)];
   }
   EXPECT_EQ(mismatches, 0u) << name << ": of " << n << " points";
 }
 
-// Cell IDs (all 8 slots) and control bits equal exactly, host vs device, on every grid.
+// Cell IDs (all 8 slots), control bits and slabs equal exactly, host vs device, on every grid.
 TEST_F(CoreOnDevice, BinParticleEqualsHost) {
   const double rc = 2.5;
   compare_binning("periodic3d_L20", make_grid(3, {{true, 20, 0, 4}, {true, 20, 0, 4}, {true, 20, 0, 4}}, rc));

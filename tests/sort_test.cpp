@@ -152,24 +152,29 @@ TEST(CollisionCells, SplitByTypeIsAStablePartition) {
 
 }  // namespace
 
-// The slab bits (change 86): the sort key's cell part keeps its width, the slab takes 2-3 bits, and
-// it adds no 8-bit sort pass where the last digit has 2 or more bits free; every valid key, whatever
-// its slab, stays below an invalid entry masked to the key's width.
+// The slab bits (change 86, where GridOptions::slabs asks for them: none otherwise): the sort key's
+// cell part keeps its width, the slab takes 2-3 bits (fewer only where the cell part leaves less of
+// the 32), and it adds no 8-bit sort pass where the last digit has 2 or more bits free; every valid
+// key, whatever its slab, stays below an invalid entry masked to the key's width.
 TEST(SortKey, SlabBitsFillTheSortsLastDigit) {
   using namespace cellforce;
-  for (double edge : {10.0, 16.0, 33.6, 53.0, 67.7, 107.5, 111.5, 170.6, 270.9, 491.0, 1350.0}) {
+  // Up to the grid's limit: 1,006^3 cells leave 1 bit of the 32, 1,024^3 = kMaxCells none.
+  for (double edge : {10.0, 16.0, 33.6, 53.0, 67.7, 107.5, 111.5, 170.6, 270.9, 491.0, 1350.0, 4300.0, 4372.0}) {
     Box box;
     box.dim = 3;
     for (int a = 0; a < 3; ++a) {
       box.length[a] = edge;
       box.periodic[a] = true;
     }
-    const Grid g = plan_grid(box, 2.5, nullptr, 0);
+    GridOptions options;
+    options.slabs = true;
+    const Grid g = plan_grid(box, 2.5, nullptr, 0, options);
+    EXPECT_EQ(plan_grid(box, 2.5, nullptr, 0).slab_bits, 0) << "slabs only where asked";
     const int cell_bits = int(std::bit_width(uint64_t(2) * g.num_cells));
     SCOPED_TRACE("edge " + std::to_string(edge) + ", " + std::to_string(g.num_cells) + " cells");
     EXPECT_EQ(g.key_bits, cell_bits + g.slab_bits);
     EXPECT_LE(g.key_bits, 32);
-    EXPECT_GE(g.slab_bits, 2);
+    EXPECT_GE(g.slab_bits, std::min(2, 32 - cell_bits));
     EXPECT_LE(g.slab_bits, kMaxSlabBits);
     const int free_bits = (8 - cell_bits % 8) % 8;
     if (free_bits >= 2) EXPECT_EQ((g.key_bits + 7) / 8, (cell_bits + 7) / 8) << "a sort pass more";
@@ -200,7 +205,9 @@ TEST(SortKey, CellEntriesRunBySlabThenParticle) {
     for (int a = 0; a < 3; ++a) shuffled[i * 3 + a] = c.positions[perm[i] * 3 + a];
   c.positions = shuffled;
   const SystemView sys = c.view();
-  const Grid g = plan_grid(sys.box, 2.5, sys.positions, sys.n);
+  GridOptions options;
+  options.slabs = true;
+  const Grid g = plan_grid(sys.box, 2.5, sys.positions, sys.n, options);
   ASSERT_GE(g.slab_bits, 2);
   const uint32_t layers = 1u << g.slab_bits;
   auto layer_of = [&](uint32_t i) {

@@ -36,7 +36,7 @@ void bounding_interval(const double* positions, std::size_t n, int dim, int a, d
 }
 
 // Fills the derived fields (inverse edges, half-width in cell units, cell count, key width).
-void finish(Grid& g) {
+void finish(Grid& g, bool slabs) {
   for (int a = 0; a < kMaxDim; ++a) {
     g.inv_cell[a] = 1.0 / g.cell[a];
     g.half_width_cells[a] = a < g.dim ? g.half_width * g.inv_cell[a] : 0.0;
@@ -52,10 +52,11 @@ void finish(Grid& g) {
   // key_bits is 2^key_bits - 1, which stays above every valid key (whatever its slab) so that
   // invalid entries sort last. The slab takes the bits left free in the sort's last 8-bit digit
   // (CUB's radix sort takes 8 bits a pass), up to kMaxSlabBits; where fewer than 2 are free it takes
-  // 2 and the sort one more pass (measured in performance.md, change 86).
+  // 2 and the sort one more pass (measured in performance.md, change 86), within the key's 32 bits
+  // (1 above 2^29 cells, 0 at 2^30).
   const int cell_bits = int(std::bit_width(uint64_t(2) * cells));
   const int free_bits = (8 - cell_bits % 8) % 8;
-  g.slab_bits = std::min({kMaxSlabBits, std::max(free_bits, 2), 32 - cell_bits});
+  g.slab_bits = slabs ? std::min({kMaxSlabBits, std::max(free_bits, 2), 32 - cell_bits}) : 0;
   g.key_bits = cell_bits + g.slab_bits;
 }
 
@@ -122,7 +123,7 @@ Grid plan_grid(const Box& box, double physical_cutoff, const double* positions,
     n[a] = std::max<uint32_t>(m, 1);
   }
   for (int a = 0; a < box.dim; ++a) set_axis_geometry(g, box, a, n[a], lo[a], extent[a], min_edge);
-  finish(g);
+  finish(g, options.slabs);
   return g;
 }
 
@@ -137,7 +138,7 @@ Grid make_grid_unchecked(const Box& box, const uint32_t cells[kMaxDim], double h
     set_axis_geometry(g, box, a, std::max<uint32_t>(cells[a], 1), lo, extent, 0.0);
     if (!box.periodic[a] && g.cell[a] <= 0) g.cell[a] = 1.0;  // all particles at one coordinate
   }
-  finish(g);
+  finish(g, false);
   return g;
 }
 

@@ -37,6 +37,11 @@ struct GridOptions {
   // the binning of a particle cannot drop a pair at distance just under rc (the narrow phase's
   // strict r < rc test decides what interacts, so a wider box only adds candidates).
   double half_width_factor = 0.70710678118654752440 * (1.0 + 1e-6);
+  // The sort key carries each particle's slab (sort_key(), change 86): where pair lists are built
+  // from the structure (the CUDA engine sets it), whose force kernel gathers partners by rank. A
+  // structure traversed by its cells has no use for the order, and its sort (every step without a
+  // skin) no bits to spare for it.
+  bool slabs = false;
 };
 
 // Plain data, passed by value to kernels. Axes a >= dim have n[a] == 1.
@@ -51,7 +56,7 @@ struct Grid {
   double half_width = 0;                    // h, half-width of each particle's box
   double half_width_cells[kMaxDim] = {0, 0, 0};  // h / c_a
   uint32_t num_cells = 1;
-  int slab_bits = 0;  // bits of the slab in the sort key (0..kMaxSlabBits; sort_key() below)
+  int slab_bits = 0;  // bits of the slab in the sort key (0..kMaxSlabBits, 0 without GridOptions::slabs; sort_key())
   int key_bits = 1;   // bits of the sort key; invalid entries sort last
 
   int num_types() const { return 1 << dim; }
@@ -140,7 +145,8 @@ struct StagedCoordinate<float> {
 // ---- the sort key (stage 1 writes it, stage 2 sorts it, stage 3 and the traversal read it) -----
 // key = (cell ID << 1 | phantom) << slab_bits | slab. Sorted, a cell's H entries come before its P
 // entries (the design note's stage 2), and each group runs by slab: the particle's place inside its
-// own H cell along the grid's last axis, in 2^slab_bits layers. Ties keep stage 1's order, the
+// own H cell along the grid's last axis, in 2^slab_bits layers (2-3 bits; fewer only where the cell
+// part leaves less than 2 of the key's 32, above 2^28 cells). Ties keep stage 1's order, the
 // particles' own. Without the slab a cell's entries ran in the caller's numbering; a numbering that
 // is not in space (any after a long run: diffusion mixes a cell's particles within a few thousand
 // steps of in.lj) scattered the partners that a warp of consecutive ranks gathers (performance.md,
@@ -168,7 +174,7 @@ CF_HD Control bin_particle_in(const Grid& g, const double x[kMaxDim], uint32_t i
   int step[kMaxDim] = {0, 0, 0};  // -1 or +1: the neighbour the box reaches along the axis
   for (int a = 0; a < D; ++a) {
     const double xa = g.inv_length[a] != 0.0 ? wrap_coordinate(x[a], g.length[a]) : x[a];
-    const double u = (xa - g.origin[a]) * g.inv_cell[a];
+    const double u = mul_rn(xa - g.origin[a], g.inv_cell[a]);  // rounded alone: f below is u's on both sides
     const int n = int(g.n[a]);
     int ka = int(std::floor(u));
     ka = ka < 0 ? 0 : (ka >= n ? n - 1 : ka);  // a coordinate may round onto the far face
