@@ -56,8 +56,9 @@ void renumber(MdState& state, const std::vector<std::size_t>& from) {
 }
 
 // --order shuffled: a Fisher-Yates shuffle driven by std::mt19937_64 (fully specified: the same
-// order everywhere). --order cells: by home cell on the grid planned for rc + skin with the
-// engine's cell rule, the lattice's order kept inside a cell.
+// order everywhere). --order cells: by the sort key of the particle's H entry on the grid planned
+// for rc + skin with the engine's cell rule and slabs, as a list build ranks them (home cell, then
+// slab), the lattice's order kept inside a slab.
 void apply_numbering(MdState& state, Numbering order, uint64_t seed, double cutoff, double skin, CellRule rule) {
   if (order == Numbering::kLattice) return;
   const std::size_t n = state.config.size();
@@ -69,14 +70,16 @@ void apply_numbering(MdState& state, Numbering order, uint64_t seed, double cuto
   } else {
     GridOptions options;
     options.rule = rule;
+    options.slabs = true;  // as the engine plans a grid its lists are built from
     const Grid g = plan_grid(state.config.box, cutoff, state.config.positions.data(), n, options, skin);
     std::vector<uint32_t> home(n);
     for (std::size_t i = 0; i < n; ++i) {
       double x[kMaxDim] = {0, 0, 0};
       uint32_t ids[kMaxCellTypes];
+      uint32_t slab = 0;
       for (int a = 0; a < g.dim; ++a) x[a] = state.config.positions[i * std::size_t(g.dim) + std::size_t(a)];
-      bin_particle(g, x, ids);
-      home[i] = ids[0];
+      bin_particle(g, x, ids, &slab);
+      home[i] = sort_key(g, ids[0], false, slab);
     }
     std::stable_sort(from.begin(), from.end(), [&](std::size_t a, std::size_t b) { return home[a] < home[b]; });
   }
