@@ -712,14 +712,10 @@ __device__ __forceinline__ void pdl_wait() {
 
 // `ranked` is not __restrict__ (change 91): in a gated chunk the kernel before this one wrote it (a
 // fused force kernel's `next`, or a drift's placing), and this one may run before that one ends
-// (programmatic dependent launch), so it must be read only after pdl_wait(). A const __restrict__
-// pointer lets nvcc read it through the non-coherent path (ld.global.nc), whose data it may take as
-// unchanging while the kernel runs, and so issue the read before griddepcontrol.wait: change 90's
-// kernel (three more registers) loaded its own particle, ranked[p], before the wait (SASS: the
-// LDG.E.128.CONSTANT before ACQBULK), and its fused Verlet chunks read positions the kernel before
-// had not yet written: PairListMd.GatedRunsEqualTheStepwiseRunLeanOrNot rebuilt 73-89 times in 300
-// steps against 35-40 step by step, and passed with the dependent launch off. ea60bce's kernel
-// happened to load it after the wait.
+// (programmatic dependent launch), so it must be read only after pdl_wait(). Through a const
+// __restrict__ pointer nvcc may read it on the non-coherent path (ld.global.nc), which it takes as
+// unchanging while the kernel runs, and issue that read before griddepcontrol.wait (performance.md,
+// change 91: the SASS of such a kernel, and the fused runs it broke).
 template <class T, int S, bool Folded, bool Drift, class Particle, class Real, class Accum, int B = kBlock>
 __global__ void __launch_bounds__(B)
     list_force_kernel(const ListArgs<Real, Accum> args, const uint32_t* __restrict__ order,

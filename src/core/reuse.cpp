@@ -220,10 +220,10 @@ ReuseAudit audit_reuse(const Grid& grid, const uint32_t* build_keys, const Contr
     return r2;
   };
   ReuseAudit audit;
+  const int sb = grid.slab_bits;
   for (const auto& [i, j] : pairs) {
     const uint32_t* ki = build_keys + std::size_t(i) * slots;
     const uint32_t* kj = build_keys + std::size_t(j) * slots;
-    const int sb = grid.slab_bits;
     const uint32_t home_i = key_cell(ki[0], sb), home_j = key_cell(kj[0], sb);
     int visits = 0;
     for (std::size_t t = 0; t < slots; ++t) {
