@@ -1,0 +1,506 @@
+#!/usr/bin/env python3
+r"""Programmatic dependent launch's rule, checked in the built code: a kernel that may start before
+the kernel it follows has ended (griddepcontrol.wait in PTX, ACQBULK in SASS) touches global memory
+before that wait only through the parameters the kernels before it cannot be writing, and never
+reads through the non-coherent path (ld.global.nc, SASS LDG.*.CONSTANT) what those kernels write.
+
+Why (performance.md, change 91): the gated force kernels are launched as programmatic dependents of
+each other, so kernel k + 1 runs its blocks' first instructions while kernel k still writes the
+positions (`ranked`), the rank-order state (`then`) and the step gate (`gate`). nvcc reads a
+`const __restrict__` pointer through the non-coherent path, which it takes as unchanging while the
+kernel runs, and ptxas then moved such a read of `ranked` before griddepcontrol.wait: the fused
+Verlet runs diverged. ea60bce's kernel already read `ranked` non-coherently, after the wait only by
+luck of the schedule. Three checks, over every instantiation of every kernel that waits:
+
+  order (PTX): global loads, stores and atomics before griddepcontrol.wait go through the rule's
+      `before_wait` parameters only (the source's intent);
+  order (SASS): the same for the machine code, after ptxas scheduled it (LDG, LD, STG, ST, ATOMG,
+      ATOM, RED before ACQBULK);
+  non-coherent (PTX): no ld.global.nc whose base pointer is one of the rule's `chain_writes`.
+
+A kernel that waits and has no rule here fails the check: a new programmatic dependent states what
+its chain writes. Base pointers are found by walking each address back through the PTX registers
+to the parameter a cvta.to.global converts; in SASS, to every kernel-parameter constant
+(c[0x0][...], placed by the cubin's EIATTR_KPARAM_INFO) its address is computed from. Registers
+written more than once count every write (over-approximation: a false alarm, never a miss, within
+the walk).
+
+  python3 validation/pdl_check.py build/cellforce        (any binary or object with CUDA code)
+  python3 validation/pdl_check.py --self-test            (the checks on saved SASS and PTX: change 90's
+                                                         kernel and ea60bce's fail, change 91's passes)
+
+Tools: cuobjdump and nvdisasm from the CUDA toolkit, or from the PyPI wheels nvidia-cuda-cuobjdump
+and nvidia-cuda-nvdisasm (validation/requirements.txt puts them in .venv). Exit 0: every check
+passed; 1: a check failed (each failure names the kernel, the instruction and the parameter);
+77: nothing to check (no tools, or no CUDA code in the binary).
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import shutil
+import subprocess
+import sys
+import sysconfig
+from dataclasses import dataclass, field
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+@dataclass(frozen=True)
+class Rule:
+    source: str                   # the file that defines the kernel (its parameters' names, by ordinal)
+    before_wait: frozenset[str]   # parameters that may be read before the wait: written before the chain began
+    chain_writes: frozenset[str]  # parameters the kernels of the chain write: never read non-coherently
+
+
+# The kernels launched as programmatic dependents (cuda/pair_list.cu, list_forces: change 75).
+RULES = {
+    "list_force_kernel": Rule(
+        source="cuda/pair_list.cu",
+        # the list's lengths and group chunks come from the build, which completed before the
+        # gated evaluations began (change 33 reads them before the wait)
+        before_wait=frozenset({"length", "group_chunks"}),
+        # the positions in rank order (the kernel before wrote them as its `next`), the chunk's
+        # rank-order state that the fused kick-drift updates, and the step gate
+        chain_writes=frozenset({"ranked", "then", "gate"}),
+    ),
+}
+
+
+# --- tools -------------------------------------------------------------------------------------
+
+def find_tool(name: str) -> Path | None:
+    """`name` from PATH, the CUDA toolkit, or an nvidia-* wheel in this Python's site-packages."""
+    found = shutil.which(name)
+    if found:
+        return Path(found)
+    for home in (os.environ.get("CUDA_HOME"), os.environ.get("CUDA_PATH"), "/usr/local/cuda"):
+        if home and (Path(home) / "bin" / name).is_file():
+            return Path(home) / "bin" / name
+    for site in {sysconfig.get_paths()["purelib"], sysconfig.get_paths()["platlib"]}:
+        for candidate in sorted(Path(site).glob(f"nvidia/cu*/bin/{name}")):
+            candidate.chmod(candidate.stat().st_mode | 0o111)  # wheels may drop the execute bit
+            return candidate
+    return None
+
+
+def cuobjdump(binary: Path, what: str, tools: dict[str, Path]) -> str:
+    env = dict(os.environ, PATH=f"{tools['nvdisasm'].parent}{os.pathsep}{os.environ.get('PATH', '')}")
+    done = subprocess.run([str(tools["cuobjdump"]), what, str(binary)], capture_output=True, text=True, env=env)
+    if done.returncode != 0 and "does not contain device code" not in done.stderr:
+        raise SystemExit(f"cuobjdump {what} {binary}: {done.stderr.strip()}")
+    return done.stdout
+
+
+# --- the kernels' parameter names, from their source -------------------------------------------
+
+def parameter_names(source: Path, kernel: str) -> list[str]:
+    """The names of `kernel`'s parameters in order, from its __global__ definition in `source`."""
+    text = source.read_text()
+    for m in re.finditer(r"\b" + re.escape(kernel) + r"\s*\(", text):
+        if "__global__" not in text[max(0, m.start() - 400):m.start()]:
+            continue
+        depth, angle, start, names = 1, 0, m.end(), []
+        for i in range(m.end(), len(text)):
+            c = text[i]
+            if c in "([{":
+                depth += 1
+            elif c in ")]}":
+                depth -= 1
+            elif c == "<":
+                angle += 1
+            elif c == ">":
+                angle -= 1
+            if (c == "," and depth == 1 and angle == 0) or depth == 0:
+                decl = re.sub(r"=.*", "", text[start:i], flags=re.S).strip()
+                names.append(re.findall(r"[A-Za-z_]\w*", decl)[-1])
+                start = i + 1
+                if depth == 0:
+                    return names
+    raise SystemExit(f"{source}: no __global__ definition of {kernel}")
+
+
+def rule_for(function: str) -> tuple[str, Rule] | None:
+    for kernel, rule in RULES.items():
+        if f"{len(kernel)}{kernel}" in function:  # the Itanium mangling of the kernel's name
+            return kernel, rule
+    return None
+
+
+def demangled(name: str) -> str:
+    tool = shutil.which("c++filt")
+    if not tool:
+        return name
+    out = subprocess.run([tool, name], capture_output=True, text=True).stdout.strip()
+    return re.sub(r"cellforce::cuda::\(anonymous namespace\)::", "", out) or name
+
+
+# --- PTX ---------------------------------------------------------------------------------------
+
+@dataclass
+class Ptx:
+    name: str
+    lines: list[str]  # the body's statements, one a line, without the trailing ';'
+
+
+def ptx_functions(text: str) -> list[Ptx]:
+    out, current, body = [], None, False
+    for raw in text.splitlines():
+        line = raw.strip()
+        m = re.match(r"(?:\.\w+\s+)*\.entry\s+([\w$]+)\s*\(", line)
+        if m:
+            current, body = Ptx(m.group(1), []), False
+            out.append(current)
+            continue
+        if current is None:
+            continue
+        if line == "{" and not body:
+            body = True
+            continue
+        if body and line == "}":
+            current, body = None, False
+            continue
+        if body and line and not line.startswith("//"):
+            current.lines.append(line.rstrip(";").strip())
+    return out
+
+
+REG = re.compile(r"%\w+")
+
+
+def ptx_parse(line: str) -> tuple[str, list[str], list[str], str | None]:
+    """(opcode, destination registers, source registers, parameter 'K+off' for ld.param)."""
+    line = re.sub(r"^@!?%\w+\s+", "", line)
+    parts = line.split(None, 1)
+    op = parts[0]
+    rest = parts[1] if len(parts) > 1 else ""
+    param = None
+    pm = re.search(r"_param_(\d+)(?:\+(\d+))?\]", rest)
+    if op.startswith("ld.param") and pm:
+        param = f"{pm.group(1)}+{pm.group(2) or 0}"
+    if op.startswith(("st.", "red.", "bra", "ret", "bar", "griddepcontrol", "membar", "fence", "prefetch")) \
+            or rest.startswith("["):
+        return op, [], REG.findall(rest), param
+    # destinations: the first operand (a register or a {vector}); sources: everything after it
+    if rest.startswith("{"):
+        close = rest.index("}")
+        dest, src = rest[:close + 1], rest[close + 1:]
+    else:
+        dest, _, src = rest.partition(",")
+    return op, REG.findall(dest), REG.findall(src), param
+
+
+def ptx_bases(fn: Ptx, index: int, defs: dict[str, list[int]], parsed: list) -> set[str]:
+    """The parameters ('K+off') that the address of statement `index` is based on: values a
+    cvta.to.global converts, walked back through arithmetic (loads from memory end a walk: a value
+    read from memory is data, not the kernel's pointer)."""
+    line = fn.lines[index]
+    address = re.search(r"\[([^\]]+)\]", line)
+    todo = REG.findall(address.group(1)) if address else []
+    seen, bases = set(), set()
+
+    def origins(reg: str, visited: set[str]) -> set[str]:  # the ld.param slots a register comes from
+        found = set()
+        stack = [reg]
+        while stack:
+            r = stack.pop()
+            if r in visited:
+                continue
+            visited.add(r)
+            for j in defs.get(r, []):
+                op, _, src, param = parsed[j]
+                if param is not None:
+                    found.add(param)
+                elif not op.startswith(("ld.", "atom.")):
+                    stack.extend(src)
+        return found
+
+    while todo:
+        r = todo.pop()
+        if r in seen:
+            continue
+        seen.add(r)
+        for j in defs.get(r, []):
+            op, _, src, param = parsed[j]
+            if op.startswith("cvta.to.global"):
+                bases |= origins(src[0], set())
+            elif param is None and not op.startswith(("ld.", "atom.")):
+                todo.extend(src)
+    return bases
+
+
+GLOBAL_PTX = re.compile(r"^(ld|st|atom|red)(\.volatile|\.relaxed\.\w+|\.acquire\.\w+|\.release\.\w+)?\.global\b|^(ld|st|atom)\.(?!param|shared|local|const)")
+
+
+def check_ptx(fn: Ptx, names: list[str], rule: Rule) -> list[str]:
+    parsed = [ptx_parse(l) for l in fn.lines]
+    defs: dict[str, list[int]] = {}
+    for i, (_, dst, _, _) in enumerate(parsed):
+        for r in dst:
+            defs.setdefault(r, []).append(i)
+    wait = next((i for i, l in enumerate(fn.lines) if l.startswith("griddepcontrol.wait")), None)
+    if wait is None:
+        return ["PTX: no griddepcontrol.wait (the kernel would read what the kernel before writes without waiting)"]
+
+    def label(slot: str) -> str:
+        k, off = slot.split("+")
+        name = names[int(k)] if int(k) < len(names) else f"parameter {k}"
+        return name if off == "0" else f"{name}+{off}"
+
+    problems = []
+    for i, line in enumerate(fn.lines):
+        op = parsed[i][0]
+        if not GLOBAL_PTX.match(op):
+            continue
+        bases = ptx_bases(fn, i, defs, parsed)
+        params = {names[int(s.split('+')[0])] for s in bases}
+        if i < wait and (not params or not params <= rule.before_wait):
+            problems.append(f"PTX order: '{line}' before griddepcontrol.wait, based on "
+                            f"{', '.join(sorted(map(label, bases))) or 'nothing traced'} "
+                            f"(allowed before the wait: {', '.join(sorted(rule.before_wait))})")
+        if ".nc" in op and params & rule.chain_writes:
+            problems.append(f"PTX non-coherent: '{line}' reads {', '.join(sorted(map(label, bases)))}, which "
+                            f"the kernels of the chain write: read it coherently (no __restrict__ on that pointer)")
+    return problems
+
+
+# --- SASS --------------------------------------------------------------------------------------
+
+@dataclass
+class Sass:
+    name: str
+    code: list[tuple[int, str]] = field(default_factory=list)  # (address, instruction)
+
+
+def sass_functions(text: str) -> list[Sass]:
+    out, current = [], None
+    instr = re.compile(r"\s*/\*([0-9a-f]{4,})\*/\s+(.*?)\s*;")
+    for line in text.splitlines():
+        if "Function :" in line:
+            current = Sass(line.split("Function :", 1)[1].strip())
+            out.append(current)
+        elif current is not None:
+            m = instr.match(line)
+            if m:
+                current.code.append((int(m.group(1), 16), m.group(2)))
+    return out
+
+
+def kernel_params(elf: str) -> dict[str, tuple[int, list[tuple[int, int, int]]]]:
+    """Per function: the parameter constant bank's base and (ordinal, offset, size) of each parameter."""
+    out: dict[str, tuple[int, list]] = {}
+    name, base, params, last = None, 0x210, [], ""
+    for line in elf.splitlines():
+        if line.startswith(".nv.info."):
+            if name:
+                out[name] = (base, params)
+            name, base, params = line[len(".nv.info."):].strip(), 0x210, []
+        elif name:
+            m = re.search(r"Ordinal\s*:\s*(0x[0-9a-f]+)\s+Offset\s*:\s*(0x[0-9a-f]+)\s+Size\s*:\s*(0x[0-9a-f]+)", line)
+            if m:
+                params.append(tuple(int(g, 16) for g in m.groups()))
+            m = re.match(r"\s*Value:\s*0x[0-9a-f]+\s+(0x[0-9a-f]+)\s*$", line)
+            if m and "PARAM_CBANK" in last:
+                base = int(m.group(1), 16) & 0xFFFF
+        last = line
+    if name:
+        out[name] = (base, params)
+    return out
+
+
+SASS_OP = re.compile(r"^(@!?U?P\w+\s+)?([\w.]+)\s*(.*)$")
+SASS_REG = re.compile(r"\b(U?R\d+)\b")
+GLOBAL_SASS = re.compile(r"^(LDG|STG|ATOMG|RED|LD|ST|ATOM)(\.|$)")
+
+
+def sass_width(op: str) -> int:
+    if ".128" in op:
+        return 4
+    if ".64" in op or ".WIDE" in op or op.startswith(("CS2R", "D")) or ".F64" in op.split(".")[1:2]:
+        return 2
+    return 1
+
+
+def sass_regs(operand: str) -> list[str]:
+    """The registers an operand names; R2.64 names R2 and R3."""
+    out = []
+    for m in re.finditer(r"\b(U?R)(\d+)(\.64)?\b", operand):
+        out.append(f"{m.group(1)}{m.group(2)}")
+        if m.group(3):
+            out.append(f"{m.group(1)}{int(m.group(2)) + 1}")
+    return out
+
+
+def check_sass(fn: Sass, names: list[str], params: tuple[int, list[tuple[int, int, int]]] | None,
+               rule: Rule) -> list[str]:
+    wait = next((i for i, (_, s) in enumerate(fn.code) if SASS_OP.match(s).group(2) == "ACQBULK"), None)
+    if wait is None:
+        return ["SASS: no ACQBULK (griddepcontrol.wait)"]
+    base, slots = params if params else (0x210, [])
+
+    def param_of(offset: int) -> str:
+        for ordinal, off, size in slots:
+            if base + off <= offset < base + off + size:
+                return names[ordinal] if ordinal < len(names) else f"parameter {ordinal}"
+        return f"c[0x0][{offset:#x}]"
+
+    parsed = []
+    for _, text in fn.code[:wait]:
+        m = SASS_OP.match(text)
+        op, rest = m.group(2), m.group(3)
+        operands = [o.strip() for o in re.split(r",(?![^\[]*\])", rest)] if rest else []
+        dest = []
+        if operands and re.fullmatch(r"U?R\d+", operands[0]):
+            first = int(operands[0].lstrip("UR"))
+            prefix = "UR" if operands[0].startswith("UR") else "R"
+            dest = [f"{prefix}{first + k}" for k in range(sass_width(op))]
+        parsed.append((op, operands, dest))
+
+    problems = []
+    for i, (op, operands, _) in enumerate(parsed):
+        if not GLOBAL_SASS.match(op):
+            continue
+        address = next((o for o in operands if "[" in o), "")
+        address = address[address.rfind("["):]  # desc[URx][Ry.64]: the last bracket is the address
+        todo, seen, reached = sass_regs(address), set(), set()
+        while todo:
+            r = todo.pop()
+            if r in seen or r in ("RZ", "URZ"):
+                continue
+            seen.add(r)
+            for j in range(i - 1, -1, -1):  # every earlier write of r (over-approximation)
+                jop, jops, jdest = parsed[j]
+                if r not in jdest:
+                    continue
+                for o in jops[1:]:
+                    for c in re.findall(r"c\[0x0\]\[(0x[0-9a-f]+)\]", o):
+                        if int(c, 16) >= base:
+                            reached.add(int(c, 16))
+                if not GLOBAL_SASS.match(jop) and not jop.startswith("LDS"):
+                    for o in jops[1:]:
+                        todo.extend(sass_regs(re.sub(r"c\[0x0\]\[0x[0-9a-f]+\]", "", o)))
+        found = sorted({param_of(c) for c in reached})
+        if not found or not set(found) <= rule.before_wait:
+            problems.append(f"SASS order: /*{fn.code[i][0]:04x}*/ '{fn.code[i][1]}' before ACQBULK, based on "
+                            f"{', '.join(found) or 'nothing traced'} "
+                            f"(allowed before the wait: {', '.join(sorted(rule.before_wait))})")
+    return problems
+
+
+# --- driver ------------------------------------------------------------------------------------
+
+def check_binary(binary: Path, tools: dict[str, Path]) -> int:
+    ptx = ptx_functions(cuobjdump(binary, "-ptx", tools))
+    sass = sass_functions(cuobjdump(binary, "-sass", tools))
+    if not ptx and not sass:
+        print(f"skipped: {binary} holds no CUDA code")
+        return 77
+    elf = kernel_params(cuobjdump(binary, "-elf", tools))
+    names_of: dict[str, list[str]] = {}
+    failures, checked = 0, {}
+
+    def names(kernel: str, rule: Rule) -> list[str]:
+        if kernel not in names_of:
+            names_of[kernel] = parameter_names(ROOT / rule.source, kernel)
+        return names_of[kernel]
+
+    def report(fn_name: str, problems: list[str]) -> None:
+        nonlocal failures
+        if problems:
+            failures += 1
+            if failures <= 20:  # the first functions in full; the count of the rest at the end
+                print(f"FAIL {demangled(fn_name)}")
+                for p in problems[:4]:
+                    print(f"     {p}")
+                if len(problems) > 4:
+                    print(f"     ({len(problems) - 4} more)")
+
+    for fn in ptx:
+        waits = any(l.startswith("griddepcontrol.wait") for l in fn.lines)
+        found = rule_for(fn.name)
+        if waits and found is None:
+            report(fn.name, ["waits (griddepcontrol.wait) but has no rule in validation/pdl_check.py's RULES"])
+            continue
+        if found:
+            kernel, rule = found
+            report(fn.name, check_ptx(fn, names(kernel, rule), rule))
+            checked[kernel] = checked.get(kernel, 0) + 1
+    sass_checked = 0
+    for fn in sass:
+        waits = any(SASS_OP.match(s).group(2) == "ACQBULK" for _, s in fn.code)
+        found = rule_for(fn.name)
+        if waits and found is None:
+            report(fn.name, ["waits (ACQBULK) but has no rule in validation/pdl_check.py's RULES"])
+            continue
+        if found:
+            kernel, rule = found
+            report(fn.name, check_sass(fn, names(kernel, rule), elf.get(fn.name), rule))
+            sass_checked += 1
+    for kernel in RULES:
+        print(f"{kernel}: {checked.get(kernel, 0)} instantiations in PTX, "
+              f"parameters {', '.join(names_of.get(kernel, []))}")
+    print(f"SASS: {sass_checked} functions checked")
+    if not checked:
+        print(f"FAIL no kernel of RULES ({', '.join(RULES)}) found in {binary}")
+        return 1
+    print(f"{binary}: {failures} functions failed" if failures else f"{binary}: every check passed")
+    return 1 if failures else 0
+
+
+def self_test() -> int:
+    """The checks on saved code (validation/testing/pdl/): each case must fail or pass as stated."""
+    here = ROOT / "validation" / "testing" / "pdl"
+    rule = RULES["list_force_kernel"]
+    names = parameter_names(ROOT / rule.source, "list_force_kernel")
+    ok = True
+    # SASS heads of the fused kernel (data/ab-2026-11-27k/c91-sass-fused-kernel-head.txt): ea60bce,
+    # change 91, and change 90 before change 91, which read ranked (c[0x0][0x318]) before ACQBULK.
+    slots = (0x210, [(0, 0, 0x100), (1, 0x100, 8), (2, 0x108, 8), (3, 0x110, 8), (4, 0x118, 8), (5, 0x120, 8)])
+    sections: dict[str, Sass] = {}
+    for line in (here / "fused-kernel-sass-heads.txt").read_text().splitlines():
+        if line.startswith("== "):
+            sections[line[3:].strip()] = Sass(line[3:].strip())
+        elif sections and re.match(r"[0-9a-f]{4} ", line):
+            addr, text = line.split(" ", 1)
+            list(sections.values())[-1].code.append((int(addr, 16), text.strip()))
+    for case, expect in (("head_k", None), ("fix_k", None), ("c90_k", "ranked")):
+        problems = check_sass(sections[case], names, slots, rule)
+        good = (not problems) if expect is None else any(expect in p and "0120" in p for p in problems)
+        ok &= good
+        print(f"{'ok  ' if good else 'FAIL'} SASS {case}: {len(problems)} findings"
+              + "".join(f"\n       {p}" for p in problems[:3]))
+    # PTX of the fused kernel: ea60bce's (ranked read through ld.global.nc) and this code's.
+    for case, expect in (("ea60bce", "non-coherent"), ("c91", None)):
+        fns = ptx_functions((here / f"fused-kernel-ptx-{case}.ptx").read_text())
+        problems = check_ptx(fns[0], names, rule)
+        good = (not problems) if expect is None else any(expect in p and "ranked" in p for p in problems)
+        ok &= good
+        print(f"{'ok  ' if good else 'FAIL'} PTX {case}: {len(problems)} findings"
+              + "".join(f"\n       {p}" for p in problems[:3]))
+    return 0 if ok else 1
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("binary", nargs="*", type=Path, help="executables, libraries or objects with CUDA code")
+    ap.add_argument("--self-test", action="store_true", help="check the saved cases in validation/testing/pdl")
+    args = ap.parse_args()
+    if args.self_test:
+        return self_test()
+    tools = {t: find_tool(t) for t in ("cuobjdump", "nvdisasm")}
+    if not all(tools.values()):
+        print("skipped: cuobjdump or nvdisasm not found (the CUDA toolkit's, or pip install "
+              "nvidia-cuda-cuobjdump nvidia-cuda-nvdisasm; bash .ci/setup puts them in .venv)")
+        return 77
+    rc = 0
+    for binary in args.binary:
+        r = check_binary(binary, tools)
+        rc = max(rc, 1 if r == 1 else 0) if r != 77 else (rc or 77)
+    return rc
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
