@@ -13,6 +13,8 @@
 #include <cmath>
 #include <cstring>
 #include <string>
+#include <utility>
+#include <vector>
 
 #include "build_graph.cuh"
 #include "check.cuh"
@@ -131,24 +133,39 @@ struct GpuEngine::Impl {
   int multiprocessors = 1;  // of the engine's device, read once
   bool has_types = false;
 
-  // Calls f on every device buffer of the stages.
+  // Calls f(name, buffer) on every device buffer of the stages.
   template <class F>
   void for_each_buffer(F&& f) {
-    f(positions), f(types), f(keys), f(object_ids), f(sorted_keys), f(sorted_ids), f(control), f(cub);
-    f(cells), f(counts), f(tile_start), f(staged), f(table), f(force_slots), f(energy_slots), f(cell_sums);
-    f(forces), f(energies), f(totals), f(flags), f(pairs), f(build_positions);
-    f(chapter_sort.keys), f(chapter_sort.values), f(chapter_sort.counts), f(chapter_sort.digit_totals);
-    f(collision.run_start), f(collision.cub);
-    f(split.keys), f(split.keys_out), f(split.order), f(split.order_out), f(split.cells), f(split.counts);
-    f(split.cub);
+    f("positions", positions), f("types", types), f("cell IDs: keys", keys), f("cell IDs: object IDs", object_ids);
+    f("sort: keys", sorted_keys), f("sort: object IDs", sorted_ids), f("cell IDs: control bits", control);
+    f("CUB scratch", cub), f("collision cells", cells), f("stage counts", counts), f("tiles: first tile", tile_start);
+    f("staged occupants", staged), f("LJ table", table), f("Jacobi slots: forces", force_slots);
+    f("Jacobi slots: energies", energy_slots), f("cell sums", cell_sums), f("forces", forces);
+    f("energies", energies), f("totals", totals), f("flags", flags), f("pairs (tests)", pairs);
+    f("build positions", build_positions);
+    f("chapter sort: keys", chapter_sort.keys), f("chapter sort: values", chapter_sort.values);
+    f("chapter sort: counts", chapter_sort.counts), f("chapter sort: digit totals", chapter_sort.digit_totals);
+    f("collision cells: run starts", collision.run_start), f("collision cells: CUB scratch", collision.cub);
+    f("type split: keys", split.keys), f("type split: keys out", split.keys_out), f("type split: order", split.order);
+    f("type split: order out", split.order_out), f("type split: cells", split.cells);
+    f("type split: counts", split.counts), f("type split: CUB scratch", split.cub);
     list.for_each_buffer(f);
   }
 
   // Device bytes held by the stage buffers.
   std::size_t bytes() {
     std::size_t b = 0;
-    for_each_buffer([&](const auto& buffer) { b += buffer.bytes(); });
+    for_each_buffer([&](const char*, const auto& buffer) { b += buffer.bytes(); });
     return b;
+  }
+
+  // The same by buffer: those that hold any.
+  std::vector<std::pair<const char*, std::size_t>> buffers() {
+    std::vector<std::pair<const char*, std::size_t>> out;
+    for_each_buffer([&](const char* name, const auto& buffer) {
+      if (buffer.bytes()) out.emplace_back(name, buffer.bytes());
+    });
+    return out;
   }
 
   // Calls f on every buffer the build's fixed part names (its graph holds their addresses): an
@@ -795,7 +812,7 @@ GpuEngine::GpuEngine(GpuOptions options)
   CF_CUDA_CHECK(cudaEventCreateWithFlags(&impl_->joined, cudaEventDisableTiming));
   CF_CUDA_CHECK(cudaEventCreateWithFlags(&impl_->finished, cudaEventDisableTiming));
   CF_CUDA_CHECK(cudaEventCreateWithFlags(&impl_->table_copied, cudaEventDisableTiming));
-  impl_->for_each_buffer([&](auto& buffer) { buffer.bind(impl_->stream); });
+  impl_->for_each_buffer([&](const char*, auto& buffer) { buffer.bind(impl_->stream); });
 }
 
 GpuEngine::~GpuEngine() {
@@ -1087,6 +1104,7 @@ void GpuEngine::finish_timing() {
   stats_.t_accumulate = seconds(kTraversed, kAccumulated);
   stats_.t_total = seconds(kStart, kDownloaded);
   stats_.buffer_bytes = s.bytes();
+  stats_.buffers = s.buffers();
   stats_.list_pairs = listed_pairs();
   stats_.list_slots = stats_.list_pairs ? s.list.slots : 0;
   stats_.list_mask_words = stats_.list_pairs ? s.list.mask_words : 0;

@@ -639,10 +639,18 @@ class CudaMdEngine final : public MdEngine {
   }
 
   int64_t step() const override { return step_; }
-  std::size_t state_bytes() const override {
-    return positions_.bytes() + velocities_.bytes() + masses_.bytes() + types_.bytes() + flags_.bytes() +
-           scratch_result_.bytes() + fire_scalars_.bytes() + fire_start_.bytes() + reduce_scratch_.bytes() +
-           gate_.bytes() + ranked_state_.bytes();
+  std::vector<std::pair<const char*, std::size_t>> state_buffers() const override {
+    return {{"md: positions", positions_.bytes()},
+            {"md: velocities", velocities_.bytes()},
+            {"md: masses", masses_.bytes()},
+            {"md: types", types_.bytes()},
+            {"md: flags", flags_.bytes()},
+            {"md: reduction result", scratch_result_.bytes()},
+            {"md: FIRE scalars", fire_scalars_.bytes()},
+            {"md: FIRE start", fire_start_.bytes()},
+            {"md: reduction scratch", reduce_scratch_.bytes()},
+            {"md: step gate", gate_.bytes()},
+            {"md: chunk state in rank order", ranked_state_.bytes()}};
   }
 
   Observables observables() override {

@@ -214,13 +214,17 @@ struct PairList {
   bool masks_settled = false;          // lean: the room was sized to the memory left (in part): not
                                        // asked for again until it is given up (give_up_masks)
 
+  // Calls f(name, buffer) on every buffer.
   template <class F>
   void for_each_buffer(F&& f) {
-    f(order), f(rank), f(slot_counts), f(length), f(group_chunks), f(neighbors), f(ranked), f(fixed), f(ranked_next), f(fixed_next),
-        f(ranked_forces);
-    f(sizes), f(selected);
-    f(split_counts), f(masks), f(mask_base), f(walk_order), f(walked), f(filled), f(blocks);
-    f(block_sums), f(scratch);
+    f("list: order", order), f("list: rank", rank), f("list: slot counts", slot_counts), f("list: lengths", length);
+    f("list: group chunks", group_chunks), f("list: entries", neighbors), f("list: positions (double)", ranked);
+    f("list: positions (fixed point)", fixed), f("list: next positions (double)", ranked_next);
+    f("list: next positions (fixed point)", fixed_next), f("list: forces in rank order", ranked_forces);
+    f("list: sizes", sizes), f("list: selected", selected), f("list: split counts", split_counts);
+    f("list: masks", masks), f("list: mask bases", mask_base), f("list: walk order", walk_order);
+    f("list: walked", walked), f("list: filled", filled), f("list: blocks", blocks);
+    f("list: block sums", block_sums), f("list: CUB scratch", scratch);
   }
   // Calls f on every buffer the head of a build (build_pair_list up to its count pass) names: what
   // a graph of the build's fixed part holds (cuda/build_graph.cuh, engine.cu's key).

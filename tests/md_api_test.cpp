@@ -350,6 +350,57 @@ TEST_P(MdApi, SkinAutoIsTheBackendsRule) {
   EXPECT_EQ(forces.skin(), 0.0);
 }
 
+// RunStatistics::memory: the engine's stage buffers and the MD state's arrays, by buffer, largest
+// first, adding up to buffer_bytes + state_bytes (a consistency check: both come from the same
+// buffers; a buffer the engine leaves out of its list is missing from both). The oracle for the
+// sizes: the state's positions and
+// velocities hold n x 3 doubles (exactly on the CPU, where they are vectors; at least on CUDA, whose
+// buffers may keep room they grew to); on CUDA with pair lists (skin auto) the list's entries hold
+// 4 bytes for each of its slots (list_slots) and its lengths 4 bytes a particle.
+TEST_P(MdApi, MemoryByBufferAddsUp) {
+  const bool cuda = GetParam() == cf::Backend::kCuda;
+  RunSetup s;
+  s.backend = GetParam();
+  s.cells = 8;
+  std::size_t n = 0;
+  cf::Context ctx = liquid(s, &n);
+  ctx.step(20);
+  const cf::RunStatistics st = ctx.run_statistics();
+  ASSERT_FALSE(st.memory.empty());
+  std::size_t sum = 0;
+  std::vector<std::string> names;
+  for (std::size_t k = 0; k < st.memory.size(); ++k) {
+    const auto& [name, bytes] = st.memory[k];
+    SCOPED_TRACE(name);
+    EXPECT_GT(bytes, 0u);
+    if (k) EXPECT_LE(bytes, st.memory[k - 1].second) << "not largest first";
+    sum += bytes;
+    names.push_back(name);
+  }
+  EXPECT_EQ(sum, st.buffer_bytes + st.state_bytes);
+  std::sort(names.begin(), names.end());
+  EXPECT_EQ(std::adjacent_find(names.begin(), names.end()), names.end()) << "a name twice";
+  auto bytes_of = [&](const std::string& name) -> std::size_t {
+    for (const auto& [buffer, bytes] : st.memory)
+      if (buffer == name) return bytes;
+    ADD_FAILURE() << "no buffer named " << name;
+    return 0;
+  };
+  const std::size_t coordinates = 3 * n * sizeof(double);
+  if (cuda) {
+    EXPECT_GE(bytes_of("md: positions"), coordinates);
+    EXPECT_GE(bytes_of("md: velocities"), coordinates);
+    ASSERT_GT(st.list_slots, 0u) << "skin auto gives CUDA pair lists";
+    EXPECT_GE(bytes_of("list: entries"), 4 * st.list_slots);
+    EXPECT_GE(bytes_of("list: lengths"), 4 * n);
+  } else {
+    EXPECT_EQ(bytes_of("md: positions"), coordinates);
+    EXPECT_EQ(bytes_of("md: velocities"), coordinates);
+    EXPECT_EQ(bytes_of("md: forces"), coordinates);
+    EXPECT_EQ(bytes_of("md: masses"), n * sizeof(double));
+  }
+}
+
 // Dangerous builds (LAMMPS's term): with neighbor-check false a structure serves `every` evaluations
 // whatever the particles do, and a build that retires one after a particle moved more than skin / 2
 // since its build is counted. The oracle: the state read every `every` steps (the rebuild steps)

@@ -23,6 +23,7 @@
 #include <memory>
 #include <string>
 #include <string_view>
+#include <utility>
 #include <vector>
 
 #include <cellforce/error.hpp>
@@ -133,6 +134,9 @@ struct RunStatistics {
   // buffers (as of the last sampled evaluation) and the MD state (positions, velocities, masses,
   // types and the integrator's and minimiser's working arrays).
   std::size_t buffer_bytes = 0, state_bytes = 0;
+  // The same memory by buffer: the force engine's stage buffers and the MD state's arrays (named
+  // "md: ..."), those that hold any, largest first; the bytes add up to buffer_bytes + state_bytes.
+  std::vector<std::pair<std::string, std::size_t>> memory;
   // CUDA pair lists, as of the last sampled evaluation: the listed pairs (within rc + skin, once
   // from each side) and the entries their layout holds, padding included (the force kernel walks
   // each warp's lists as long as its longest); 0 without lists.

@@ -3,6 +3,7 @@
 // again after any of them changes.
 #include <cellforce/cellforce.hpp>
 
+#include <algorithm>
 #include <charconv>
 #include <cmath>
 #include <cstring>
@@ -547,6 +548,10 @@ RunStatistics Context::run_statistics() const {
   r.gate_closings = c.gate_closings;
   r.gate_closings_early = c.gate_closings_early;
   r.state_bytes = impl_->md->state_bytes();
+  for (const auto& [name, bytes] : impl_->md->forces().stats().buffers) r.memory.emplace_back(name, bytes);
+  for (const auto& [name, bytes] : impl_->md->state_buffers())
+    if (bytes) r.memory.emplace_back(name, bytes);
+  std::stable_sort(r.memory.begin(), r.memory.end(), [](const auto& a, const auto& b) { return a.second > b.second; });
   return r;
 }
 

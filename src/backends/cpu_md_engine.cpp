@@ -106,10 +106,12 @@ class CpuMdEngine final : public MdEngine {
 
   void get_state(MdState& state) override { state = state_; }
   int64_t step() const override { return state_.step; }
-  std::size_t state_bytes() const override {
-    return sizeof(double) * (state_.config.positions.size() + state_.velocities.size() + state_.forces.size() +
-                             masses_.size()) +
-           sizeof(uint32_t) * state_.config.types.size();
+  std::vector<std::pair<const char*, std::size_t>> state_buffers() const override {
+    return {{"md: positions", sizeof(double) * state_.config.positions.size()},
+            {"md: velocities", sizeof(double) * state_.velocities.size()},
+            {"md: forces", sizeof(double) * state_.forces.size()},
+            {"md: masses", sizeof(double) * masses_.size()},
+            {"md: types", sizeof(uint32_t) * state_.config.types.size()}};
   }
 
   Observables observables() override {

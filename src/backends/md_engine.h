@@ -9,6 +9,7 @@
 #include <cstdint>
 #include <memory>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "backends/force_engine.h"
@@ -84,8 +85,14 @@ class MdEngine {
   // device backend.
   virtual void get_state(MdState& state) = 0;
   virtual int64_t step() const = 0;
-  // Bytes the state and the integrator's working arrays hold where the backend computes.
-  virtual std::size_t state_bytes() const = 0;
+  // Bytes the state and the integrator's working arrays hold where the backend computes, by array
+  // (names: string literals), and their sum.
+  virtual std::vector<std::pair<const char*, std::size_t>> state_buffers() const = 0;
+  std::size_t state_bytes() const {
+    std::size_t b = 0;
+    for (const auto& [name, bytes] : state_buffers()) b += bytes;
+    return b;
+  }
 
   // Kinetic energy now, potential energy and virial at the current positions: those of the last
   // evaluation when it computed them, else from one more evaluation (which computes them).

@@ -247,6 +247,8 @@ SizeResult bench_size(const BenchArgs& args, const EngineChoice& engine, int cel
       row["gate_closings_early"] = st.gate_closings_early;
       row["state_bytes"] = st.state_bytes;
       row["bytes_per_particle"] = double(st.buffer_bytes + st.state_bytes) / double(n);
+      row["memory_by_buffer"] = nlohmann::json::array();  // [name, bytes], largest first
+      for (const auto& [name, bytes] : st.memory) row["memory_by_buffer"].push_back({name, bytes});
       row["energy_per_particle_start"] = e.front();
       row["energy_per_particle_end"] = e.back();
       row["temperature_end"] = th.temperature;

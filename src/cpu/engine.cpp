@@ -19,15 +19,25 @@ struct CpuEngine::Scratch {
   std::vector<double> build_positions;  // reuse: positions at the build in use (n x dim)
   std::vector<uint32_t> build_keys;     // audit: stage 1's keys of that build, user order
 
+  // The bytes each stage buffer holds (those that hold any), and their sum.
+  std::vector<std::pair<const char*, std::size_t>> buffers() const {
+    std::vector<std::pair<const char*, std::size_t>> out;
+    auto add = [&out](const char* name, const auto& v) {
+      if (v.capacity()) out.emplace_back(name, v.capacity() * sizeof(v[0]));
+    };
+    add("cell IDs: keys", ids.keys), add("cell IDs: object IDs", ids.object_ids), add("cell IDs: control bits", ids.control);
+    add("sort: keys", sort.keys), add("sort: values", sort.values), add("sort: counts", sort.counts);
+    add("collision cells", cells), add("collision cells: type starts", type_start);
+    add("Jacobi slots: forces (float)", acc_float.force), add("Jacobi slots: energies (float)", acc_float.energy);
+    add("cell sums: energies (float)", acc_float.cell_energy), add("cell sums: virials (float)", acc_float.cell_virial);
+    add("Jacobi slots: forces (double)", acc_double.force), add("Jacobi slots: energies (double)", acc_double.energy);
+    add("cell sums: energies (double)", acc_double.cell_energy), add("cell sums: virials (double)", acc_double.cell_virial);
+    add("build positions", build_positions), add("audit: build keys", build_keys);
+    return out;
+  }
   std::size_t bytes() const {
     std::size_t b = 0;
-    auto add = [&b](const auto& v) { b += v.capacity() * sizeof(v[0]); };
-    add(ids.keys), add(ids.object_ids), add(ids.control);
-    add(sort.keys), add(sort.values), add(sort.counts);
-    add(cells), add(type_start);
-    add(acc_float.force), add(acc_float.energy), add(acc_float.cell_energy), add(acc_float.cell_virial);
-    add(acc_double.force), add(acc_double.energy), add(acc_double.cell_energy), add(acc_double.cell_virial);
-    add(build_positions), add(build_keys);
+    for (const auto& [name, bytes] : buffers()) b += bytes;
     return b;
   }
 };
@@ -161,7 +171,9 @@ void CpuEngine::evaluate(const SystemView& system, const ForceField& ff, const R
   else
     cpu::accumulate(s.acc_double, options_.accumulation, system.box.dim, system.n, request, result);
   stats_.t_accumulate = seconds_since(t);
-  stats_.buffer_bytes = s.bytes();
+  stats_.buffers = s.buffers();
+  stats_.buffer_bytes = 0;
+  for (const auto& [name, bytes] : stats_.buffers) stats_.buffer_bytes += bytes;
   stats_.t_total = seconds_since(t0);
   audit(system, ff);  // after the total: its host search is no part of the engine's time
 }
