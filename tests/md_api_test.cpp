@@ -353,10 +353,10 @@ TEST_P(MdApi, SkinAutoIsTheBackendsRule) {
 // RunStatistics::memory: the engine's stage buffers and the MD state's arrays, by buffer, largest
 // first, adding up to buffer_bytes + state_bytes (a consistency check: both come from the same
 // buffers; a buffer the engine leaves out of its list is missing from both). The oracle for the
-// sizes: the state's positions and
-// velocities hold n x 3 doubles (exactly on the CPU, where they are vectors; at least on CUDA, whose
-// buffers may keep room they grew to); on CUDA with pair lists (skin auto) the list's entries hold
-// 4 bytes for each of its slots (list_slots) and its lengths 4 bytes a particle.
+// sizes: the state's positions and velocities hold n x 3 doubles (exactly on the CPU, where they are
+// vectors; at least on CUDA, whose buffers may keep room they grew to); on CUDA with pair lists
+// (skin auto) the list's entries hold 4 bytes for each of its slots (list_slots) and its lengths 4
+// bytes a particle.
 TEST_P(MdApi, MemoryByBufferAddsUp) {
   const bool cuda = GetParam() == cf::Backend::kCuda;
   RunSetup s;
