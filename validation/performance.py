@@ -454,8 +454,36 @@ def tables(doc: dict) -> str:
         table = chapter_table(rows, configuration)
         if table:
             lines += table + [""]
+    table = memory_table(rows)
+    if table:
+        lines += table + [""]
     lines += targets(rows)
     return "\n".join(lines) + "\n"
+
+
+def memory_table(rows: list[dict]) -> list[str]:
+    """Device memory by buffer (the bench's memory_by_buffer) of the mixed pair-list rows, bytes a
+    particle: the buffers of 1 B a particle or more in some row, then the rest and the total. None
+    where the rows have no breakdown (binaries before it)."""
+    rows = sorted((r for r in rows if r.get("engine") == "cellforce" and r.get("configuration") == "list"
+                   and r.get("precision") == "mixed" and r.get("memory_by_buffer")), key=lambda r: r["n"])
+    if not rows:
+        return []
+    per = [{name: bytes_ / r["n"] for name, bytes_ in r["memory_by_buffer"]} for r in rows]
+    names: list[str] = []
+    for r in rows:
+        for name, _ in r["memory_by_buffer"]:
+            if name not in names and any(p.get(name, 0) >= 1 for p in per):
+                names.append(name)
+    lines = ["### Device memory by buffer (mixed, pair lists; bytes a particle)", "",
+             "| buffer | " + " | ".join(f"{r['n']:,}" for r in rows) + " |",
+             "|---|" + "---|" * len(rows)]
+    for name in names:
+        lines.append(f"| {name} | " + " | ".join(f"{p[name]:.1f}" if p.get(name) else "-" for p in per) + " |")
+    lines.append("| the rest | " + " | ".join(f"{sum(v for k, v in p.items() if k not in names):.1f}"
+                                             for p in per) + " |")
+    lines.append("| total | " + " | ".join(fmt(number(r, "bytes_per_particle")) for r in rows) + " |")
+    return lines
 
 
 SERIES = [("cellforce", "list", "mixed", "cellforce mixed, pair lists", "C0", "o", "-"),
