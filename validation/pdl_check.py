@@ -218,42 +218,43 @@ def ptx_parse(line: str) -> tuple[str, list[str], list[str], str | None]:
     return op, REG.findall(dest), REG.findall(src), param
 
 
+def ptx_walk(regs: list[str], defs: dict[str, list[int]], follow) -> None:
+    """Every statement that writes one of `regs`, then every one that writes a register `follow`
+    returned for a statement before, and so on (each register once)."""
+    seen, stack = set(), list(regs)
+    while stack:
+        r = stack.pop()
+        if r not in seen:
+            seen.add(r)
+            for j in defs.get(r, []):
+                stack.extend(follow(j))
+
+
 def ptx_bases(fn: Ptx, index: int, defs: dict[str, list[int]], parsed: list) -> set[str]:
     """The parameters ('K+off') that the address of statement `index` is based on: values a
     cvta.to.global converts, walked back through arithmetic (loads from memory end a walk: a value
     read from memory is data, not the kernel's pointer)."""
-    line = fn.lines[index]
-    address = re.search(r"\[([^\]]+)\]", line)
-    todo = REG.findall(address.group(1)) if address else []
-    seen, bases = set(), set()
+    address = re.search(r"\[([^\]]+)\]", fn.lines[index])
+    bases: set[str] = set()
 
-    def origins(reg: str, visited: set[str]) -> set[str]:  # the ld.param slots a register comes from
-        found = set()
-        stack = [reg]
-        while stack:
-            r = stack.pop()
-            if r in visited:
-                continue
-            visited.add(r)
-            for j in defs.get(r, []):
-                op, _, src, param = parsed[j]
-                if param is not None:
-                    found.add(param)
-                elif not op.startswith(("ld.", "atom.")):
-                    stack.extend(src)
-        return found
+    def data(op: str) -> bool:
+        return op.startswith(("ld.", "atom."))
 
-    while todo:
-        r = todo.pop()
-        if r in seen:
-            continue
-        seen.add(r)
-        for j in defs.get(r, []):
-            op, _, src, param = parsed[j]
-            if op.startswith("cvta.to.global"):
-                bases |= origins(src[0], set())
-            elif param is None and not op.startswith(("ld.", "atom.")):
-                todo.extend(src)
+    def to_parameter(j: int) -> list[str]:  # the ld.param slots a converted value comes from
+        op, _, src, param = parsed[j]
+        if param is not None:
+            bases.add(param)
+            return []
+        return [] if data(op) else src
+
+    def to_conversion(j: int) -> list[str]:
+        op, _, src, param = parsed[j]
+        if op.startswith("cvta.to.global"):
+            ptx_walk(src[:1], defs, to_parameter)
+            return []
+        return src if param is None and not data(op) else []
+
+    ptx_walk(REG.findall(address.group(1)) if address else [], defs, to_conversion)
     return bases
 
 
