@@ -1071,6 +1071,7 @@ std::size_t GpuEngine::listed_pairs() const {
   const Impl& s = *impl_;
   return s.list_usable && s.list_built_for == s.builds ? s.list.pairs : 0;
 }
+std::vector<std::pair<const char*, std::size_t>> GpuEngine::buffers() const { return impl_->buffers(); }
 std::size_t GpuEngine::list_masked_fills() const { return impl_->list.masked_fills; }
 std::size_t GpuEngine::list_partly_masked_fills() const { return impl_->list.partly_masked_fills; }
 std::size_t GpuEngine::list_masked_units() const { return impl_->list.masked_units; }
@@ -1104,7 +1105,6 @@ void GpuEngine::finish_timing() {
   stats_.t_accumulate = seconds(kTraversed, kAccumulated);
   stats_.t_total = seconds(kStart, kDownloaded);
   stats_.buffer_bytes = s.bytes();
-  stats_.buffers = s.buffers();
   stats_.list_pairs = listed_pairs();
   stats_.list_slots = stats_.list_pairs ? s.list.slots : 0;
   stats_.list_mask_words = stats_.list_pairs ? s.list.mask_words : 0;

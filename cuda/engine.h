@@ -183,6 +183,9 @@ class GpuEngine {
   // call zeroes what it does not compute. The valid entries and collision cells are read from the
   // device after evaluate(), synchronize(), collect_timing() and the pair recorder.
   const PipelineStats& stats() const { return stats_; }
+  // The device bytes each stage buffer holds now (those that hold any), by name; their sum is what
+  // stats().buffer_bytes held after the last timed evaluation.
+  std::vector<std::pair<const char*, std::size_t>> buffers() const;
   // Pair lists (ReuseOptions::list): the entries of the lists built from the structure in use (every
   // pair within rc + skin, once from each side); 0 when its evaluations traverse the cells.
   std::size_t listed_pairs() const;

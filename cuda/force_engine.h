@@ -22,6 +22,7 @@ class CudaForceEngine final : public ForceEngine {
   void synchronize(const ForceField& ff) override { engine_.synchronize(ff); }
   PipelineStats stats(const SystemView& system, const ForceField& ff, bool counts) override;
   const PipelineStats& stats() const override { return engine_.stats(); }
+  std::vector<std::pair<const char*, std::size_t>> buffers() const override { return engine_.buffers(); }
   std::vector<std::pair<uint32_t, uint32_t>> visited_pairs(const SystemView& system, const ForceField& ff) override {
     return engine_.visited_pairs(system, ff);
   }

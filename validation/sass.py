@@ -26,7 +26,12 @@ from pathlib import Path
 
 
 def nvdisasm(cache: Path) -> Path:
-    """nvdisasm from the PyPI wheel, unpacked once into `cache`."""
+    """nvdisasm from PATH, the toolkit or this Python's wheels (pdl_check.find_tool; .ci/setup puts the
+    wheel in .venv), else from the PyPI wheel, unpacked once into `cache`."""
+    from pdl_check import find_tool  # validation/, beside this script
+    tool = find_tool("nvdisasm", None)
+    if tool:
+        return tool
     found = list(cache.glob("**/bin/nvdisasm"))
     if not found:
         cache.mkdir(parents=True, exist_ok=True)

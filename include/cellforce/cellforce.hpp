@@ -134,8 +134,9 @@ struct RunStatistics {
   // buffers (as of the last sampled evaluation) and the MD state (positions, velocities, masses,
   // types and the integrator's and minimiser's working arrays).
   std::size_t buffer_bytes = 0, state_bytes = 0;
-  // The same memory by buffer: the force engine's stage buffers and the MD state's arrays (named
-  // "md: ..."), those that hold any, largest first; the bytes add up to buffer_bytes + state_bytes.
+  // The same memory by buffer, held when run_statistics() is called: the force engine's stage
+  // buffers and the MD state's arrays (named "md: ..."), those that hold any, largest first, as
+  // (name, bytes). After a run they add up to buffer_bytes + state_bytes.
   std::vector<std::pair<std::string, std::size_t>> memory;
   // CUDA pair lists, as of the last sampled evaluation: the listed pairs (within rc + skin, once
   // from each side) and the entries their layout holds, padding included (the force kernel walks

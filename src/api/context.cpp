@@ -548,7 +548,7 @@ RunStatistics Context::run_statistics() const {
   r.gate_closings = c.gate_closings;
   r.gate_closings_early = c.gate_closings_early;
   r.state_bytes = impl_->md->state_bytes();
-  for (const auto& [name, bytes] : impl_->md->forces().stats().buffers) r.memory.emplace_back(name, bytes);
+  for (const auto& [name, bytes] : impl_->md->forces().buffers()) r.memory.emplace_back(name, bytes);
   for (const auto& [name, bytes] : impl_->md->state_buffers())
     if (bytes) r.memory.emplace_back(name, bytes);
   std::stable_sort(r.memory.begin(), r.memory.end(), [](const auto& a, const auto& b) { return a.second > b.second; });

@@ -24,6 +24,7 @@ class CpuForceEngine final : public ForceEngine {
     return engine_.stats();  // the CPU engine counts pairs on every evaluation
   }
   const PipelineStats& stats() const override { return engine_.stats(); }
+  std::vector<std::pair<const char*, std::size_t>> buffers() const override { return engine_.buffers(); }
   std::vector<std::pair<uint32_t, uint32_t>> visited_pairs(const SystemView& system, const ForceField& ff) override {
     return engine_.visited_pairs(system, ff);
   }

@@ -77,6 +77,10 @@ class ForceEngine {
   // counts after visited_pairs(), and on the CPU after every evaluation).
   virtual const PipelineStats& stats() const = 0;
 
+  // The bytes each stage buffer holds now (those that hold any; names are string literals): what
+  // stats().buffer_bytes sums, asked for only when a caller wants the breakdown.
+  virtual std::vector<std::pair<const char*, std::size_t>> buffers() const = 0;
+
   // Every pair the traversal evaluates with r < rc, once per evaluation (a pair evaluated twice
   // appears twice), as (min index, max index), in no particular order: what the coverage tests
   // compare with the brute force's pair set. With a skin the structure is rebuilt or reused as for

@@ -4,8 +4,6 @@
 
 #include <cstddef>
 #include <cstdint>
-#include <utility>
-#include <vector>
 
 #include <cellforce/options.hpp>  // Precision, Backend
 
@@ -90,9 +88,6 @@ struct PipelineStats {
   // never from the number of grid cells, so a dilute scene in a huge box costs no more than a
   // dense one of the same size.
   std::size_t buffer_bytes = 0;
-  // The same bytes by buffer (names: string literals), the buffers that hold any (their sum is
-  // buffer_bytes).
-  std::vector<std::pair<const char*, std::size_t>> buffers;
   // Pair lists (CUDA, ReuseOptions::list) of the structure in use, after the evaluation: the listed
   // pairs (within rc + skin, once from each side) and the entries their layout holds, padding
   // included (each group of 32 lists as long as its longest, in whole chunks); 0 without lists.

@@ -19,12 +19,10 @@ struct CpuEngine::Scratch {
   std::vector<double> build_positions;  // reuse: positions at the build in use (n x dim)
   std::vector<uint32_t> build_keys;     // audit: stage 1's keys of that build, user order
 
-  // The bytes each stage buffer holds (those that hold any), and their sum.
-  std::vector<std::pair<const char*, std::size_t>> buffers() const {
-    std::vector<std::pair<const char*, std::size_t>> out;
-    auto add = [&out](const char* name, const auto& v) {
-      if (v.capacity()) out.emplace_back(name, v.capacity() * sizeof(v[0]));
-    };
+  // Calls add(name, bytes) for every stage buffer.
+  template <class F>
+  void for_each_buffer(F&& f) const {
+    auto add = [&f](const char* name, const auto& v) { f(name, v.capacity() * sizeof(v[0])); };
     add("cell IDs: keys", ids.keys), add("cell IDs: object IDs", ids.object_ids), add("cell IDs: control bits", ids.control);
     add("sort: keys", sort.keys), add("sort: values", sort.values), add("sort: counts", sort.counts);
     add("collision cells", cells), add("collision cells: type starts", type_start);
@@ -33,12 +31,18 @@ struct CpuEngine::Scratch {
     add("Jacobi slots: forces (double)", acc_double.force), add("Jacobi slots: energies (double)", acc_double.energy);
     add("cell sums: energies (double)", acc_double.cell_energy), add("cell sums: virials (double)", acc_double.cell_virial);
     add("build positions", build_positions), add("audit: build keys", build_keys);
-    return out;
   }
   std::size_t bytes() const {
     std::size_t b = 0;
-    for (const auto& [name, bytes] : buffers()) b += bytes;
+    for_each_buffer([&b](const char*, std::size_t bytes) { b += bytes; });
     return b;
+  }
+  std::vector<std::pair<const char*, std::size_t>> buffers() const {  // those that hold any
+    std::vector<std::pair<const char*, std::size_t>> out;
+    for_each_buffer([&out](const char* name, std::size_t bytes) {
+      if (bytes) out.emplace_back(name, bytes);
+    });
+    return out;
   }
 };
 
@@ -117,6 +121,8 @@ void CpuEngine::build(const SystemView& system, const ForceField& ff) {
   reuse_.built(system, ff.cutoff);
 }
 
+std::vector<std::pair<const char*, std::size_t>> CpuEngine::buffers() const { return scratch_->buffers(); }
+
 ReuseState CpuEngine::reuse_state() const {
   if (reuse_.served() == 0) return {};
   return {scratch_->build_positions, reuse_.served()};
@@ -171,9 +177,7 @@ void CpuEngine::evaluate(const SystemView& system, const ForceField& ff, const R
   else
     cpu::accumulate(s.acc_double, options_.accumulation, system.box.dim, system.n, request, result);
   stats_.t_accumulate = seconds_since(t);
-  stats_.buffers = s.buffers();
-  stats_.buffer_bytes = 0;
-  for (const auto& [name, bytes] : stats_.buffers) stats_.buffer_bytes += bytes;
+  stats_.buffer_bytes = s.bytes();
   stats_.t_total = seconds_since(t0);
   audit(system, ff);  // after the total: its host search is no part of the engine's time
 }

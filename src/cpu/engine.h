@@ -50,6 +50,9 @@ class CpuEngine {
   void restore_reuse(const SystemView& built_from, const ForceField& ff, int64_t served);
 
   const PipelineStats& stats() const { return stats_; }
+  // The bytes each stage buffer holds now (those that hold any), by name; their sum is what
+  // stats().buffer_bytes held after the last evaluation.
+  std::vector<std::pair<const char*, std::size_t>> buffers() const;
   const CpuOptions& options() const { return options_; }
 
   struct Scratch;  // opaque: stage buffers reused across evaluations
