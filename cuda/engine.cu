@@ -335,7 +335,8 @@ struct GpuEngine::Impl {
   // Throws for a flag the kernels raised (read after the stream has been synchronised). Without
   // the positions (system.positions null: device arrays the caller may have changed since), a
   // close pair is named without its distance.
-  void throw_flags(const cuda::DeviceFlags& f, const SystemView& system, const ForceField& ff) const {
+  void throw_flags(const cuda::DeviceFlags& f, const SystemView& system, const ForceField& ff,
+                   Precision precision) const {
     static constexpr const char* kAxis[kMaxDim] = {"x", "y", "z"};
     if (f.impossible)
       throw Error("CUDA engine: a traversal kernel met a particle index out of range (an internal "
@@ -349,7 +350,7 @@ struct GpuEngine::Impl {
                   " types");
     if (f.bad_pair != ~0ull) {
       const auto i = uint32_t(f.bad_pair >> 32), j = uint32_t(f.bad_pair & 0xffffffffu);
-      if (system.positions) throw_close_pair(system, i, j, distance2(system, i, j));
+      if (system.positions) throw_close_pair(system, i, j, distance2(system, i, j), &ff, precision);
       throw Error("particles " + std::to_string(i) + " and " + std::to_string(j) +
                   " are too close: the Lennard-Jones force is not finite in this precision");
     }
@@ -395,6 +396,7 @@ struct GpuEngine::Impl {
       check_grid(st.grid, sys.box, ff.cutoff, o.grid.rule, skin);
       check_staging(st.grid, ff.cutoff, o.precision);
     }
+    check_precision_range(ff, o.precision);
     const Grid& g = st.grid;
     const std::size_t n = sys.n;
     const bool was_lean = lean;
@@ -554,6 +556,7 @@ struct GpuEngine::Impl {
     la.types = typ;
     la.num_types = uint32_t(ff.num_types());
     la.table = as<LJParams<Real>>(table);
+    la.unit_exponent = lj_unit_exponent(ff.pair_sigma(0, 0), ff.cutoff);
     la.rc2 = Real(ff.cutoff) * Real(ff.cutoff);
     la.forces = forces.data();
     la.energies = req.energy ? energies.data() : nullptr;
@@ -840,7 +843,7 @@ void GpuEngine::traverse(const SystemView& system, const ForceField& ff, const R
   cuda::DeviceFlags flags{};
   CF_CUDA_CHECK(cudaMemcpyAsync(&flags, s.flags.data(), sizeof(flags), cudaMemcpyDeviceToHost, s.stream));
   CF_CUDA_CHECK(cudaStreamSynchronize(s.stream));
-  s.throw_flags(flags, system, ff);
+  s.throw_flags(flags, system, ff, options_.precision);
 }
 
 void GpuEngine::evaluate(const SystemView& system, const ForceField& ff, const Request& request,
@@ -947,7 +950,7 @@ void GpuEngine::synchronize(const ForceField& ff) {
   s.plan_from_corners = false;
   finish_timing();
   s.read_counts(stats_);
-  s.throw_flags(flags, SystemView{}, ff);
+  s.throw_flags(flags, SystemView{}, ff, options_.precision);
 }
 
 void GpuEngine::evaluate_resident(const Box& box, std::size_t n, const double* positions, const uint32_t* types,
@@ -994,7 +997,7 @@ void GpuEngine::check_flags(const Box& box, std::size_t n, const double* positio
   std::vector<double> host;
   download(host, positions, n * std::size_t(box.dim), s.stream);
   CF_CUDA_CHECK(cudaStreamSynchronize(s.stream));
-  s.throw_flags(flags, SystemView{box, n, host.data(), nullptr}, ff);
+  s.throw_flags(flags, SystemView{box, n, host.data(), nullptr}, ff, options_.precision);
 }
 
 int64_t GpuEngine::gate_steps(const Box& box, std::size_t n, const ForceField& ff) const {

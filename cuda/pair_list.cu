@@ -607,22 +607,29 @@ __global__ void gather_sizes(const unsigned long long* __restrict__ sizes,
   }
 }
 
-// A cube's fixed-point scale folded into the pair's constants (change 39, then 40 for the kernels
-// with observables), for the force kernel's FixedParticle pairs of one type: every axis has the
-// same scale s = s_hi (1 + eps) (fixed_scale: a float pair, |eps| <= 2^-24), so the separation d' =
-// s_hi f (f the integer difference as a float: one multiply per axis, not two) is the true one over
-// g = 1 + eps on every axis, r'^2 = r^2 / g^2, and the force (12 c12 r^-14 - 6 c6 r^-8) d (minus
-// f_rc d / r with force shift) is the same expression of d' and r' with c12 / g^13 and c6 / g^7
-// (f_rc unchanged), compared with rc^2 / g^2. Every kernel of such a system takes the fold, with
-// observables or without, so that a step's forces do not depend on what else it was asked for
-// (a restart between output steps repeats the run bit for bit: PairListRequests). With c12 / g^13,
-// c6 / g^7, u_rc / g and rc / g the pair energy and F(r)/r d'_a d'_b come out as the true ones over
-// g: the particle energies and the totals are multiplied by g once, at the end. The constants take
-// one more rounding (2^-24 relative, against the two roundings per axis the fold saves).
+// A cube's fixed-point scale folded into the pair's constants, for the force kernel's FixedParticle
+// pairs of one type: every axis has the same scale s = s_hi (1 + eps) (fixed_scale: a float pair,
+// |eps| <= 2^-24). The kernel forms the separation d' = f (s_hi / lambda) (f the integer difference
+// as a float: one multiply per axis, not two; lambda the pair's power-of-two length unit, so the
+// division is exact), which is the true one over G = g lambda with g = 1 + eps: r'^2 = r^2 / G^2 is
+// already r^2 in the pair's unit up to g, and needs no multiply by inv_s2. With q = lambda^2 / r^2 =
+// u / g^2 (u = 1 / r'^2), the force (f12 q^7 - f6 q^4) d is the same expression of u and d' with
+// f12 lambda / g^13 and f6 lambda / g^7 (minus f_rc d' / r' with force shift, f_rc unchanged),
+// compared with rc^2 / G^2. Every kernel of such a system takes the fold, with observables or
+// without, so that a step's forces do not depend on what else it was asked for (a restart between
+// output steps repeats the run bit for bit: PairListRequests). With e12 / (g^13 lambda), e6 /
+// (g^7 lambda), u_rc / G and rc / G the pair energy and F(r)/r d'_a d'_b come out as the true ones
+// over G: the particle energies and the totals are multiplied by g (as v + v eps) and by lambda (a
+// power of two, exact) once, at the end. The constants take one more rounding (2^-24 relative,
+// against the two roundings per axis the fold saves).
 struct FixedFold {
-  double k13 = 1, k7 = 1, k1 = 1;  // g^-13, g^-7 and g^-1
-  float rc2 = 0;                   // rc^2 / g^2
-  double eps = 0;                  // g - 1: the observables' sums times g, as v + v eps
+  double kf13 = 1, kf7 = 1;  // lambda g^-13 and lambda g^-7: f12 and f6
+  double ke13 = 1, ke7 = 1;  // g^-13 / lambda and g^-7 / lambda: e12 and e6
+  double k1 = 1;             // 1 / G: u_rc and rc
+  float hi = 0;              // s_hi / lambda
+  float rc2 = 0;             // rc^2 / G^2
+  double eps = 0;            // g - 1: the observables' sums times g, as v + v eps
+  double lambda = 1;         // then times lambda
 };
 
 // S threads per rank (S = 1, 2, 4 or 8, adjacent lanes of one warp). With one, the thread reads its
@@ -764,8 +771,11 @@ __global__ void __launch_bounds__(B)
     LJParams<Real> single = args.table[0];
     Real rc2 = args.rc2;
     if constexpr (Folded) {
-      single.c12 = Real(double(single.c12) * fold.k13);
-      single.c6 = Real(double(single.c6) * fold.k7);
+      single.inv_s2 = Real(1);  // d' is in the pair's unit already: lj_terms' multiply folds away
+      single.f12 = Real(double(single.f12) * fold.kf13);
+      single.f6 = Real(double(single.f6) * fold.kf7);
+      single.e12 = Real(double(single.e12) * fold.ke13);
+      single.e6 = Real(double(single.e6) * fold.ke7);
       single.u_rc = Real(double(single.u_rc) * fold.k1);
       single.rc = Real(double(single.rc) * fold.k1);
       rc2 = fold.rc2;
@@ -808,9 +818,9 @@ __global__ void __launch_bounds__(B)
           if (!listed) break;
         Real d[3];
         if constexpr (Folded) {
-          d[0] = float(int32_t(P.x - Q[b].x)) * scale.axis[0].hi;
-          d[1] = float(int32_t(P.y - Q[b].y)) * scale.axis[0].hi;
-          d[2] = D == 3 ? float(int32_t(P.z - Q[b].z)) * scale.axis[0].hi : 0.0f;
+          d[0] = float(int32_t(P.x - Q[b].x)) * fold.hi;
+          d[1] = float(int32_t(P.y - Q[b].y)) * fold.hi;
+          d[2] = D == 3 ? float(int32_t(P.z - Q[b].z)) * fold.hi : 0.0f;
         } else {
           pair_separation<D>(args.grid, P, Q[b], scale, d);
         }
@@ -894,7 +904,7 @@ __global__ void __launch_bounds__(B)
     for (int c = 0; c < D; ++c) args.forces[i * D + c] = double(f[c]);
     if (args.energies) {
       double e = double(ea);
-      if constexpr (Folded) e += e * fold.eps;  // FixedFold: the folded energy is the true one over g
+      if constexpr (Folded) e = (e + e * fold.eps) * fold.lambda;  // FixedFold: the folded energy is the true one over G
       args.energies[i] = e;
     }
   }
@@ -911,7 +921,7 @@ __global__ void __launch_bounds__(B)
     if (threadIdx.x < unsigned(kCellSums)) {
       Accum v = partial[0][threadIdx.x];
       for (int w = 1; w < kBlock / 32; ++w) v += partial[w][threadIdx.x];
-      if constexpr (Folded) v += v * Accum(fold.eps);  // FixedFold: the folded totals are the true ones over g
+      if constexpr (Folded) v = (v + v * Accum(fold.eps)) * Accum(fold.lambda);  // FixedFold: the folded totals are the true ones over G
       block_sums[std::size_t(blockIdx.x) * kCellSums + threadIdx.x] = v;
     }
   }
@@ -1312,11 +1322,17 @@ void list_forces(const Switches& sw, const ListArgs<Real, Accum>& given, PairLis
   {
     const float hi = scale.axis[0].hi;  // 0 only for an empty axis: no fold (g = 1)
     const double g = hi != 0.0f ? 1.0 + double(scale.axis[0].lo) / double(hi) : 1.0;
-    fold.k13 = std::pow(g, -13.0);
-    fold.k7 = std::pow(g, -7.0);
-    fold.k1 = 1.0 / g;
+    const int k = args.unit_exponent;  // the single type's length unit lambda = 2^k
+    const double lambda = std::ldexp(1.0, k);
+    fold.kf13 = lambda * std::pow(g, -13.0);
+    fold.kf7 = lambda * std::pow(g, -7.0);
+    fold.ke13 = std::pow(g, -13.0) / lambda;
+    fold.ke7 = std::pow(g, -7.0) / lambda;
+    fold.k1 = 1.0 / (g * lambda);
+    fold.hi = std::ldexp(hi, -k);
     fold.eps = g - 1.0;
-    fold.rc2 = float(double(args.rc2) / (g * g));
+    fold.lambda = lambda;
+    fold.rc2 = float(double(args.rc2) / (g * g * lambda * lambda));
   }
   auto evaluate = [&](auto& ranked, auto& next) {
     using Particle = typename std::remove_reference_t<decltype(ranked)>::value_type;

@@ -188,6 +188,68 @@ TEST(Api, TwoParticlesGiveTheAnalyticPairValues) {
   }
 }
 
+// The binary liquid in SI units (lengths times 3.4e-10 m, energies times 1.65e-21 J: argon's) through
+// the C API, on every backend and precision: its forces times L / E, energies / E and virial / E
+// match the double brute force of the liquid in reduced units with the tolerance of reduced units.
+// A float precision that cannot hold the pair's constants (epsilon times 1e40) is refused with
+// CF_ERROR_INPUT naming the type, epsilon and the precision; double computes it.
+TEST(CApi, SiUnitsGiveTheReducedForcesInEveryPrecision) {
+  const double L = 3.4e-10, E = 1.65e-21;
+  const Binary b = binary_liquid(3, 900, 11);
+  cf::ForceResult ref;
+  cf::brute_force(b.config.view(), b.ff, cf::Request{true, true}, ref);
+  std::vector<double> pos = b.config.positions;
+  for (double& x : pos) x *= L;
+  const double box[3] = {b.config.box.length[0] * L, b.config.box.length[1] * L, b.config.box.length[2] * L};
+  const int pbc[3] = {1, 1, 1};
+  auto make = [&](cf::Backend backend, cf::Precision p, double energy) {
+    cf_context* c = nullptr;
+    EXPECT_EQ(cf_create(&c, 3), CF_OK) << cf_last_error(nullptr);
+    EXPECT_EQ(cf_set_box(c, box, pbc), CF_OK) << cf_last_error(c);
+    EXPECT_EQ(cf_set_cutoff(c, b.ff.cutoff * L, "force-shift"), CF_OK) << cf_last_error(c);
+    for (const auto& t : b.ff.types) EXPECT_EQ(cf_add_type(c, t.name.c_str(), t.sigma * L, t.epsilon * energy, nullptr), CF_OK) << cf_last_error(c);
+    for (const auto& o : b.ff.overrides)
+      EXPECT_EQ(cf_set_pair(c, uint32_t(o.a), uint32_t(o.b), o.sigma * L, o.epsilon * energy), CF_OK) << cf_last_error(c);
+    EXPECT_EQ(cf_set_option(c, "backend", cf::to_string(backend)), CF_OK) << cf_last_error(c);
+    EXPECT_EQ(cf_set_option(c, "precision", cf::to_string(p)), CF_OK) << cf_last_error(c);
+    return c;
+  };
+  const std::size_t n = b.config.size();
+  for (cf::Backend backend : backends_here())
+    for (cf::Precision p : kPrecisions) {
+      SCOPED_TRACE(std::string(cf::to_string(backend)) + " " + cf::to_string(p));
+      cf_context* c = make(backend, p, E);
+      cf::ForceResult got;
+      got.dim = 3;
+      got.forces.resize(3 * n);
+      got.energies.resize(n);
+      double w[9];
+      ASSERT_EQ(cf_compute(c, n, pos.data(), b.config.types.data(), got.forces.data(), &got.energy, w), CF_OK)
+          << cf_last_error(c);
+      cf_destroy(c);
+      for (double& f : got.forces) f *= L / E;
+      got.energy /= E;
+      for (int a = 0; a < 3; ++a)
+        for (int k = 0; k < 3; ++k) got.virial[a][k] = w[a * 3 + k] / E;
+      EXPECT_TRUE(cftest::forces_match(ref, got, tolerance(p)));
+      EXPECT_TRUE(cftest::total_energy_matches(ref, got, tolerance(p)));
+      EXPECT_TRUE(cftest::virial_matches(ref, got, tolerance(p)));
+
+      cf_context* huge = make(backend, p, E * 1e61);  // epsilon ~ 1e40
+      std::vector<double> f(3 * n);
+      const int status = cf_compute(huge, n, pos.data(), b.config.types.data(), f.data(), nullptr, nullptr);
+      if (p == cf::Precision::kDouble) {
+        EXPECT_EQ(status, CF_OK) << cf_last_error(huge);
+      } else {
+        EXPECT_EQ(status, CF_ERROR_INPUT);
+        EXPECT_THAT(cf_last_error(huge), HasSubstr("type 'A'"));
+        EXPECT_THAT(cf_last_error(huge), HasSubstr("epsilon"));
+        EXPECT_THAT(cf_last_error(huge), HasSubstr(std::string(cf::to_string(p)) + " precision"));
+      }
+      cf_destroy(huge);
+    }
+}
+
 // The box, the particle count and the types may change between calls: each call equals a fresh
 // context's, and the brute force.
 TEST(Api, BoxAndParticleCountMayChangeBetweenCalls) {

@@ -113,11 +113,13 @@ void compare_lj(const LjCase& c) {
     bool ok = false;
     if (component != 0 && host[base] == Real(1) && device[base] == Real(1) &&
         std::isfinite(double(host[k])) && std::isfinite(double(device[k]))) {
-      const double ir2 = 1.0 / x, ir6 = ir2 * ir2 * ir2, r = std::sqrt(x);
-      const double a12 = std::abs(double(p.c12)) * ir6 * ir6, a6 = std::abs(double(p.c6)) * ir6;
+      // q = lambda^2 / r^2 in the pair's unit (core/lj.h): F / r = f12 q^7 - f6 q^4, U = e12 q^6 - e6 q^3.
+      const double q = 1.0 / (x * double(p.inv_s2)), q3 = q * q * q, r = std::sqrt(x);
+      const double f12 = std::abs(double(p.f12)) * q3 * q3 * q, f6 = std::abs(double(p.f6)) * q3 * q;
+      const double e12 = std::abs(double(p.e12)) * q3 * q3, e6 = std::abs(double(p.e6)) * q3;
       const double fshift = std::abs(double(p.f_rc));
-      const double scale = component == 1 ? (12 * a12 + 6 * a6) * ir2 + fshift / r
-                                          : a12 + a6 + std::abs(double(p.u_rc)) + fshift * (r + double(p.rc));
+      const double scale = component == 1 ? f12 + f6 + fshift / r
+                                          : e12 + e6 + std::abs(double(p.u_rc)) + fshift * (r + double(p.rc));
       ok = std::abs(double(device[k]) - double(host[k])) <= 32 * eps * scale;
     }
     if (!ok && ++mismatches <= 5)
@@ -128,7 +130,9 @@ void compare_lj(const LjCase& c) {
   EXPECT_EQ(mismatches, 0u) << "of " << host.size() << " outputs";
 }
 
-const LjCase kLjCases[] = {{1.0, 1.0, 2.5}, {0.88, 0.5, 2.2}, {1.3, 2.7, 3.25}, {3.4, 0.0104, 8.5}};
+const LjCase kLjCases[] = {{1.0, 1.0, 2.5},           {0.88, 0.5, 2.2},        {1.3, 2.7, 3.25},
+                           {3.4, 0.0104, 8.5},        {3.4e-10, 1.65e-21, 8.5e-10}, {1e-4, 1e-4, 2.5e-4},
+                           {1e10, 1e10, 2.5e10}};
 
 // Double: hit flags bitwise, force and energy within 32 ulps of the largest term (see compare_lj).
 TEST_F(CoreOnDevice, LjPairDoubleMatchesHost) {

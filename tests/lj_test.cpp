@@ -227,19 +227,31 @@ TEST(LennardJones, EnergyFlagOnlyControlsEnergy) {
   }
 }
 
-// make_lj_params: c12 = 4 eps sigma^12, c6 = 4 eps sigma^6 (4e-15 relative, a few ulp of pow); u_rc only for shift
-// and force shift, f_rc only for force shift (exact zeros otherwise); rc stored.
+// make_lj_params, in the pair's length unit lambda = 2^floor(log2 sigma): inv_s2 = 1 / lambda^2
+// exactly, e12 = 4 eps (sigma / lambda)^12, e6 = 4 eps (sigma / lambda)^6, f12 = 12 e12 / lambda^2,
+// f6 = 6 e6 / lambda^2 (4e-15 relative, a few ulp of pow); u_rc only for shift and force shift,
+// f_rc only for force shift (exact zeros otherwise); rc stored. sigma = 1.3 has lambda = 1; 3.4e-10
+// (argon's, in metres) has lambda = 2^-32.
 TEST(LennardJones, ParamsPerMode) {
-  const double s = 1.3, e = 0.7, rc = 3.1;
+  for (const double s : {1.3, 3.4e-10}) {
+  const double e = 0.7, rc = 3.1 / 1.3 * s;
+  const double lambda = s == 1.3 ? 1.0 : 0x1p-32;
+  ASSERT_GE(s / lambda, 1.0);
+  ASSERT_LT(s / lambda, 2.0);
   for (CutoffMode mode : kModes) {
     const auto p = cellforce::make_lj_params<double>(s, e, rc, mode);
-    EXPECT_NEAR(p.c12, 4 * e * std::pow(s, 12), 4e-15 * p.c12);
-    EXPECT_NEAR(p.c6, 4 * e * std::pow(s, 6), 4e-15 * p.c6);
+    EXPECT_EQ(p.inv_s2, 1.0 / (lambda * lambda));
+    const double x = s / lambda;
+    EXPECT_NEAR(p.e12, 4 * e * std::pow(x, 12), 4e-15 * p.e12);
+    EXPECT_NEAR(p.e6, 4 * e * std::pow(x, 6), 4e-15 * p.e6);
+    EXPECT_NEAR(p.f12, 48 * e * std::pow(x, 12) / (lambda * lambda), 4e-15 * p.f12);
+    EXPECT_NEAR(p.f6, 24 * e * std::pow(x, 6) / (lambda * lambda), 4e-15 * p.f6);
     EXPECT_EQ(p.rc, rc);
     const double u_rc = mode == CutoffMode::kTruncate ? 0.0 : u_lj(rc, s, e);
     const double f_rc = mode == CutoffMode::kForceShift ? f_lj(rc, s, e) : 0.0;
     EXPECT_NEAR(p.u_rc, u_rc, 1e-14 * std::fabs(u_rc));  // exact 0 where not used
     EXPECT_NEAR(p.f_rc, f_rc, 1e-14 * std::fabs(f_rc));
+  }
   }
 }
 
@@ -319,19 +331,27 @@ TEST(Mixing, PairTableMatchesPairParameters) {
                                                               ff.pair_epsilon(a, b), ff.cutoff, mode);
           const auto& got = table[a * 3 + b];
           const auto& mirror = table[b * 3 + a];
-          EXPECT_TRUE(near(got.c12, want.c12, 1e-14)) << a << b;
-          EXPECT_TRUE(near(got.c6, want.c6, 1e-14)) << a << b;
+          EXPECT_EQ(got.inv_s2, want.inv_s2) << a << b;
+          EXPECT_TRUE(near(got.f12, want.f12, 1e-14)) << a << b;
+          EXPECT_TRUE(near(got.f6, want.f6, 1e-14)) << a << b;
+          EXPECT_TRUE(near(got.e12, want.e12, 1e-14)) << a << b;
+          EXPECT_TRUE(near(got.e6, want.e6, 1e-14)) << a << b;
           EXPECT_TRUE(near(got.u_rc, want.u_rc, 1e-14)) << a << b;
           EXPECT_TRUE(near(got.f_rc, want.f_rc, 1e-14)) << a << b;
           EXPECT_EQ(got.rc, want.rc);
-          EXPECT_EQ(got.c12, mirror.c12);
-          EXPECT_EQ(got.c6, mirror.c6);
+          EXPECT_EQ(got.f12, mirror.f12);
+          EXPECT_EQ(got.f6, mirror.f6);
+          EXPECT_EQ(got.e12, mirror.e12);
+          EXPECT_EQ(got.e6, mirror.e6);
           EXPECT_EQ(got.u_rc, mirror.u_rc);
           EXPECT_EQ(got.f_rc, mirror.f_rc);
           const auto& gf = table_f[a * 3 + b];
           const double ulp = 1.2e-7 + 1e-14;  // float epsilon, plus the double tolerance
-          EXPECT_TRUE(near(gf.c12, want.c12, ulp)) << a << b;
-          EXPECT_TRUE(near(gf.c6, want.c6, ulp)) << a << b;
+          EXPECT_EQ(double(gf.inv_s2), want.inv_s2) << a << b;
+          EXPECT_TRUE(near(gf.f12, want.f12, ulp)) << a << b;
+          EXPECT_TRUE(near(gf.f6, want.f6, ulp)) << a << b;
+          EXPECT_TRUE(near(gf.e12, want.e12, ulp)) << a << b;
+          EXPECT_TRUE(near(gf.e6, want.e6, ulp)) << a << b;
           EXPECT_TRUE(near(gf.u_rc, want.u_rc, ulp)) << a << b;
           EXPECT_TRUE(near(gf.f_rc, want.f_rc, ulp)) << a << b;
         }

@@ -40,6 +40,8 @@ struct RunSetup {
   int cells = 5;  // fcc cells per axis at density 0.8442: 4 cells^3 particles
   uint64_t seed = 12345;
   std::vector<std::pair<std::string, std::string>> options;  // set_option(key, value), in order
+  // The units: lengths, energies and masses times these (time then times length sqrt(mass / energy)).
+  double length = 1, energy = 1, mass = 1;
 };
 
 std::string unavailable(cf::Backend backend) {
@@ -58,14 +60,23 @@ cf::Context liquid(const RunSetup& s, std::size_t* n_out = nullptr) {
   const std::size_t n = state.config.size();
   std::vector<double> masses(n, 1.0);
   cf::initialize_velocities(state, masses, 1.44, s.seed, s.integrator.kind == cf::Integrator::kVerlet);
+  const double time = s.length * std::sqrt(s.mass / s.energy);
+  for (double& x : state.config.positions) x *= s.length;
+  for (double& v : state.velocities) v *= s.length / time;
+  for (double& m : masses) m *= s.mass;
+  for (double& l : state.config.box.length) l *= s.length;
+  cf::IntegratorOptions integrator = s.integrator;
+  integrator.dt *= time;
+  integrator.temperature *= s.energy;
+  integrator.friction /= time;
   cf::Context ctx(3);
   const bool periodic[3] = {true, true, true};
   ctx.set_box(state.config.box.length, periodic);
-  ctx.set_cutoff(2.5, cf::CutoffMode::kForceShift);
-  ctx.add_type("A", 1.0, 1.0);
+  ctx.set_cutoff(2.5 * s.length, cf::CutoffMode::kForceShift);
+  ctx.add_type("A", s.length, s.energy);
   ctx.set_backend(s.backend);
   ctx.set_precision(s.precision);
-  ctx.set_integrator(s.integrator);
+  ctx.set_integrator(integrator);
   for (const auto& [key, value] : s.options) ctx.set_option(key, value);
   ctx.set_state(n, state.config.positions.data(), state.velocities.data(), nullptr, masses.data());
   if (n_out) *n_out = n;
@@ -175,6 +186,35 @@ TEST_P(MdApi, RepeatIsBitwise) {
   const std::vector<double> a = final_state(7), b = final_state(7), c = final_state(8);
   EXPECT_TRUE(a == b) << "two runs of one setup differ";
   EXPECT_FALSE(a == c);
+}
+
+// Units are a choice, not physics: the liquid with lengths in units of 2^-33, energies and masses of
+// 2^-70 (so time too is in units of 2^-33: argon's sizes in SI) runs the same 300 steps as in reduced
+// units, NVE and Langevin, in every precision, with the backend's default neighbour search (pair
+// lists on CUDA): every operation scales by a power of two, so the positions and velocities,
+// brought back to reduced units, equal the reduced run's bit for bit, and the potential energy too.
+TEST_P(MdApi, UnitsOfArgonInSiRunTheReducedSteps) {
+  for (cf::Precision p : {cf::Precision::kDouble, cf::Precision::kMixed, cf::Precision::kSingle})
+    for (cf::Integrator kind : {cf::Integrator::kVerlet, cf::Integrator::kLangevin}) {
+      SCOPED_TRACE(std::string(cf::to_string(p)) + (kind == cf::Integrator::kVerlet ? " verlet" : " langevin"));
+      RunSetup s;
+      s.backend = GetParam();
+      s.precision = p;
+      s.integrator.kind = kind;
+      std::size_t n = 0;
+      cf::Context ref = liquid(s, &n);
+      s.length = 0x1p-33, s.energy = 0x1p-70, s.mass = 0x1p-70;
+      cf::Context si = liquid(s);
+      ref.step(300);
+      si.step(300);
+      std::vector<double> x(3 * n), v(3 * n), y(3 * n), w(3 * n);
+      ref.get_state(x.data(), v.data(), nullptr);
+      si.get_state(y.data(), w.data(), nullptr);
+      std::size_t differ = 0;
+      for (std::size_t k = 0; k < 3 * n; ++k) differ += (y[k] / s.length != x[k]) + (w[k] != v[k]);
+      EXPECT_EQ(differ, 0u) << "of " << 6 * n << " coordinates; e.g. x " << y[0] / s.length << " against " << x[0];
+      EXPECT_EQ(si.thermo().potential / s.energy, ref.thermo().potential);
+    }
 }
 
 // The backend's run follows the CPU's (the reference integrator on host arrays) to round-off:

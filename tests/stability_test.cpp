@@ -73,6 +73,7 @@ constexpr Case kFcc{9, "Perfect fcc lattice"};
 constexpr Case kCrowded{10, "All in one cell; droplet in a huge box"};
 constexpr Case kSkin{11, "Skin reuse"};
 constexpr Case kStarts{13, "Overlapping start; hot dense states"};
+constexpr Case kUnits{14, "Length and energy scales"};
 
 std::string num(double v) {
   char b[64];
@@ -543,6 +544,84 @@ TEST_P(Stability, FarFromTheOrigin) {
       const Configuration c = translated(s.config, t);
       check_against(kFar, std::string(name) + " translated by " + num(t), oracle_of(c, s.ff),
                     evaluate(c, s.ff), tol().far_median);
+    }
+  }
+}
+
+// =====================================================================================================
+// 14. Length and energy scales: a system in other units (lengths times L, energies times E: positions,
+// box, sigma and cutoff times L, epsilon times E) is the same system, and its forces times L / E are
+// the same reduced forces. For L = E = 1e-10, 1e-4, 1, 1e4, 1e10 and argon in SI units (L = 3.4e-10 m,
+// E = 1.65e-21 J), in every precision: the reduced forces and energy against the double brute force
+// of the system in reduced units, within the precision's tolerance. For powers of two (L = 2^-33,
+// E = 2^-70; L = 2^40, E = 2^30) every operation scales exactly, so the reduced forces and energy
+// must equal those of the reduced system bit for bit.
+// =====================================================================================================
+Configuration scaled_config(Configuration c, double length) {
+  for (double& x : c.positions) x *= length;
+  for (int a = 0; a < c.box.dim; ++a) c.box.length[a] *= length;
+  return c;
+}
+ForceField scaled_field(ForceField ff, double length, double energy) {
+  ff.cutoff *= length;
+  for (auto& t : ff.types) t.sigma *= length, t.epsilon *= energy;
+  for (auto& o : ff.overrides) o.sigma *= length, o.epsilon *= energy;
+  return ff;
+}
+ForceResult reduced(ForceResult r, double length, double energy) {
+  for (double& f : r.forces) f *= length / energy;
+  for (double& e : r.energies) e /= energy;
+  r.energy /= energy;
+  return r;
+}
+
+TEST_P(Stability, LengthAndEnergyScales) {
+  for (const char* name : {"random3d_periodic", "multitype3d_geometric_override", "slab3d"}) {
+    const Scene s = make_scene(name);
+    const ForceResult ref = oracle_of(s.config, s.ff);
+    const ForceResult unit = evaluate(s.config, s.ff);
+    for (auto [length, energy] : {std::pair{1e-10, 1e-10}, std::pair{1e-4, 1e-4}, std::pair{1.0, 1.0},
+                                  std::pair{1e4, 1e4}, std::pair{1e10, 1e10}, std::pair{3.4e-10, 1.65e-21}}) {
+      const ForceResult got = reduced(evaluate(scaled_config(s.config, length), scaled_field(s.ff, length, energy)),
+                                      length, energy);
+      check_against(kUnits, std::string(name) + " in units L = " + num(length) + ", E = " + num(energy) +
+                                ", reduced", ref, got);
+    }
+    for (auto [length, energy] : {std::pair{0x1p-33, 0x1p-70}, std::pair{0x1p40, 0x1p30}}) {
+      const ForceResult got = reduced(evaluate(scaled_config(s.config, length), scaled_field(s.ff, length, energy)),
+                                      length, energy);
+      std::size_t differ = 0;
+      for (std::size_t k = 0; k < got.forces.size(); ++k) differ += got.forces[k] != unit.forces[k];
+      check(kUnits, std::string(name) + " in units L = " + num(length) + ", E = " + num(energy) +
+                        ": reduced forces and energy equal the reduced system's bitwise",
+            "0 components differ, same energy", std::to_string(differ) + " differ, energy " + num(got.energy) +
+                " against " + num(unit.energy), differ == 0 && got.energy == unit.energy);
+    }
+  }
+}
+
+// A force field that float cannot evaluate is refused in single and mixed precision, naming the type,
+// the parameter and the precision; double evaluates it against the brute force.
+TEST_P(Stability, FloatRangeRefusedNamingTheType) {
+  const Scene s = make_scene("random3d_periodic");
+  struct Bad {
+    double length, energy;
+    const char* word;
+  };
+  for (const Bad& b : {Bad{1e-25, 1.0, "sigma"}, Bad{1.0, 1e-40, "epsilon"}, Bad{1.0, 1e40, "epsilon"}}) {
+    const ForceField ff = scaled_field(s.ff, b.length, b.energy);
+    const Configuration c = scaled_config(s.config, b.length);
+    ForceResult got;
+    const std::string msg = error_of_evaluation(c, ff, &got);
+    const std::string what = "L = " + num(b.length) + ", E = " + num(b.energy);
+    if (float_pairs()) {
+      check_error(kUnits, what + " in float pairs", msg, {},
+                  {lowercase("type '" + ff.types[0].name + "'"), b.word, cellforce::to_string(GetParam().precision)});
+    } else {
+      check(kUnits, what + " in double: evaluated", "no error", msg.empty() ? "no error" : msg, msg.empty());
+      if (msg.empty())
+        check_against(kUnits, what + " in double, reduced", oracle_of(s.config, s.ff),
+                      reduced(got, b.length, b.energy));
     }
   }
 }

@@ -13,7 +13,8 @@ Until 2026-11-26 the passes' launches, the first build's included, shared one me
       --sizes 32000 256000 1048576 --repeats 2 --ncu --out $OUT
   (--bench-args=--langevin: the same A/B of Langevin steps, the step gate's change 16)
 
-Writes list_build_ab.md (the table) and list_build_ab.json (every run) to --out. Exits 1 when a
+Writes TAG.md (the table) and TAG.json (every run; --tag, list_build_ab by default) to --out.
+--skin 0 runs both with the cells traversed every step instead of pair lists. Exits 1 when a
 run failed (its row says why).
 """
 from __future__ import annotations
@@ -31,12 +32,19 @@ from pathlib import Path
 
 from step_profile import short_name  # the build's passes apart, as the step profile names them
 
+SEARCH: list[str] = []  # search_args(--skin), set by main
+
+
+def search_args(skin: float) -> list[str]:
+    """The neighbour search of both binaries: pair lists with `skin`, or with 0 the cells every step."""
+    return ["--skin", f"{skin:g}"] + (["--neighbor-list"] if skin > 0 else [])
+
 
 def bench(binary: str, n: int, seconds: float, work: Path, extra: list[str]) -> dict:
     out = work / "row.json"
     out.unlink(missing_ok=True)
-    command = [binary, "bench", "--sizes", str(n), "--precision", "mixed", "--backend", "cuda", "--skin", "0.6",
-               "--neighbor-list", "--seconds", f"{seconds:g}", "--no-reference", "--json", str(out)] + extra
+    command = [binary, "bench", "--sizes", str(n), "--precision", "mixed", "--backend", "cuda"] + SEARCH + [
+               "--seconds", f"{seconds:g}", "--no-reference", "--json", str(out)] + extra
     p = subprocess.run(command, capture_output=True, text=True)
     try:
         row = json.loads(out.read_text())["rows"][0]
@@ -72,7 +80,7 @@ def ncu_kernel(binary: str, n: int, extra: list[str], kernel: str) -> dict:
     skip = "2" if kernel == "list_rows" else "0"
     command = ["ncu", "--kernel-name", f"regex:{kernel}", "--launch-skip", skip, "--launch-count", "6",
                "--metrics", "gpu__time_duration.sum", "--csv", binary, "bench", "--sizes", str(n), "--precision",
-               "mixed", "--backend", "cuda", "--skin", "0.6", "--neighbor-list", "--steps", "60", "--warmup", "5",
+               "mixed", "--backend", "cuda"] + SEARCH + ["--steps", "60", "--warmup", "5",
                "--samples", "2", "--no-reference"] + extra
     p = subprocess.run(command, capture_output=True, text=True, timeout=300)
     times = ncu_times(p.stdout)
@@ -107,8 +115,13 @@ def main() -> int:
                          "list_force_kernel (the force evaluations the lists serve)")
     ap.add_argument("--bench-args", default="",
                     help="more `cellforce bench` arguments for both, written --bench-args=--langevin")
+    ap.add_argument("--skin", type=float, default=0.6,
+                    help="pair lists with this skin (the default 0.6); 0: the cells traversed every step")
+    ap.add_argument("--tag", default="list_build_ab", help="the output files' name: TAG.md and TAG.json")
     ap.add_argument("--out", type=Path, required=True)
     args = ap.parse_args()
+    global SEARCH
+    SEARCH = search_args(args.skin)
     extra = shlex.split(args.bench_args)
     args.out.mkdir(parents=True, exist_ok=True)
     runs, failed = [], False
@@ -139,9 +152,9 @@ def main() -> int:
             us = {k: ncu_cell(v) for k, v in kern.items()}
             lines.append(f"| {n:,} | {med['base']:,.0f} | {med['new']:,.0f} | {med['new'] / med['base']:.3f} | "
                          f"{us['base']} | {us['new']} |")
-            (args.out / "list_build_ab.json").write_text(json.dumps(runs, indent=1))
+            (args.out / f"{args.tag}.json").write_text(json.dumps(runs, indent=1))
     table = "\n".join(lines) + "\n"
-    (args.out / "list_build_ab.md").write_text(table)
+    (args.out / f"{args.tag}.md").write_text(table)
     print(table)
     return 1 if failed else 0
 

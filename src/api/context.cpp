@@ -157,6 +157,7 @@ struct Context::Impl {
     if (!has_cutoff) throw Error("no cutoff: call set_cutoff (cf_set_cutoff) before computing");
     if (ff.types.empty()) throw Error("no particle types: add one with add_type (cf_add_type) before computing");
     ff.validate();
+    check_precision_range(ff, choice.precision);
   }
 
   // The device's verdict on the compute_device calls since the last one (throws what it found).

@@ -66,6 +66,50 @@ void ForceField::validate() const {
   }
 }
 
+void check_precision_range(const ForceField& ff, Precision precision) {
+  if (precision == Precision::kDouble) return;
+  const char* const name = precision == Precision::kSingle ? "single" : "mixed";
+  auto inside = [](double v) { return v == 0.0 || (std::fabs(v) >= kFloatRangeLow && std::fabs(v) <= kFloatRangeHigh); };
+  const double rc2 = ff.cutoff * ff.cutoff;
+  const std::size_t nt = ff.num_types();
+  for (std::size_t a = 0; a < nt; ++a)
+    for (std::size_t b = a; b < nt; ++b) {
+      const double sigma = ff.pair_sigma(a, b), epsilon = ff.pair_epsilon(a, b);
+      const LJParams<double> p = make_lj_params<double>(sigma, epsilon, ff.cutoff, ff.mode);
+      if (p.f12 == 0.0 && p.e12 == 0.0) continue;  // a pair that does not interact
+      // Length: the unit lambda (~sigma) and the cutoff in it; energy: epsilon and the force
+      // constants epsilon / lambda^2.
+      const bool length_ok = inside(p.inv_s2) && inside(rc2 * p.inv_s2);
+      const bool energy_ok = inside(p.e12) && inside(p.e6) && inside(p.f12) && inside(p.f6) && inside(p.u_rc) &&
+                             inside(p.f_rc);
+      if (length_ok && energy_ok) continue;
+      const std::string pair = a == b ? "type " + quote_excerpt(ff.types[a].name)
+                                      : "pair " + quote_excerpt(ff.types[a].name) + "-" + quote_excerpt(ff.types[b].name);
+      std::ostringstream s;
+      s << "the Lennard-Jones parameters of " << pair << " (sigma " << format_number(sigma) << ", epsilon "
+        << format_number(epsilon) << ", cutoff " << format_number(ff.cutoff) << ") are outside what " << name
+        << " precision can evaluate: ";
+      if (!inside(p.inv_s2))
+        s << "sigma is too " << (p.inv_s2 > 1.0 ? "small" : "large") << " for float's range";
+      else if (!length_ok)
+        s << "the cutoff is " << format_number(ff.cutoff / sigma) << " sigma, too far from sigma for float's range";
+      else
+        s << "epsilon / sigma^2 (" << format_number(epsilon / (sigma * sigma)) << ") or epsilon leaves float's range";
+      s << "; express lengths and energies in units nearer sigma and epsilon, or use double precision";
+      throw Error(s.str());
+    }
+  // The pairs first: a sigma out of range is the cause to name; then the cutoff for pairs that
+  // do not interact.
+  if (!inside(rc2)) {
+    std::ostringstream s;
+    s << "cutoff " << format_number(ff.cutoff) << " is outside what " << name
+      << " precision can evaluate (its square must lie within " << format_number(kFloatRangeLow) << " to "
+      << format_number(kFloatRangeHigh) << "); express lengths in a unit nearer the particles' size, or use "
+      << "double precision";
+    throw Error(s.str());
+  }
+}
+
 template <class Real>
 std::vector<LJParams<Real>> make_pair_table(const ForceField& ff) {
   const std::size_t nt = ff.num_types();

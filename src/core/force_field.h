@@ -6,7 +6,7 @@
 #include <string>
 #include <vector>
 
-#include <cellforce/options.hpp>  // Mixing, CutoffMode
+#include <cellforce/options.hpp>  // Mixing, CutoffMode, Precision
 
 #include "core/lj.h"
 
@@ -38,6 +38,15 @@ struct ForceField {
   // Throws cellforce::Error naming the offending parameter (cutoff, type name, override).
   void validate() const;
 };
+
+// Throws cellforce::Error when a float evaluation (Precision::kSingle or kMixed) of this force
+// field would leave float's range: a pair constant of make_lj_params (core/lj.h) outside
+// [kFloatRangeLow, kFloatRangeHigh] (float's normal range with 2^24 to spare on either side, for
+// the powers of q and the sums they enter), or the cutoff's square. The message names the pair's
+// types, the parameter (sigma, epsilon or the cutoff) and the precision. Double is not limited.
+void check_precision_range(const ForceField& ff, Precision precision);
+inline constexpr double kFloatRangeLow = 0x1p-102;   // FLT_MIN * 2^24
+inline constexpr double kFloatRangeHigh = 0x1p+104;  // ~FLT_MAX * 2^-24
 
 // num_types x num_types table, row-major, symmetric.
 template <class Real>

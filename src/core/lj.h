@@ -18,29 +18,57 @@
 
 namespace cellforce {
 
-// Per type pair: c12 = 4 eps sigma^12, c6 = 4 eps sigma^6, and the constants that the cutoff mode
-// needs (zero where it needs none).
+// Per type pair, in a length unit lambda of its own: lambda = 2^k, the power of two at or below the
+// pair's sigma (1 <= sigma / lambda < 2), so that r^2 / lambda^2 is r^2 * inv_s2 without rounding.
+// The evaluator works with q = lambda^2 / r^2 and constants near 1 (up to 48 * 2^12 eps), which
+// keeps every intermediate of a float evaluation inside float's range for any sigma with
+// r^2 normal (sigma^12 or r^-12 in the pair's own units would leave it: sigma = 3.4e-10 m has
+// sigma^12 ~ 1e-113), and makes the float result the same as that of the system in reduced
+// units, roundings and all, whatever its length scale.
+//   F(r) / r = f12 q^7 - f6 q^4      f12 = 48 eps (sigma / lambda)^12 / lambda^2
+//                                     f6  = 24 eps (sigma / lambda)^6  / lambda^2
+//   U(r)     = e12 q^6 - e6 q^3      e12 = 4 eps (sigma / lambda)^12, e6 = 4 eps (sigma / lambda)^6
+// A pair with sigma = 0 or epsilon = 0 does not interact: its constants are 0 (lambda from rc).
 template <class Real>
 struct LJParams {
-  Real c12 = 0;
-  Real c6 = 0;
+  Real inv_s2 = 1;  // 1 / lambda^2, a power of two
+  Real f12 = 0;
+  Real f6 = 0;
+  Real e12 = 0;
+  Real e6 = 0;
   Real u_rc = 0;  // U(rc), subtracted by shift and force shift
   Real f_rc = 0;  // F(rc), subtracted by force shift
   Real rc = 0;    // the cutoff, used by force shift's energy
 };
 
-// Builds the parameters of one pair in double and rounds them once to Real.
+// The exponent k of a pair's length unit lambda = 2^k (see LJParams): floor(log2 sigma), or of
+// the cutoff for a pair with sigma = 0.
+inline int lj_unit_exponent(double sigma, double cutoff) {
+  return std::ilogb(sigma > 0.0 ? sigma : cutoff);
+}
+
+// Builds the parameters of one pair in double and rounds them once to Real. In double the
+// constants are near 1 too; in float they must also be normal floats, which check_precision_range
+// (core/force_field.h) checks before any evaluation.
 template <class Real>
 LJParams<Real> make_lj_params(double sigma, double epsilon, double cutoff, CutoffMode mode) {
-  const double s6 = std::pow(sigma, 6.0);
-  const double c12 = 4.0 * epsilon * s6 * s6;
-  const double c6 = 4.0 * epsilon * s6;
-  const double ir6 = 1.0 / std::pow(cutoff, 6.0);
-  const double u_rc = (c12 * ir6 - c6) * ir6;
-  const double f_rc = (12.0 * c12 * ir6 - 6.0 * c6) * ir6 / cutoff;
+  const int k = lj_unit_exponent(sigma, cutoff);
+  const bool interacts = sigma > 0.0 && epsilon > 0.0;
+  const double s = std::ldexp(sigma, -k);            // sigma / lambda, in [1, 2)
+  const double inv_l2 = std::ldexp(1.0, -2 * k);     // 1 / lambda^2
+  const double s6 = interacts ? s * s * s * s * s * s : 0.0;
+  const double e12 = 4.0 * epsilon * s6 * s6;
+  const double e6 = 4.0 * epsilon * s6;
+  // U(rc) and F(rc) in the caller's units; sigma / rc stays near 1 for any length scale.
+  const double x6 = interacts ? std::pow(sigma / cutoff, 6.0) : 0.0;
+  const double u_rc = 4.0 * epsilon * (x6 * x6 - x6);
+  const double f_rc = 24.0 * epsilon * (2.0 * x6 * x6 - x6) / cutoff;
   LJParams<Real> p;
-  p.c12 = Real(c12);
-  p.c6 = Real(c6);
+  p.inv_s2 = Real(inv_l2);
+  p.f12 = Real(12.0 * e12 * inv_l2);
+  p.f6 = Real(6.0 * e6 * inv_l2);
+  p.e12 = Real(e12);
+  p.e6 = Real(e6);
   p.u_rc = mode == CutoffMode::kTruncate ? Real(0) : Real(u_rc);
   p.f_rc = mode == CutoffMode::kForceShift ? Real(f_rc) : Real(0);
   p.rc = Real(cutoff);
@@ -72,17 +100,17 @@ CF_HD Real reciprocal(Real x) {
 // The pair terms at squared distance r2 > 0, with no cutoff test: force_over_r = F_c(r) / r, so
 // that the force on i is force_over_r * (x_i - x_j), and, when Energy, the pair energy U_c(r).
 // Mode and Energy are compile-time so that the unused arithmetic is not there at all.
-// F(r) / r = (12 c12 r^-12 - 6 c6 r^-6) r^-2 is formed as r^-8 (12 c12 r^-6 - 6 c6): with 12 c12
-// and 6 c6 constant over a loop's pairs, that is a multiply-add and two multiplies after r^-6, three
-// instructions fewer a pair than forming c12 r^-12 and c6 r^-6 first (change 44). The energy, when
-// asked, is (c12 r^-6 - c6) r^-6 beside it, so that the force is the same expression (the same
-// bits) whether or not the energy is asked for.
+// `s` is r2 in the pair's length unit (r2 * p.inv_s2, exact); lj_terms forms it, and a caller
+// whose separations are already in that unit passes s = r2 (with constants for it). F(r) / r =
+// (f12 q^7 - f6 q^4) is formed as q^4 (f12 q^3 - f6): a multiply-add and two multiplies after
+// q^3. The energy, when asked, is (e12 q^3 - e6) q^3 beside it, so that the force is the same
+// expression (the same bits) whether or not the energy is asked for.
 template <CutoffMode Mode, bool Energy, class Real>
-CF_HD void lj_terms(Real r2, const LJParams<Real>& p, Real& force_over_r, Real& energy) {
-  const Real ir2 = reciprocal(r2);
-  const Real ir6 = ir2 * ir2 * ir2;
-  Real fr = (ir6 * ir2) * (Real(12) * p.c12 * ir6 - Real(6) * p.c6);
-  if constexpr (Energy) energy = (p.c12 * ir6 - p.c6) * ir6;
+CF_HD void lj_terms_at(Real r2, Real s, const LJParams<Real>& p, Real& force_over_r, Real& energy) {
+  const Real q = reciprocal(s);
+  const Real q3 = q * q * q;
+  Real fr = (q3 * q) * (p.f12 * q3 - p.f6);
+  if constexpr (Energy) energy = (p.e12 * q3 - p.e6) * q3;
   if constexpr (Mode == CutoffMode::kForceShift) {
     const Real r = std::sqrt(r2);
     fr -= p.f_rc / r;
@@ -91,6 +119,11 @@ CF_HD void lj_terms(Real r2, const LJParams<Real>& p, Real& force_over_r, Real& 
     if constexpr (Energy) energy -= p.u_rc;
   }
   force_over_r = fr;
+}
+
+template <CutoffMode Mode, bool Energy, class Real>
+CF_HD void lj_terms(Real r2, const LJParams<Real>& p, Real& force_over_r, Real& energy) {
+  lj_terms_at<Mode, Energy>(r2, r2 * p.inv_s2, p, force_over_r, energy);
 }
 
 // Evaluates one pair under the cutoff contract. Returns false (and leaves the outputs alone) when

@@ -75,7 +75,11 @@ void validate_system(const SystemView& system, const ForceField& ff);
 void validate_physics(const Box& box, const ForceField& ff, std::size_t n);
 
 // The error for a pair whose force is not finite: coincident (r2 == 0) or so close that the
-// Lennard-Jones force overflows in the precision used. Names both particles and their positions.
-[[noreturn]] void throw_close_pair(const SystemView& system, uint32_t i, uint32_t j, double r2);
+// Lennard-Jones force overflows in the precision used. Names both particles and their positions,
+// and, given the force field, the pair's sigma, the distance in sigmas and the force's size against
+// the precision's range, so that a sigma far from the particles' spacing (a unit slip) is named as
+// the cause rather than the particles.
+[[noreturn]] void throw_close_pair(const SystemView& system, uint32_t i, uint32_t j, double r2,
+                                   const ForceField* ff = nullptr, Precision precision = Precision::kDouble);
 
 }  // namespace cellforce

@@ -2,6 +2,7 @@
 #include <cmath>
 #include <sstream>
 
+#include "core/engine_options.h"  // to_string(Precision)
 #include "core/error.h"
 #include "core/memory.h"
 #include "core/system.h"
@@ -54,7 +55,8 @@ void validate_system(const SystemView& system, const ForceField& ff) {
   }
 }
 
-void throw_close_pair(const SystemView& system, uint32_t i, uint32_t j, double r2) {
+void throw_close_pair(const SystemView& system, uint32_t i, uint32_t j, double r2, const ForceField* ff,
+                      Precision precision) {
   // The distance in double, from the positions wrapped exactly into the box: "the same position"
   // is said only when the two points are the same; otherwise the working-precision r^2 that made
   // the force not finite is shown beside the exact distance.
@@ -73,7 +75,25 @@ void throw_close_pair(const SystemView& system, uint32_t i, uint32_t j, double r
   } else {
     s += " are too close (r = " + format_number(std::sqrt(exact2));
     if (r2 != exact2) s += ", " + format_number(std::sqrt(r2)) + " in the working precision";
-    s += "): the Lennard-Jones force is not finite in this precision";
+    const std::size_t ti = system.types ? system.types[i] : 0, tj = system.types ? system.types[j] : 0;
+    if (!ff || ti >= ff->num_types() || tj >= ff->num_types()) {
+      s += "): the Lennard-Jones force is not finite in this precision";
+    } else {
+      // F(r) ~ 48 eps / sigma (sigma / r)^13 near contact, in double (inf where double overflows too).
+      const double r = std::sqrt(exact2), sigma = ff->pair_sigma(ti, tj), eps = ff->pair_epsilon(ti, tj);
+      const double force = 48.0 * eps / sigma * std::pow(sigma / r, 13.0);
+      const std::string pair = ti == tj ? "type " + quote_excerpt(ff->types[ti].name)
+                                        : "pair " + quote_excerpt(ff->types[std::min(ti, tj)].name) + "-" +
+                                              quote_excerpt(ff->types[std::max(ti, tj)].name);
+      const bool in_float = precision != Precision::kDouble;
+      s += ", " + format_number(r / sigma) + " sigma with sigma " + format_number(sigma) + " of " + pair +
+           "): the Lennard-Jones force there, ~" + format_number(force) + ", is beyond " +
+           (in_float ? std::string(to_string(precision)) + " precision's float range (~3.4e38)"
+                     : std::string("double's range")) +
+           "; if sigma of " + pair + " is right, the particles overlap (minimise first" +
+           (in_float && std::isfinite(force) ? ", or use double precision)" : ")") +
+           ", else correct sigma of " + pair;
+    }
   }
   bool outside = false;
   auto point = [&](uint32_t k, bool wrapped) {

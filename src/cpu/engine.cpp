@@ -97,6 +97,7 @@ void CpuEngine::build(const SystemView& system, const ForceField& ff) {
     check_grid(stats.grid, system.box, ff.cutoff, options.grid.rule, skin);
     check_staging(stats.grid, ff.cutoff, options.precision);
   }
+  check_precision_range(ff, options.precision);
   cpu::build_cell_ids(stats.grid, system, s.ids);
   stats.t_cell_ids = seconds_since(t);
   if (reuse_.enabled()) {
@@ -169,7 +170,7 @@ void CpuEngine::evaluate(const SystemView& system, const ForceField& ff, const R
   stats_.candidate_pairs = report.candidates;
   stats_.interacting_pairs = report.interacting;
   stats_.max_occupancy = report.max_occupancy;
-  if (report.bad) throw_close_pair(system, report.bad_i, report.bad_j, report.bad_r2);
+  if (report.bad) throw_close_pair(system, report.bad_i, report.bad_j, report.bad_r2, &ff, options_.precision);
 
   t = Clock::now();
   if (options_.precision == Precision::kSingle)

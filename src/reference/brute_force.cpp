@@ -72,7 +72,7 @@ void run(const SystemView& sys, const ForceField& ff, const Request& request, Fo
     for (int a = 0; a < dim; ++a) out.forces[i * dim + a] = f[a];
     if (request.energy) out.energies[i] = e_i;
   }
-  if (bad_r2 >= 0) throw_close_pair(sys, uint32_t(bad_i), uint32_t(bad_j), bad_r2);
+  if (bad_r2 >= 0) throw_close_pair(sys, uint32_t(bad_i), uint32_t(bad_j), bad_r2, &ff);
   out.energy = 0;
   if (request.energy)
     for (std::size_t i = 0; i < n; ++i) out.energy += out.energies[i];
