@@ -6,6 +6,7 @@
 #include <tuple>
 
 #include "core/error.h"
+#include "core/text.h"
 
 namespace cellforce {
 namespace {
@@ -57,6 +58,17 @@ void validate(const std::string& path, const Box& box, const std::vector<uint32_
                   " but " + std::to_string(species_names.size()) + " species names are given");
   for (const std::string& name : species_names)
     if (name.empty()) throw Error(path + ": a species name is empty");
+  // The names are one fixed-length string attribute (/particles/all/species names), each padded to
+  // the longest: HDF5 would refuse it only after the file was made.
+  if (const std::size_t bytes = h5::fixed_strings_bytes(species_names); bytes > h5::kMaxAttributeBytes) {
+    const auto longest = std::max_element(species_names.begin(), species_names.end(),
+                                          [](const std::string& a, const std::string& b) { return a.size() < b.size(); });
+    throw Error(path + ": the species (type) names need an HDF5 attribute of " + std::to_string(bytes) + " bytes (" +
+                std::to_string(species_names.size()) + " names padded to the longest, of " +
+                std::to_string(longest->size()) + " bytes: " + quote_excerpt(*longest, 24) +
+                "); an attribute holds at most " + std::to_string(h5::kMaxAttributeBytes) +
+                " bytes: shorten the type names");
+  }
   std::set<std::string> seen;
   for (const std::string& name : options.observables) {
     if (name.empty() || name == "." || name == ".." || name.find('/') != std::string::npos)
@@ -66,6 +78,11 @@ void validate(const std::string& path, const Box& box, const std::vector<uint32_
 }
 
 }  // namespace
+
+void H5mdWriter::check(const std::string& path, const Box& box, const std::vector<uint32_t>& species,
+                       const std::vector<std::string>& species_names, const H5mdOptions& options) {
+  validate(path, box, species, species_names, options);
+}
 
 H5mdWriter::H5mdWriter(const std::string& path, const Box& box, const std::vector<uint32_t>& species,
                        const std::vector<std::string>& species_names, const H5mdOptions& options)

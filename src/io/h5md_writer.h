@@ -87,6 +87,12 @@ class H5mdWriter {
   std::size_t dropped_incomplete_frames() const { return dropped_incomplete_; }
   const std::string& path() const { return path_; }
 
+  // Refuses, as the constructor would, what cannot be written (a box of another dimension, a
+  // species without a name, names too long for an HDF5 attribute, bad observable names), without
+  // touching the file: a run checks this before it writes any of its outputs. Errors name `path`.
+  static void check(const std::string& path, const Box& box, const std::vector<uint32_t>& species,
+                    const std::vector<std::string>& species_names, const H5mdOptions& options);
+
   // The particles group's name: /particles/all.
   static constexpr const char* kGroup = "all";
 

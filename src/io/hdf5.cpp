@@ -11,11 +11,11 @@
 #include <functional>
 #include <limits>
 #include <numeric>
-#include <random>
 
 #include "core/error.h"
 #include "core/memory.h"
 #include "core/text.h"
+#include "io/output_paths.h"
 
 namespace cellforce::h5 {
 namespace {
@@ -63,6 +63,52 @@ std::string system_reason() {
   if (code == EFBIG) return "the file is larger than the system allows";
   if (code != 0) return std::strerror(code);
   return {};
+}
+
+// The description of the first entry of HDF5's error stack that contains `needle`; empty if none.
+std::string stack_entry(const char* needle) {
+  struct Search {
+    const char* needle;
+    std::string found;
+  } search{needle, {}};
+  H5Ewalk2(
+      H5E_DEFAULT, H5E_WALK_DOWNWARD,
+      [](unsigned, const H5E_error2_t* e, void* data) -> herr_t {
+        Search& s = *static_cast<Search*>(data);
+        if (s.found.empty() && e->desc && std::strstr(e->desc, s.needle)) s.found = e->desc;
+        return 0;
+      },
+      &search);
+  return search.found;
+}
+
+// The number after `key` in `text` ("eof = 1234"), or -1.
+long long number_after(const std::string& text, const std::string& key) {
+  const std::size_t at = text.find(key);
+  return at == std::string::npos ? -1 : std::atoll(text.c_str() + at + key.size());
+}
+
+// Why H5Fopen refused an existing HDF5 file, from its error stack: a file cut short, a file that
+// another process holds open for writing (HDF5 locks a file while a writer has it open), or the
+// system's reason.
+std::string open_failure(const std::string& path) {
+  const std::string truncated = stack_entry("truncated file");
+  if (!truncated.empty()) {
+    const long long eof = number_after(truncated, "eof = "), stored = number_after(truncated, "stored_eof = ");
+    return "the file is truncated: it holds " + (eof >= 0 ? std::to_string(eof) : std::string("fewer")) +
+           " bytes, its header says " + (stored >= 0 ? std::to_string(stored) : std::string("more")) +
+           " (a copy or a write that was cut short?)";
+  }
+  if (!stack_entry("unable to lock").empty() || !stack_entry("lock file").empty()) {
+    const long holder = claim_holder(path);
+    if (holder > 0)
+      return "the file is in use: a running cellforce run (process " + std::to_string(holder) +
+             ") is writing it; read it when that run has ended, or read a copy";
+    return "the file is locked by another process that has it open for writing (HDF5 file locking); read it "
+           "when that process has closed it, or read a copy";
+  }
+  const std::string reason = system_reason();
+  return reason.empty() ? std::string() : reason;
 }
 
 // fail() for an HDF5 call that returned an error: the system's reason is added when HDF5 names one.
@@ -202,14 +248,23 @@ void write_attribute_raw(hid_t obj, const std::string& name, hid_t type, hid_t s
   check_status(H5Awrite(attr.get(), type, data), where, "cannot write attribute '" + name + "'");
 }
 
+// The length of each fixed-length string: the longest value's (HDF5 has no strings of size 0).
+std::size_t fixed_string_size(const std::vector<std::string>& values) {
+  std::size_t size = 1;
+  for (const std::string& v : values) size = std::max(size, v.size());
+  return size;
+}
+
 void write_fixed_strings(hid_t obj, const std::string& name, const std::vector<std::string>& values,
                          const std::vector<hsize_t>& shape, const std::string& where) {
-  std::size_t size = 1;  // HDF5 has no strings of size 0
+  const std::size_t size = fixed_string_size(values);
+  if (fixed_strings_bytes(values) > kMaxAttributeBytes)
+    fail(where, "attribute '" + name + "' would hold " + std::to_string(fixed_strings_bytes(values)) + " bytes (" +
+                    std::to_string(values.size()) + " strings padded to the longest, " + std::to_string(size) +
+                    " bytes); an HDF5 attribute holds at most " + std::to_string(kMaxAttributeBytes));
   bool ascii = true;
-  for (const std::string& v : values) {
-    size = std::max(size, v.size());
+  for (const std::string& v : values)
     for (const char c : v) ascii = ascii && static_cast<unsigned char>(c) < 0x80;
-  }
   Handle type(check(H5Tcopy(H5T_C_S1), where, "cannot create a string type"));
   check_status(H5Tset_size(type.get(), size), where, "cannot create a string type");
   check_status(H5Tset_strpad(type.get(), H5T_STR_NULLPAD), where, "cannot create a string type");
@@ -223,6 +278,10 @@ void write_fixed_strings(hid_t obj, const std::string& name, const std::vector<s
 }
 
 }  // namespace
+
+std::size_t fixed_strings_bytes(const std::vector<std::string>& values) {
+  return fixed_string_size(values) * std::max<std::size_t>(values.size(), 1);
+}
 
 void Handle::reset() {
   if (id_ < 0) return;
@@ -256,7 +315,10 @@ File File::open_read(const std::string& path) {
   if (!std::filesystem::exists(path)) fail(path, "no such file");
   if (!is_hdf5(path)) fail(path, "not an HDF5 file");
   const hid_t id = H5Fopen(path.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
-  if (id < 0) fail(path, "cannot open the HDF5 file");
+  if (id < 0) {
+    const std::string reason = open_failure(path);
+    fail(path, "cannot open the HDF5 file" + (reason.empty() ? std::string() : ": " + reason));
+  }
   return File(Handle(id), path);
 }
 
@@ -266,7 +328,7 @@ File File::open_read_write(const std::string& path) {
   if (!is_hdf5(path)) fail(path, "not an HDF5 file");
   const hid_t id = H5Fopen(path.c_str(), H5F_ACC_RDWR, H5P_DEFAULT);
   if (id < 0) {
-    const std::string reason = system_reason();
+    const std::string reason = open_failure(path);
     fail(path, "cannot open the HDF5 file for writing" +
                    (reason.empty() ? std::string(" (is it read-only, or open in another program?)") : ": " + reason));
   }
@@ -300,7 +362,7 @@ void File::close() {
 void write_file_atomically(const std::string& path, const std::function<void(hid_t root)>& fill) {
   // A name no other run uses, created exclusively, so that concurrent runs and a user's own files
   // beside `path` are never overwritten.
-  const std::string tmp = path + ".partial-" + std::to_string(::getpid()) + "-" + std::to_string(std::random_device{}());
+  const std::string tmp = partial_name(path);
   try {
     File file = File::create(tmp, /*exclusive=*/true, path);
     fill(file.id());

@@ -150,6 +150,14 @@ void write_attribute(hid_t obj, const std::string& name, const std::vector<doubl
 void write_attribute(hid_t obj, const std::string& name, const std::vector<std::string>& value,
                      const std::string& where);
 
+// The most bytes of data one attribute may hold here: HDF5 stores an attribute in its object's
+// header, whose messages hold at most 64 KiB (65,484 bytes of data with HDF5 1.10; the name, type
+// and shape take the rest), and fails only when the attribute is written.
+inline constexpr std::size_t kMaxAttributeBytes = 64512;
+// The bytes of data of write_fixed_string_attribute's attribute for `values`: each is padded to
+// the longest.
+std::size_t fixed_strings_bytes(const std::vector<std::string>& values);
+
 // Fixed-length, null-padded strings (ASCII, or UTF-8 when a value needs it), as the H5MD
 // specification asks of its string attributes; the other write_attribute overloads for strings
 // write variable-length UTF-8. Scalar, or one-dimensional with one entry per value.
