@@ -329,14 +329,12 @@ int run_bench(const BenchArgs& args) {
   if (!args.save_final.empty())
     for (const int c : cells) {
       const std::string prefix = save_final_prefix(args, std::size_t(4) * std::size_t(c) * std::size_t(c) * std::size_t(c));
-      outputs.push_back({prefix + ".positions.f64", "--save-final", true});
-      outputs.push_back({prefix + ".forces.f64", "--save-final", true});
+      // Two sizes that round to one fcc lattice write the same files, each in its turn.
+      if (std::none_of(outputs.begin(), outputs.end(), [&](const OutputFile& o) { return o.path == prefix + ".forces.f64"; })) {
+        outputs.push_back({prefix + ".positions.f64", "--save-final", true});
+        outputs.push_back({prefix + ".forces.f64", "--save-final", true});
+      }
     }
-  // Two sizes that round to one fcc lattice name the same files: they are written once per size.
-  std::sort(outputs.begin() + 1, outputs.end(), [](const OutputFile& a, const OutputFile& b) { return a.path < b.path; });
-  outputs.erase(std::unique(outputs.begin() + 1, outputs.end(),
-                            [](const OutputFile& a, const OutputFile& b) { return a.path == b.path; }),
-                outputs.end());
   const OutputClaim claim = claim_output_files(outputs, {}, "");
 
   const std::string reuse = engine.reuse.automatic ? ", skin auto"

@@ -273,6 +273,20 @@ void H5mdWriter::open_existing(const Box& box, const std::vector<uint32_t>& spec
   }
 }
 
+std::uint64_t H5mdWriter::frame_bytes_bound() const {
+  // Per-particle datasets: one frame per chunk, split over particles beyond kChunkBytes; deflate
+  // may grow incompressible data by 0.1% and some bytes a chunk. The series datasets write a whole
+  // chunk (kSeriesChunk rows) when a frame starts one. The rest covers the chunk indexes' new
+  // nodes and the object headers HDF5 may move.
+  const std::uint64_t frame = std::uint64_t(n_) * std::uint64_t(dim_) * sizeof(double);
+  const std::uint64_t chunks = frame / kChunkBytes + 2;
+  const std::uint64_t per_particle = frame + frame / 100 + chunks * 1024;
+  const std::uint64_t elements = 1 + (velocities_ ? 1 : 0) + (forces_ ? 1 : 0);
+  const std::uint64_t series_row = sizeof(int64_t) + sizeof(double) + std::uint64_t(dim_) * sizeof(double) +
+                                   observables_.size() * sizeof(double);
+  return elements * per_particle + kSeriesChunk * series_row + (std::uint64_t(256) << 10);
+}
+
 std::vector<hid_t> H5mdWriter::growing() const {
   std::vector<hid_t> sets = {step_.get(), time_.get(), position_.get(), edges_value_.get()};
   if (velocities_) sets.push_back(velocity_.get());
@@ -310,6 +324,11 @@ void H5mdWriter::write_frame(int64_t step, double time, const double* positions,
     throw Error(path_ + ": frame at step " + std::to_string(step) + " has time " + std::to_string(time) +
                 ", before the last stored frame's " + std::to_string(last_time_));
 
+  // Room for the whole frame first: a disk that is full (or would fill during the frame) fails
+  // here, before any dataset changes, and the file keeps its frames whole. Without the room, HDF5
+  // would fail part way through its writes and leave datasets of unequal length, or a file whose
+  // header claims more bytes than were written (unreadable).
+  file_->reserve(frame_bytes_bound());
   // Grow every dataset first, then write: a failure part way shrinks them all back, so their
   // lengths never disagree.
   const hsize_t row = frames_;
@@ -325,6 +344,7 @@ void H5mdWriter::write_frame(int64_t step, double time, const double* positions,
     for (std::size_t k = 0; k < observables_.size(); ++k)
       h5::write_row(observable_values_[k].get(), row, H5T_NATIVE_DOUBLE, &observable_values[k], path_);
     file_->flush();
+    file_->trim();
   } catch (const std::exception& e) {
     // Undo the growth. After a failed write to disk HDF5 may be unable to shrink a dataset whose
     // new chunk it could not store; the writer then refuses further frames, and reopening the

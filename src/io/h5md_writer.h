@@ -107,6 +107,8 @@ class H5mdWriter {
                      const std::vector<std::string>& species_names, const H5mdOptions& options);
   // Every dataset that grows by one row per frame (step and time once: they are shared).
   std::vector<hid_t> growing() const;
+  // More bytes than one frame can add to the file (reserved before it is written).
+  std::uint64_t frame_bytes_bound() const;
   // Throws when the file is closed or a failed write could not be undone.
   void require_writable() const;
 

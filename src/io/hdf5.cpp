@@ -1,5 +1,7 @@
 #include "io/hdf5.h"
 
+#include <fcntl.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -44,6 +46,13 @@ void quiet() {
   throw Error(where + ": " + what);
 }
 
+std::string errno_reason(int code) {
+  if (code == ENOSPC) return "no space left on the device (the disk is full)";
+  if (code == EDQUOT) return "the disk quota is exceeded";
+  if (code == EFBIG) return "the file is larger than the system allows";
+  return std::strerror(code);
+}
+
 // The operating system's reason for the HDF5 call that just failed, from HDF5's error stack (its
 // POSIX file driver records errno in the message of a failed read, write or truncate: "...,
 // errno = 28, error message = 'No space left on device', ..."); empty when the stack names none.
@@ -58,11 +67,7 @@ std::string system_reason() {
         return 0;
       },
       &code);
-  if (code == ENOSPC) return "no space left on the device (the disk is full)";
-  if (code == EDQUOT) return "the disk quota is exceeded";
-  if (code == EFBIG) return "the file is larger than the system allows";
-  if (code != 0) return std::strerror(code);
-  return {};
+  return code != 0 ? errno_reason(code) : std::string();
 }
 
 // The description of the first entry of HDF5's error stack that contains `needle`; empty if none.
@@ -344,6 +349,48 @@ bool File::is_hdf5(const std::string& path) {
 void File::flush() {
   if (!handle_.valid()) fail(path_, "the HDF5 file is closed");
   if (H5Fflush(handle_.get(), H5F_SCOPE_GLOBAL) < 0) fail_call(path_, "cannot write the HDF5 file");
+}
+
+namespace {
+
+// The file descriptor of an HDF5 file opened with the default (POSIX) driver; -1 for another.
+int descriptor(hid_t file) {
+  const Handle fapl(H5Fget_access_plist(file));
+  if (!fapl.valid() || H5Pget_driver(fapl.get()) != H5FD_SEC2) return -1;
+  void* handle = nullptr;
+  if (H5Fget_vfd_handle(file, fapl.get(), &handle) < 0 || !handle) return -1;
+  return *static_cast<int*>(handle);
+}
+
+}  // namespace
+
+void File::reserve(std::uint64_t bytes) {
+  if (!handle_.valid()) fail(path_, "the HDF5 file is closed");
+  haddr_t eoa = 0;
+  const int fd = descriptor(handle_.get());
+  if (fd < 0 || H5Fget_eoa(handle_.get(), &eoa) < 0) return;  // nothing to reserve with
+  struct stat st {};
+  if (::fstat(fd, &st) != 0) return;
+  const off_t end = off_t(eoa + bytes);
+  if (end <= st.st_size) return;
+  const int code = ::posix_fallocate(fd, st.st_size, end - st.st_size);
+  if (code == 0) return;
+  if (::ftruncate(fd, st.st_size) != 0) {
+    // The file keeps a longer end of zeros, which HDF5 ignores.
+  }
+  if (code == EOPNOTSUPP || code == ENOSYS || code == EINVAL) return;  // no reservation on this file system
+  fail(path_, "cannot write the HDF5 file: " + errno_reason(code));
+}
+
+void File::trim() {
+  if (!handle_.valid()) return;
+  haddr_t eoa = 0;
+  const int fd = descriptor(handle_.get());
+  struct stat st {};
+  if (fd < 0 || H5Fget_eoa(handle_.get(), &eoa) < 0 || ::fstat(fd, &st) != 0 || off_t(eoa) >= st.st_size) return;
+  if (::ftruncate(fd, off_t(eoa)) != 0) {
+    // The unused room stays at the end of the file, which HDF5 ignores.
+  }
 }
 
 void File::close() {

@@ -66,6 +66,12 @@ class File {
   bool is_open() const { return handle_.valid(); }
   // Writes every buffer to the file (H5Fflush): what was written so far survives the process.
   void flush();
+  // Sets aside room for `bytes` more bytes past the file's allocated end (posix_fallocate), so
+  // that the writes that use it cannot fail for want of space: a full disk (or a file-size
+  // limit) fails here, before anything changes, with the system's reason. trim() gives back what
+  // was not used (after a flush: the file then ends where HDF5's allocation ends).
+  void reserve(std::uint64_t bytes);
+  void trim();
   // Flushes and closes; errors surface here rather than in a destructor.
   void close();
 
