@@ -7,6 +7,7 @@
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 #include <signal.h>
+#include <sys/mount.h>
 #include <sys/resource.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -14,6 +15,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <functional>
@@ -733,6 +735,48 @@ TEST_F(H5mdTrajectory, ADiskFullInMidFrameLeavesTheFrameWholeOrAbsent) {
     for (const auto& [name, n] : rows) EXPECT_EQ(n, frames) << name;
     EXPECT_TRUE(frames == 2 || frames == 3) << frames;
     expect_holds(p, run, 0, std::size_t(frames));
+  }
+}
+
+// The same on a full disk where this machine lets the test mount a small tmpfs (root, or a
+// container with the capability): the free space runs out at points inside the third frame.
+TEST_F(H5mdTrajectory, AFullTmpfsInMidFrameLeavesTheFrameWholeOrAbsent) {
+  const fs::path mount_point = dir_ / "small";
+  fs::create_directories(mount_point);
+  if (::mount("tmpfs", mount_point.c_str(), "tmpfs", 0, "size=2m") != 0)
+    GTEST_SKIP() << "cannot mount a tmpfs here (" << std::strerror(errno) << "); the file-size-limit test covers it";
+  struct Unmount {
+    fs::path p;
+    ~Unmount() { ::umount(p.c_str()); }
+  } unmount{mount_point};
+  const SimRun run = make_run(cftest::cube(3, 30.0), 3000, 9, true, true,
+                              {"potential_energy", "kinetic_energy", "total_energy", "temperature", "pressure"});
+  const std::string p = (mount_point / "t.h5").string();
+  const std::string filler = (mount_point / "filler").string();
+  for (const std::size_t free_kb : {4, 64, 128, 192, 256}) {
+    SCOPED_TRACE(std::to_string(free_kb) + " KB free after two frames");
+    fs::remove(p);
+    fs::remove(filler);
+    H5mdWriter w = run.open(p);
+    for (std::size_t k = 0; k < 2; ++k) run.write(w, k);
+    const fs::space_info space = fs::space(mount_point);
+    if (space.available > free_kb * 1024)
+      std::ofstream(filler) << std::string(space.available - free_kb * 1024, 'f');
+    std::string msg;
+    try {
+      run.write(w, 2);
+    } catch (const Error& e) {
+      msg = e.what();
+    }
+    try {
+      w.close();
+    } catch (const Error& e) {
+      if (msg.empty()) msg = e.what();
+    }
+    EXPECT_THAT(msg, HasSubstr(p + ": cannot write the HDF5 file: no space left on the device (the disk is full)"));
+    const std::map<std::string, hsize_t> rows = growing_rows(p, run);
+    for (const auto& [name, n] : rows) EXPECT_EQ(n, 2u) << name;
+    expect_holds(p, run, 0, 2);
   }
 }
 
