@@ -537,10 +537,10 @@ std::vector<hsize_t> dataset_shape(hid_t set, const std::string& where, std::vec
 void set_rows(hid_t set, hsize_t rows, const std::string& where) {
   quiet();
   std::vector<hsize_t> shape = dataset_shape(set, where);
-  if (shape.empty()) fail(where, "'" + object_path(set) + "' is a scalar; it has no rows");
+  const std::string name = object_path(set);
+  if (shape.empty()) fail(where, "'" + name + "' is a scalar; it has no rows");
   shape[0] = rows;
-  check_status(H5Dset_extent(set, shape.data()), where,
-               "cannot resize '" + object_path(set) + "' to " + std::to_string(rows) + " rows");
+  check_status(H5Dset_extent(set, shape.data()), where, "cannot resize '" + name + "' to " + std::to_string(rows) + " rows");
 }
 
 void write_row(hid_t set, hsize_t row, hid_t mem_type, const void* values, const std::string& where) {

@@ -110,12 +110,6 @@ void OutputClaim::release() {
   locks_.clear();
 }
 
-std::vector<std::string> OutputClaim::paths() const {
-  std::vector<std::string> out;
-  for (const Lock& lock : locks_) out.push_back(lock.output);
-  return out;
-}
-
 bool same_file(const std::string& a, const std::string& b) {
   if (resolved(a) == resolved(b)) return true;
   std::error_code ec;

@@ -45,8 +45,6 @@ class OutputClaim {
   ~OutputClaim() { release(); }
 
   void release();
-  // The outputs held, as given.
-  std::vector<std::string> paths() const;
   // The leftover temporary files of dead writers removed while claiming, for a note.
   const std::vector<std::string>& removed_leftovers() const { return removed_; }
 
