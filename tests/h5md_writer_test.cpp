@@ -7,6 +7,7 @@
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 #include <signal.h>
+#include <sys/mount.h>
 #include <sys/resource.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -14,9 +15,11 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <functional>
+#include <map>
 
 #include "core/error.h"
 #include "io/configuration_file.h"
@@ -663,6 +666,118 @@ TEST(H5mdSample, TwoDimensionalOpenAxis) {
   for (std::size_t k = 0; k < 5; ++k) run.write(w, k);
   w.close();
   std::printf("wrote %s: 5 frames, 64 particles, 2D\n", out);
+}
+
+}  // namespace
+
+namespace {
+
+// The rows of every dataset that grows by one row per frame, by name.
+std::map<std::string, hsize_t> growing_rows(const std::string& p, const SimRun& run) {
+  h5::File f = h5::File::open_read(p);
+  std::vector<std::string> names = {kAll + "/position/step", kAll + "/position/time", kAll + "/position/value",
+                                    kAll + "/box/edges/value"};
+  if (run.options.velocities) names.push_back(kAll + "/velocity/value");
+  if (run.options.forces) names.push_back(kAll + "/force/value");
+  for (const std::string& o : run.options.observables) names.push_back("observables/" + o + "/value");
+  std::map<std::string, hsize_t> rows;
+  for (const std::string& name : names) rows[name] = h5::dataset_shape(f.id(), name, p).at(0);
+  return rows;
+}
+
+// A disk that fills in the middle of a frame (here: a file-size limit, at several points of the
+// frame's writing and of the file's closing) leaves a file whose frames are whole: every dataset
+// holds the frames before it, or every dataset holds it too, and readers (h5py, MDAnalysis,
+// read_h5md) read the file as it is, without a restart's repair. The error names the reason.
+TEST_F(H5mdTrajectory, ADiskFullInMidFrameLeavesTheFrameWholeOrAbsent) {
+  const SimRun run = make_run(cftest::cube(3, 30.0), 3000, 9, true, true,
+                              {"potential_energy", "kinetic_energy", "total_energy", "temperature", "pressure"});
+  const std::string p = path("t.h5");
+  std::uintmax_t full = 0;
+  {
+    H5mdWriter w = run.open(p);
+    for (std::size_t k = 0; k < 3; ++k) run.write(w, k);
+    w.close();
+    full = fs::file_size(p);
+  }
+  std::uintmax_t two = 0;
+  {
+    H5mdWriter w = run.open(p);
+    for (std::size_t k = 0; k < 2; ++k) run.write(w, k);
+    w.close();
+    two = fs::file_size(p);
+  }
+  for (const std::uintmax_t limit : {two, two + 512, two + (full - two) / 3, two + (full - two) / 2,
+                                     two + 2 * (full - two) / 3, full - 512, full - 1}) {
+    SCOPED_TRACE("limit " + std::to_string(limit) + " (2 frames: " + std::to_string(two) + " bytes, 3: " +
+                 std::to_string(full) + ")");
+    fs::remove(p);
+    H5mdWriter w = run.open(p);
+    for (std::size_t k = 0; k < 2; ++k) run.write(w, k);
+    std::string msg;
+    {
+      const cftest::FileSizeLimit limited(limit);
+      ASSERT_TRUE(limited.ok());
+      try {
+        run.write(w, 2);
+      } catch (const Error& e) {
+        msg = e.what();
+      }
+      try {
+        w.close();  // the disk is still full
+      } catch (const Error& e) {
+        if (msg.empty()) msg = e.what();
+      }
+    }
+    EXPECT_THAT(msg, HasSubstr(p + ": cannot write the HDF5 file: the file is larger than the system allows"));
+    const std::map<std::string, hsize_t> rows = growing_rows(p, run);
+    const hsize_t frames = rows.begin()->second;
+    for (const auto& [name, n] : rows) EXPECT_EQ(n, frames) << name;
+    EXPECT_TRUE(frames == 2 || frames == 3) << frames;
+    expect_holds(p, run, 0, std::size_t(frames));
+  }
+}
+
+// The same on a full disk where this machine lets the test mount a small tmpfs (root, or a
+// container with the capability): the free space runs out at points inside the third frame.
+TEST_F(H5mdTrajectory, AFullTmpfsInMidFrameLeavesTheFrameWholeOrAbsent) {
+  const fs::path mount_point = dir_ / "small";
+  fs::create_directories(mount_point);
+  if (::mount("tmpfs", mount_point.c_str(), "tmpfs", 0, "size=2m") != 0)
+    GTEST_SKIP() << "cannot mount a tmpfs here (" << std::strerror(errno) << "); the file-size-limit test covers it";
+  struct Unmount {
+    fs::path p;
+    ~Unmount() { ::umount(p.c_str()); }
+  } unmount{mount_point};
+  const SimRun run = make_run(cftest::cube(3, 30.0), 3000, 9, true, true,
+                              {"potential_energy", "kinetic_energy", "total_energy", "temperature", "pressure"});
+  const std::string p = (mount_point / "t.h5").string();
+  const std::string filler = (mount_point / "filler").string();
+  for (const std::size_t free_kb : {4, 64, 128, 192, 256}) {
+    SCOPED_TRACE(std::to_string(free_kb) + " KB free after two frames");
+    fs::remove(p);
+    fs::remove(filler);
+    H5mdWriter w = run.open(p);
+    for (std::size_t k = 0; k < 2; ++k) run.write(w, k);
+    const fs::space_info space = fs::space(mount_point);
+    if (space.available > free_kb * 1024)
+      std::ofstream(filler) << std::string(space.available - free_kb * 1024, 'f');
+    std::string msg;
+    try {
+      run.write(w, 2);
+    } catch (const Error& e) {
+      msg = e.what();
+    }
+    try {
+      w.close();
+    } catch (const Error& e) {
+      if (msg.empty()) msg = e.what();
+    }
+    EXPECT_THAT(msg, HasSubstr(p + ": cannot write the HDF5 file: no space left on the device (the disk is full)"));
+    const std::map<std::string, hsize_t> rows = growing_rows(p, run);
+    for (const auto& [name, n] : rows) EXPECT_EQ(n, 2u) << name;
+    expect_holds(p, run, 0, 2);
+  }
 }
 
 }  // namespace

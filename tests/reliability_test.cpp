@@ -17,6 +17,7 @@
 #include <hdf5.h>
 #include <sys/mount.h>
 #include <sys/resource.h>
+#include <sys/wait.h>
 #include <unistd.h>
 
 #include <csignal>
@@ -32,6 +33,7 @@
 #include <new>
 #include <sstream>
 
+#include "cli/bench.h"
 #include "cli/forces.h"
 #include "cli/run.h"
 #include "core/error.h"
@@ -39,7 +41,9 @@
 #include "core/memory.h"
 #include "core/text.h"
 #include "io/configuration_file.h"
+#include "io/h5md_writer.h"
 #include "io/hdf5.h"
+#include "io/output_paths.h"
 #include "reference/brute_force.h"
 #include "scene/lattice.h"
 #include "scene/scene.h"
@@ -686,6 +690,97 @@ TEST_F(Folder, MessagesQuoteShortEscapedExcerptsAndNumbersWithTheirDigits) {
   msg = error_of([&] { run_forces(args); });
   EXPECT_THAT(msg, HasSubstr("cutoff 5.0000001 exceeds half"));
   EXPECT_THAT(msg, HasSubstr("= 10 "));
+}
+
+// Type names too long for the trajectory's attribute (HDF5 keeps an attribute in a 64 KiB header
+// message) are refused before the first output is written; the thermo file was written first,
+// then the trajectory failed.
+TEST_F(Folder, TypeNamesTooLongForTheTrajectoryAreRefusedBeforeAnyOutput) {
+  const std::string name(70000, 'A');
+  std::string text = scene_text("thermo_file = \"thermo.csv\"\ntrajectory = \"t.h5\"\ncheckpoint = \"c.h5\"\n", 5);
+  text.replace(text.find("name = \"A\""), 10, "name = \"" + name + "\"");
+  std::ofstream("scene.toml") << text;
+  const auto before = listing(dir_);
+  const std::string msg = error_of([&] { run_md(quiet_run("scene.toml")); });
+  EXPECT_THAT(msg, HasSubstr("t.h5: the species (type) names need an HDF5 attribute of 70000 bytes"));
+  EXPECT_THAT(msg, HasSubstr("at most 64512 bytes: shorten the type names"));
+  EXPECT_LT(msg.size(), 400u);
+  EXPECT_EQ(listing(dir_), before);
+}
+
+// A checkpoint cut short (a copy that stopped) names the truncation and the sizes; a trajectory
+// that a running run holds open names that run.
+TEST_F(Folder, ATruncatedCheckpointOrATrajectoryInUseIsNamedAsSuch) {
+  std::ofstream("scene.toml") << scene_text("checkpoint = \"ckpt.h5\"\n", 10);
+  ASSERT_EQ(run_md(quiet_run("scene.toml")), 0);
+  const auto size = fs::file_size("ckpt.h5");
+  fs::resize_file("ckpt.h5", size / 2);
+  RunArgs args = quiet_run("scene.toml");
+  args.restart = "ckpt.h5";
+  args.steps = 20;
+  const std::string msg = error_of([&] { run_md(args); });
+  EXPECT_THAT(msg, HasSubstr("ckpt.h5: cannot open the HDF5 file: the file is truncated: it holds " +
+                             std::to_string(size / 2) + " bytes, its header says " + std::to_string(size)));
+
+  // A child process claims a trajectory as a run does and writes it until it is killed.
+  int ready[2];
+  ASSERT_EQ(::pipe(ready), 0);
+  const pid_t child = ::fork();
+  ASSERT_GE(child, 0);
+  if (child == 0) {
+    try {
+      const OutputClaim claim = claim_output_files({{"t.h5", "--trajectory", false}}, {}, "");
+      const Configuration c = make_lattice(Lattice::kHexagonal, 4, 0.7);
+      H5mdWriter w("t.h5", c.box, c.types, {"A"}, H5mdOptions{});
+      w.write_frame(0, 0.0, c.positions.data(), nullptr, nullptr, {});
+      (void)!::write(ready[1], "1", 1);
+      ::pause();
+    } catch (...) {
+    }
+    ::_exit(3);
+  }
+  ::close(ready[1]);
+  char byte = 0;
+  ASSERT_EQ(::read(ready[0], &byte, 1), 1) << "the child could not write its trajectory";
+  ::close(ready[0]);
+  const std::string in_use = error_of([] { read_configuration("t.h5", ReadOptions{}); });
+  ::kill(child, SIGKILL);
+  ::waitpid(child, nullptr, 0);
+  EXPECT_THAT(in_use, HasSubstr("t.h5: cannot open the HDF5 file: the file is in use: a running cellforce run "
+                                "(process " + std::to_string(child) + ") is writing it"));
+  // Once that run has ended, the file reads (its frame was flushed).
+  EXPECT_EQ(read_configuration("t.h5", ReadOptions{}).config.size(), make_lattice(Lattice::kHexagonal, 4, 0.7).size());
+}
+
+// bench --json and --save-final, and evaluate --json, refuse a folder that does not exist before
+// they compute anything (they wrote after the first size, or after the evaluation).
+TEST_F(Folder, BenchAndEvaluateRefuseAMissingOutputFolderBeforeTheWork) {
+  BenchArgs bench;
+  bench.engine.backend = Backend::kCpu;
+  bench.cells = {3};
+  bench.steps = 10;
+  bench.warmup = 2;
+  bench.samples = 2;
+  bench.reference = false;
+  for (const bool json : {true, false}) {
+    SCOPED_TRACE(json ? "--json" : "--save-final");
+    BenchArgs a = bench;
+    (json ? a.json : a.save_final) = "missing/out";
+    testing::internal::CaptureStdout();
+    const std::string msg = error_of([&] { run_bench(a); });
+    const std::string out = testing::internal::GetCapturedStdout();
+    EXPECT_THAT(msg, HasSubstr(json ? "missing/out: its folder 'missing' does not exist (--json)"
+                                    : "missing/out-108.positions.f64: its folder 'missing' does not exist (--save-final)"));
+    EXPECT_EQ(out, "");  // not even the table's header
+  }
+  const std::string program = cftest::cellforce_binary();
+  if (program.empty()) GTEST_SKIP() << "no cellforce program beside the tests (set CELLFORCE_EXE)";
+  const pid_t pid = cftest::start_program(program, {"evaluate", "--backend", "cpu", "--cells", "3", "--json", "missing/e.json"},
+                                          "evaluate.log");
+  EXPECT_EQ(cftest::exit_code(pid), 1);
+  const std::string log = read("evaluate.log");
+  EXPECT_THAT(log, HasSubstr("missing/e.json: its folder 'missing' does not exist (--json)"));
+  EXPECT_THAT(log, Not(HasSubstr("cellforce evaluate:")));
 }
 
 TEST(Text, ExcerptsAndNumbers) {

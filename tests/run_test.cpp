@@ -14,6 +14,7 @@
 #include "cli/run.h"
 #include "core/error.h"
 #include "io/hdf5.h"
+#include "io/output_paths.h"
 
 #include "temp_folder.h"
 
@@ -340,3 +341,130 @@ TEST_F(RunFolder, CheckpointOfAnotherSceneOrSeedIsRefused) {
 }
 
 }  // namespace
+
+// ---- concurrent runs ------------------------------------------------------------------------------
+
+// The thermo rows (after the header) and the trajectory's frame steps of a run's outputs.
+std::size_t thermo_rows(const std::string& path) {
+  std::ifstream in(path);
+  std::size_t rows = 0;
+  std::string line;
+  std::getline(in, line);  // the header
+  while (std::getline(in, line))
+    if (!line.empty()) ++rows;
+  return rows;
+}
+
+// Two `cellforce run` processes started at once into one folder (fresh, with --overwrite, and two
+// restarts from one checkpoint): exactly one runs; the other is refused before it writes anything,
+// naming the file another run holds; the survivor's thermo file and trajectory are whole. Before
+// outputs were claimed, both passed their checks, the loser's header-only thermo file replaced
+// the survivor's and the trajectory was truncated under it.
+TEST_F(RunFolder, TwoRunsStartedAtOnceIntoOneFolderOneRunsAndTheOtherTouchesNothing) {
+  const std::string program = cftest::cellforce_binary();
+  if (program.empty()) GTEST_SKIP() << "no cellforce program beside the tests (set CELLFORCE_EXE)";
+  // 10,000 steps (about a second): the second run starts long before the first ends.
+  const int64_t steps = 10000;
+  std::ofstream("scene.toml") << scene_text("nve", "cpu", steps);
+  const std::size_t rows = steps / 7 + 2;    // steps 0, 7, ..., 9996 and the last, 10000
+  const std::size_t frames = steps / 9 + 1;  // steps 0, 9, ..., 9999
+  struct Case {
+    std::string name;
+    std::vector<std::string> options;
+  };
+  for (const Case& c : {Case{"fresh", {}}, Case{"--overwrite", {"--overwrite"}},
+                        Case{"restart", {"--restart", "start.h5"}}}) {
+    SCOPED_TRACE(c.name);
+    if (c.name == "restart") {  // a checkpoint at step 300 of this scene, and outputs that reach it
+      RunArgs args;
+      args.scene = "scene.toml";
+      args.quiet = true;
+      args.overwrite = true;
+      args.steps = 300;
+      ASSERT_EQ(run_md(args), 0);
+      fs::copy_file("ckpt.h5", "start.h5", fs::copy_options::overwrite_existing);
+    }
+    std::vector<std::string> args = {"run", "scene.toml", "--quiet"};
+    args.insert(args.end(), c.options.begin(), c.options.end());
+    const pid_t a = cftest::start_program(program, args, "a.log");
+    const pid_t b = cftest::start_program(program, args, "b.log");
+    const int code_a = cftest::exit_code(a), code_b = cftest::exit_code(b);
+    ASSERT_TRUE((code_a == 0) != (code_b == 0)) << "exit codes " << code_a << " and " << code_b << "\n"
+                                                << read("a.log") << "\n" << read("b.log");
+    const std::string loser = read(code_a == 0 ? "b.log" : "a.log");
+    EXPECT_EQ(code_a == 0 ? code_b : code_a, 1);
+    EXPECT_THAT(loser, HasSubstr("thermo.csv: in use by another cellforce run (process " +
+                                 std::to_string(code_a == 0 ? a : b)));
+    EXPECT_EQ(thermo_rows("thermo.csv"), rows);
+    const Frames f = load_trajectory("traj.h5");
+    ASSERT_EQ(f.steps.size(), frames);
+    EXPECT_EQ(f.steps.back(), double(9 * (frames - 1)));
+    EXPECT_EQ(f.velocities.size(), f.positions.size());
+    EXPECT_EQ(load("ckpt.h5").step, steps);
+    for (const auto& e : fs::directory_iterator(dir_))  // no temporary or lock file is left
+      EXPECT_THAT(e.path().filename().string(), Not(testing::AnyOf(HasSubstr(".partial"), HasSubstr(".lock"))));
+  }
+}
+
+// An output that another run holds (here: claimed by this process, as a running run holds it) is
+// refused before the run computes or writes anything, with --overwrite and on a restart too.
+TEST_F(RunFolder, AnOutputAnotherRunHoldsIsRefusedBeforeAnythingIsWritten) {
+  std::ofstream("scene.toml") << scene_text("nve", "cpu", 30);
+  RunArgs args;
+  args.scene = "scene.toml";
+  args.quiet = true;
+  ASSERT_EQ(run_md(args), 0);
+  const std::string thermo = read("thermo.csv"), traj = read("traj.h5"), ckpt = read("ckpt.h5");
+  for (const std::string held : {"thermo.csv", "traj.h5", "ckpt.h5"}) {
+    SCOPED_TRACE(held);
+    OutputClaim other = claim_output_files({{held, "another run's output", true}}, {}, "");
+    for (const bool restart : {false, true}) {
+      args.overwrite = !restart;
+      args.restart = restart ? "ckpt.h5" : "";
+      args.steps = restart ? 60 : -1;
+      const std::string msg = cftest::error_of([&] { run_md(args); });
+      EXPECT_THAT(msg, HasSubstr(held + ": in use by another cellforce run (process " + std::to_string(::getpid())));
+      EXPECT_THAT(msg, HasSubstr(held + ".lock"));
+      EXPECT_EQ(read("thermo.csv"), thermo);
+      EXPECT_EQ(read("traj.h5"), traj);
+      EXPECT_EQ(read("ckpt.h5"), ckpt);
+    }
+  }
+  // Released (the other run ended): the restart runs, and removes its lock files when done.
+  args.overwrite = false;
+  args.restart = "ckpt.h5";
+  args.steps = 60;
+  EXPECT_EQ(run_md(args), 0);
+  EXPECT_EQ(load("ckpt.h5").step, 60);
+  for (const auto& e : fs::directory_iterator(dir_)) EXPECT_THAT(e.path().filename().string(), Not(HasSubstr(".lock")));
+}
+
+// Temporary files that killed writers left beside the outputs are removed by the next run that
+// claims those outputs; one whose writer is alive is kept, and so are other files' temporaries.
+TEST_F(RunFolder, LeftoversOfKilledWritesAreRemovedAndALiveWritersAreKept) {
+  std::ofstream("scene.toml") << scene_text("nve", "cpu", 30);
+  const pid_t dead = ::fork();  // a process ID that is no longer alive
+  if (dead == 0) ::_exit(0);
+  ASSERT_EQ(cftest::exit_code(dead), 0);
+  const pid_t live = ::getppid();
+  const std::string d = std::to_string(dead), l = std::to_string(live);
+  const std::vector<std::string> removed = {"thermo.csv.partial-" + d + "-12345", "traj.h5.partial-" + d + "-7",
+                                            "ckpt.h5.partial-probe-" + d + "-99", "thermo.csv.partial-" + d};
+  const std::vector<std::string> kept = {"ckpt.h5.partial-" + l + "-5", "other.h5.partial-" + d + "-1",
+                                         "traj.h5.partial-notes.txt"};
+  for (const std::string& name : removed) std::ofstream(name) << "half a file";
+  for (const std::string& name : kept) std::ofstream(name) << "half a file";
+  RunArgs args;
+  args.scene = "scene.toml";
+  args.quiet = true;
+  testing::internal::CaptureStdout();
+  const int code = run_md(args);
+  const std::string out = testing::internal::GetCapturedStdout();
+  ASSERT_EQ(code, 0);
+  for (const std::string& name : removed) {
+    EXPECT_FALSE(fs::exists(name)) << name;
+    EXPECT_THAT(out, HasSubstr("note: removed " + name + ", left behind by a write that was killed"));
+  }
+  for (const std::string& name : kept) EXPECT_TRUE(fs::exists(name)) << name;
+  EXPECT_EQ(thermo_rows("thermo.csv"), 30u / 7 + 2);
+}

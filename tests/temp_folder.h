@@ -4,8 +4,10 @@
 #pragma once
 
 #include <gtest/gtest.h>
+#include <fcntl.h>
 #include <signal.h>
 #include <sys/resource.h>
+#include <sys/wait.h>
 #include <unistd.h>
 
 #include <cstdlib>
@@ -129,6 +131,49 @@ inline std::filesystem::path data_dir() {
     }
   throw std::runtime_error("no folder with systems/ and validation/ above the test binary or the working "
                            "directory: set CELLFORCE_DATA_DIR to the cellforce source folder");
+}
+
+// The cellforce program built with the tests: $CELLFORCE_EXE when set, else `cellforce` in the
+// test binary's folder or a folder above it (the build folder). Empty when there is none.
+inline std::string cellforce_binary() {
+  namespace fs = std::filesystem;
+  if (const char* env = std::getenv("CELLFORCE_EXE"); env && *env) return env;
+  std::error_code ec;
+  for (fs::path p = fs::read_symlink("/proc/self/exe", ec).parent_path(); !p.empty(); p = p.parent_path()) {
+    if (fs::is_regular_file(p / "cellforce", ec) && ::access((p / "cellforce").c_str(), X_OK) == 0)
+      return (p / "cellforce").string();
+    if (p == p.parent_path()) break;
+  }
+  return {};
+}
+
+// Starts `program` with `args` in the working folder, its stdout and stderr into the file
+// `output`; returns its process ID (waited for with exit_code).
+inline pid_t start_program(const std::string& program, const std::vector<std::string>& args,
+                           const std::string& output) {
+  std::vector<std::string> all = {program};
+  all.insert(all.end(), args.begin(), args.end());
+  std::vector<char*> argv;
+  for (std::string& a : all) argv.push_back(a.data());
+  argv.push_back(nullptr);
+  const pid_t pid = ::fork();
+  if (pid == 0) {  // only async-signal-safe calls until exec
+    const int fd = ::open(output.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+    if (fd >= 0) {
+      ::dup2(fd, 1);
+      ::dup2(fd, 2);
+    }
+    ::execv(program.c_str(), argv.data());
+    ::_exit(127);
+  }
+  return pid;
+}
+
+// The exit code of a started program (128 + the signal when one ended it; -1 when wait fails).
+inline int exit_code(pid_t pid) {
+  int status = 0;
+  if (::waitpid(pid, &status, 0) != pid) return -1;
+  return WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
 }
 
 }  // namespace cftest

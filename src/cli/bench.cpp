@@ -18,6 +18,7 @@
 #include "core/memory.h"
 #include "core/names.h"
 #include "core/reuse.h"
+#include "io/output_paths.h"
 #include "io/text_file.h"
 #include "md/md.h"
 #include "scene/scene.h"
@@ -117,15 +118,11 @@ std::pair<double, double> force_errors(const std::vector<double>& f, const std::
 
 // n doubles in the machine's byte order (little-endian on x86 and ARM), written whole or not at all.
 void save_doubles(const std::string& path, const std::vector<double>& v) {
-  const std::string tmp = path + ".partial";
-  std::FILE* f = std::fopen(tmp.c_str(), "wb");
-  if (!f) throw Error(path + ": cannot write the final configuration");
-  const bool ok = std::fwrite(v.data(), sizeof(double), v.size(), f) == v.size();
-  if (std::fclose(f) != 0 || !ok || std::rename(tmp.c_str(), path.c_str()) != 0) {
-    std::remove(tmp.c_str());
-    throw Error(path + ": cannot write the final configuration (disk full?)");
-  }
+  write_bytes_atomically(path, v.data(), v.size() * sizeof(double), "the final configuration");
 }
+
+// The prefix of the --save-final files of a size of n particles.
+std::string save_final_prefix(const BenchArgs& args, std::size_t n) { return args.save_final + "-" + std::to_string(n); }
 
 struct SizeResult {
   nlohmann::json row;
@@ -257,7 +254,7 @@ SizeResult bench_size(const BenchArgs& args, const EngineChoice& engine, int cel
       ctx.get_state(final_positions.data(), nullptr, final_forces.data());
     }  // the timed context's memory is given back before the reference needs its own
     if (!args.save_final.empty()) {
-      const std::string prefix = args.save_final + "-" + std::to_string(n);
+      const std::string prefix = save_final_prefix(args, n);
       save_doubles(prefix + ".positions.f64", final_positions);
       save_doubles(prefix + ".forces.f64", final_forces);
       row["saved"] = prefix;
@@ -326,6 +323,19 @@ int run_bench(const BenchArgs& args) {
   if (label.empty()) label = "default";
   if (engine.reuse.automatic && engine.reuse.list)
     throw Error("--neighbor-list: give a skin (--skin); without one the skin is auto, which chooses pair lists itself");
+  // Every file the bench will write is checked (and claimed) before the first size is timed; each
+  // is replaced when it exists, as a rerun of the bench expects.
+  std::vector<OutputFile> outputs = {{args.json, "--json", true}};
+  if (!args.save_final.empty())
+    for (const int c : cells) {
+      const std::string prefix = save_final_prefix(args, std::size_t(4) * std::size_t(c) * std::size_t(c) * std::size_t(c));
+      // Two sizes that round to one fcc lattice write the same files, each in its turn.
+      if (std::none_of(outputs.begin(), outputs.end(), [&](const OutputFile& o) { return o.path == prefix + ".forces.f64"; })) {
+        outputs.push_back({prefix + ".positions.f64", "--save-final", true});
+        outputs.push_back({prefix + ".forces.f64", "--save-final", true});
+      }
+    }
+  const OutputClaim claim = claim_output_files(outputs, {}, "");
 
   const std::string reuse = engine.reuse.automatic ? ", skin auto"
                             : engine.reuse.skin > 0 ? ", skin " + fixed(engine.reuse.skin, "%g") +

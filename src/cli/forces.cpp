@@ -99,8 +99,8 @@ ForceField make_force_field(const ForcesArgs& args, const ConfigurationFile& inp
 int run_forces(const ForcesArgs& args) {
   if (args.out.empty()) throw Error("forces: --out is required");
   if (args.repeats < 1) throw Error("--repeats must be at least 1, got " + std::to_string(args.repeats));
-  check_output_files({{args.out, "--out", args.overwrite}}, {{args.input, "file"}},
-                     "replace it with --overwrite");
+  const OutputClaim claim = claim_output_files({{args.out, "--out", args.overwrite}}, {{args.input, "file"}},
+                                               "replace it with --overwrite");
   ConfigurationFile input = read_configuration(args.input, args.read);
   std::vector<uint32_t> type_of_species;
   const ForceField ff = make_force_field(args, input, type_of_species);

@@ -21,6 +21,8 @@
 #include "cli/run.h"
 #include "core/error.h"
 #include "core/memory.h"
+#include "io/output_paths.h"
+#include "io/text_file.h"
 #include "reference/brute_force.h"
 #include "scene/lattice.h"
 
@@ -44,6 +46,7 @@ struct EvaluateArgs {
 };
 
 int evaluate(const EvaluateArgs& args) {
+  const OutputClaim claim = claim_output_files({{args.json, "--json", true}}, {}, "");  // before the work
   const int ldim = lattice_dimension(args.lattice);
   check_particle_count(lattice_site_count(args.lattice, {args.cells, args.cells, ldim == 3 ? args.cells : 1}), ldim,
                        "--cells " + std::to_string(args.cells));
@@ -147,11 +150,7 @@ int evaluate(const EvaluateArgs& args) {
     out["max_force_error_abs"] = worst_abs;
     out["brute_force_force_rms"] = rms;
   }
-  if (!args.json.empty()) {
-    std::ofstream f(args.json);
-    if (!f) throw Error("cannot write '" + args.json + "'");
-    f << out.dump(2) << "\n";
-  }
+  if (!args.json.empty()) write_text_atomically(args.json, {out.dump(2)}, "the JSON summary");
   return 0;
 }
 

@@ -193,22 +193,24 @@ Scene scene_for(const RunArgs& args) {
   return scene;
 }
 
-// Every output is checked before anything is computed: a fresh run does not replace an earlier
-// one's outputs unless asked to; no output may be another output or an input.
-void check_outputs(const RunArgs& args, const Scene& scene, bool restart) {
+// Every output is checked, and claimed for this run, before anything is computed: a fresh run does
+// not replace an earlier one's outputs unless asked to; no output may be another output or an
+// input; a run whose outputs another run is writing (two runs started at once into one folder, or
+// two restarts of one run) is refused before it touches any file.
+OutputClaim claim_outputs(const RunArgs& args, const Scene& scene, bool restart) {
   const SceneOutput& output = scene.output;
   std::vector<InputFile> inputs;
   if (!args.scene.empty()) inputs.push_back({args.scene, "scene file"});
   if (scene.particles.source == ParticleSource::kFile) inputs.push_back({scene.particles.path, "[particles] path"});
   if (restart) inputs.push_back({args.restart, "--restart checkpoint"});
   const bool replace = restart || args.overwrite;
-  check_output_files({{output.thermo_file, args.thermo_file.empty() ? "[output] thermo_file" : "--thermo-file", replace},
-                      {output.trajectory, args.trajectory.empty() ? "[output] trajectory" : "--trajectory", replace},
-                      {output.checkpoint, "[output] checkpoint", replace}},
-                     inputs,
-                     "an earlier run's output: continue that run with --restart CHECKPOINT, or replace it with "
-                     "--overwrite",
-                     {{"--restart checkpoint", "[output] checkpoint"}});
+  return claim_output_files(
+      {{output.thermo_file, args.thermo_file.empty() ? "[output] thermo_file" : "--thermo-file", replace},
+       {output.trajectory, args.trajectory.empty() ? "[output] trajectory" : "--trajectory", replace},
+       {output.checkpoint, "[output] checkpoint", replace}},
+      inputs,
+      "an earlier run's output: continue that run with --restart CHECKPOINT, or replace it with --overwrite",
+      {{"--restart checkpoint", "[output] checkpoint"}});
 }
 
 // The engine for the scene, through the public API: the system and engine choices
@@ -278,6 +280,22 @@ void check_start(const Scene& scene, const MdState& state, const std::vector<dou
   check_stable_start(state, masses, scene.integrator.dt, scene.force_field, remedy);
 }
 
+// The trajectory's elements and the names of its species (the scene's types).
+H5mdOptions trajectory_options(const SceneOutput& output) {
+  H5mdOptions o;
+  o.velocities = output.velocities;
+  o.forces = output.forces;
+  o.observables = {"potential_energy", "kinetic_energy", "total_energy", "temperature", "pressure"};
+  o.creator_version = CELLFORCE_VERSION;
+  return o;
+}
+
+std::vector<std::string> type_names(const Scene& scene) {
+  std::vector<std::string> names;
+  for (const ParticleType& t : scene.force_field.types) names.push_back(t.name);
+  return names;
+}
+
 // The thermo CSV and the H5MD trajectory of a run. On a restart the thermo rows and trajectory
 // frames beyond the checkpoint are dropped (that part of the run is redone); the thermo file is
 // rewritten under a temporary name. The earlier files are read (and checked to reach the
@@ -307,18 +325,13 @@ class RunFiles {
       if (!*csv_) throw Error(output_.thermo_file + ": cannot write the thermo file");
     }
     if (!output_.trajectory.empty()) {
-      H5mdOptions o;
-      o.velocities = output_.velocities;
-      o.forces = output_.forces;
-      o.observables = {"potential_energy", "kinetic_energy", "total_energy", "temperature", "pressure"};
-      o.creator_version = CELLFORCE_VERSION;
+      H5mdOptions o = trajectory_options(output_);
       o.append = restart && std::filesystem::exists(output_.trajectory);
       if (restart && !o.append)
         std::printf("note: %s does not exist; it starts at step %lld\n", output_.trajectory.c_str(),
                     (long long)state.step);
-      std::vector<std::string> names;
-      for (const ParticleType& t : scene.force_field.types) names.push_back(t.name);
-      trajectory_ = std::make_unique<H5mdWriter>(output_.trajectory, state.config.box, state.config.types, names, o);
+      trajectory_ = std::make_unique<H5mdWriter>(output_.trajectory, state.config.box, state.config.types,
+                                                 type_names(scene), o);
       if (o.append) trajectory_->truncate_after(state.step);
     }
   }
@@ -430,7 +443,9 @@ int run_md(const RunArgs& args) {
   const Scene scene = scene_for(args);
   const bool restart = !args.restart.empty();
   const SceneOutput& output = scene.output;
-  check_outputs(args, scene, restart);
+  const OutputClaim claim = claim_outputs(args, scene, restart);
+  for (const std::string& leftover : claim.removed_leftovers())
+    std::printf("note: removed %s, left behind by a write that was killed\n", leftover.c_str());
 
   MdState state;
   std::size_t wrapped = 0;
@@ -439,6 +454,11 @@ int run_md(const RunArgs& args) {
   std::vector<double> masses(n);
   for (std::size_t i = 0; i < n; ++i) masses[i] = scene.masses[state.config.types[i]];
   with_context(scene.source, [&] { validate_system(state.config.view(), scene.force_field); });
+  // What the trajectory would refuse (type names too long for its attribute) is refused before
+  // any output is written.
+  if (!output.trajectory.empty())
+    H5mdWriter::check(output.trajectory, state.config.box, state.config.types, type_names(scene),
+                      trajectory_options(output));
   Context ctx = scene_context(scene, state.config.box);
 
   std::string minimize_line;

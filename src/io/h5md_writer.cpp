@@ -6,6 +6,7 @@
 #include <tuple>
 
 #include "core/error.h"
+#include "core/text.h"
 
 namespace cellforce {
 namespace {
@@ -57,6 +58,17 @@ void validate(const std::string& path, const Box& box, const std::vector<uint32_
                   " but " + std::to_string(species_names.size()) + " species names are given");
   for (const std::string& name : species_names)
     if (name.empty()) throw Error(path + ": a species name is empty");
+  // The names are one fixed-length string attribute (/particles/all/species names), each padded to
+  // the longest: HDF5 would refuse it only after the file was made.
+  if (const std::size_t bytes = h5::fixed_strings_bytes(species_names); bytes > h5::kMaxAttributeBytes) {
+    const auto longest = std::max_element(species_names.begin(), species_names.end(),
+                                          [](const std::string& a, const std::string& b) { return a.size() < b.size(); });
+    throw Error(path + ": the species (type) names need an HDF5 attribute of " + std::to_string(bytes) + " bytes (" +
+                std::to_string(species_names.size()) + " names padded to the longest, of " +
+                std::to_string(longest->size()) + " bytes: " + quote_excerpt(*longest, 24) +
+                "); an attribute holds at most " + std::to_string(h5::kMaxAttributeBytes) +
+                " bytes: shorten the type names");
+  }
   std::set<std::string> seen;
   for (const std::string& name : options.observables) {
     if (name.empty() || name == "." || name == ".." || name.find('/') != std::string::npos)
@@ -66,6 +78,11 @@ void validate(const std::string& path, const Box& box, const std::vector<uint32_
 }
 
 }  // namespace
+
+void H5mdWriter::check(const std::string& path, const Box& box, const std::vector<uint32_t>& species,
+                       const std::vector<std::string>& species_names, const H5mdOptions& options) {
+  validate(path, box, species, species_names, options);
+}
 
 H5mdWriter::H5mdWriter(const std::string& path, const Box& box, const std::vector<uint32_t>& species,
                        const std::vector<std::string>& species_names, const H5mdOptions& options)
@@ -256,6 +273,20 @@ void H5mdWriter::open_existing(const Box& box, const std::vector<uint32_t>& spec
   }
 }
 
+std::uint64_t H5mdWriter::frame_bytes_bound() const {
+  // Per-particle datasets: one frame per chunk, split over particles beyond kChunkBytes; deflate
+  // may grow incompressible data by 0.1% and some bytes a chunk. The series datasets write a whole
+  // chunk (kSeriesChunk rows) when a frame starts one. The rest covers the chunk indexes' new
+  // nodes and the object headers HDF5 may move.
+  const std::uint64_t frame = std::uint64_t(n_) * std::uint64_t(dim_) * sizeof(double);
+  const std::uint64_t chunks = frame / kChunkBytes + 2;
+  const std::uint64_t per_particle = frame + frame / 100 + chunks * 1024;
+  const std::uint64_t elements = 1 + (velocities_ ? 1 : 0) + (forces_ ? 1 : 0);
+  const std::uint64_t series_row = sizeof(int64_t) + sizeof(double) + std::uint64_t(dim_) * sizeof(double) +
+                                   observables_.size() * sizeof(double);
+  return elements * per_particle + kSeriesChunk * series_row + (std::uint64_t(256) << 10);
+}
+
 std::vector<hid_t> H5mdWriter::growing() const {
   std::vector<hid_t> sets = {step_.get(), time_.get(), position_.get(), edges_value_.get()};
   if (velocities_) sets.push_back(velocity_.get());
@@ -293,6 +324,11 @@ void H5mdWriter::write_frame(int64_t step, double time, const double* positions,
     throw Error(path_ + ": frame at step " + std::to_string(step) + " has time " + std::to_string(time) +
                 ", before the last stored frame's " + std::to_string(last_time_));
 
+  // Room for the whole frame first: a disk that is full (or would fill during the frame) fails
+  // here, before any dataset changes, and the file keeps its frames whole. Without the room, HDF5
+  // would fail part way through its writes and leave datasets of unequal length, or a file whose
+  // header claims more bytes than were written (unreadable).
+  file_->reserve(frame_bytes_bound());
   // Grow every dataset first, then write: a failure part way shrinks them all back, so their
   // lengths never disagree.
   const hsize_t row = frames_;
@@ -308,6 +344,7 @@ void H5mdWriter::write_frame(int64_t step, double time, const double* positions,
     for (std::size_t k = 0; k < observables_.size(); ++k)
       h5::write_row(observable_values_[k].get(), row, H5T_NATIVE_DOUBLE, &observable_values[k], path_);
     file_->flush();
+    file_->trim();
   } catch (const std::exception& e) {
     // Undo the growth. After a failed write to disk HDF5 may be unable to shrink a dataset whose
     // new chunk it could not store; the writer then refuses further frames, and reopening the

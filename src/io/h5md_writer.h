@@ -87,6 +87,12 @@ class H5mdWriter {
   std::size_t dropped_incomplete_frames() const { return dropped_incomplete_; }
   const std::string& path() const { return path_; }
 
+  // Refuses, as the constructor would, what cannot be written (a box of another dimension, a
+  // species without a name, names too long for an HDF5 attribute, bad observable names), without
+  // touching the file: a run checks this before it writes any of its outputs. Errors name `path`.
+  static void check(const std::string& path, const Box& box, const std::vector<uint32_t>& species,
+                    const std::vector<std::string>& species_names, const H5mdOptions& options);
+
   // The particles group's name: /particles/all.
   static constexpr const char* kGroup = "all";
 
@@ -101,6 +107,8 @@ class H5mdWriter {
                      const std::vector<std::string>& species_names, const H5mdOptions& options);
   // Every dataset that grows by one row per frame (step and time once: they are shared).
   std::vector<hid_t> growing() const;
+  // More bytes than one frame can add to the file (reserved before it is written).
+  std::uint64_t frame_bytes_bound() const;
   // Throws when the file is closed or a failed write could not be undone.
   void require_writable() const;
 

@@ -1,5 +1,7 @@
 #include "io/hdf5.h"
 
+#include <fcntl.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -11,11 +13,11 @@
 #include <functional>
 #include <limits>
 #include <numeric>
-#include <random>
 
 #include "core/error.h"
 #include "core/memory.h"
 #include "core/text.h"
+#include "io/output_paths.h"
 
 namespace cellforce::h5 {
 namespace {
@@ -44,6 +46,13 @@ void quiet() {
   throw Error(where + ": " + what);
 }
 
+std::string errno_reason(int code) {
+  if (code == ENOSPC) return "no space left on the device (the disk is full)";
+  if (code == EDQUOT) return "the disk quota is exceeded";
+  if (code == EFBIG) return "the file is larger than the system allows";
+  return std::strerror(code);
+}
+
 // The operating system's reason for the HDF5 call that just failed, from HDF5's error stack (its
 // POSIX file driver records errno in the message of a failed read, write or truncate: "...,
 // errno = 28, error message = 'No space left on device', ..."); empty when the stack names none.
@@ -58,11 +67,53 @@ std::string system_reason() {
         return 0;
       },
       &code);
-  if (code == ENOSPC) return "no space left on the device (the disk is full)";
-  if (code == EDQUOT) return "the disk quota is exceeded";
-  if (code == EFBIG) return "the file is larger than the system allows";
-  if (code != 0) return std::strerror(code);
-  return {};
+  return code != 0 ? errno_reason(code) : std::string();
+}
+
+// The description of the first entry of HDF5's error stack that contains `needle`; empty if none.
+std::string stack_entry(const char* needle) {
+  struct Search {
+    const char* needle;
+    std::string found;
+  } search{needle, {}};
+  H5Ewalk2(
+      H5E_DEFAULT, H5E_WALK_DOWNWARD,
+      [](unsigned, const H5E_error2_t* e, void* data) -> herr_t {
+        Search& s = *static_cast<Search*>(data);
+        if (s.found.empty() && e->desc && std::strstr(e->desc, s.needle)) s.found = e->desc;
+        return 0;
+      },
+      &search);
+  return search.found;
+}
+
+// The number after `key` in `text` ("eof = 1234"), or -1.
+long long number_after(const std::string& text, const std::string& key) {
+  const std::size_t at = text.find(key);
+  return at == std::string::npos ? -1 : std::atoll(text.c_str() + at + key.size());
+}
+
+// Why H5Fopen refused an existing HDF5 file, from its error stack: a file cut short, a file that
+// another process holds open for writing (HDF5 locks a file while a writer has it open), or the
+// system's reason.
+std::string open_failure(const std::string& path) {
+  const std::string truncated = stack_entry("truncated file");
+  if (!truncated.empty()) {
+    const long long eof = number_after(truncated, "eof = "), stored = number_after(truncated, "stored_eof = ");
+    return "the file is truncated: it holds " + (eof >= 0 ? std::to_string(eof) : std::string("fewer")) +
+           " bytes, its header says " + (stored >= 0 ? std::to_string(stored) : std::string("more")) +
+           " (a copy or a write that was cut short?)";
+  }
+  if (!stack_entry("unable to lock").empty() || !stack_entry("lock file").empty()) {
+    const long holder = claim_holder(path);
+    if (holder > 0)
+      return "the file is in use: a running cellforce run (process " + std::to_string(holder) +
+             ") is writing it; read it when that run has ended, or read a copy";
+    return "the file is locked by another process that has it open for writing (HDF5 file locking); read it "
+           "when that process has closed it, or read a copy";
+  }
+  const std::string reason = system_reason();
+  return reason.empty() ? std::string() : reason;
 }
 
 // fail() for an HDF5 call that returned an error: the system's reason is added when HDF5 names one.
@@ -202,14 +253,23 @@ void write_attribute_raw(hid_t obj, const std::string& name, hid_t type, hid_t s
   check_status(H5Awrite(attr.get(), type, data), where, "cannot write attribute '" + name + "'");
 }
 
+// The length of each fixed-length string: the longest value's (HDF5 has no strings of size 0).
+std::size_t fixed_string_size(const std::vector<std::string>& values) {
+  std::size_t size = 1;
+  for (const std::string& v : values) size = std::max(size, v.size());
+  return size;
+}
+
 void write_fixed_strings(hid_t obj, const std::string& name, const std::vector<std::string>& values,
                          const std::vector<hsize_t>& shape, const std::string& where) {
-  std::size_t size = 1;  // HDF5 has no strings of size 0
+  const std::size_t size = fixed_string_size(values);
+  if (fixed_strings_bytes(values) > kMaxAttributeBytes)
+    fail(where, "attribute '" + name + "' would hold " + std::to_string(fixed_strings_bytes(values)) + " bytes (" +
+                    std::to_string(values.size()) + " strings padded to the longest, " + std::to_string(size) +
+                    " bytes); an HDF5 attribute holds at most " + std::to_string(kMaxAttributeBytes));
   bool ascii = true;
-  for (const std::string& v : values) {
-    size = std::max(size, v.size());
+  for (const std::string& v : values)
     for (const char c : v) ascii = ascii && static_cast<unsigned char>(c) < 0x80;
-  }
   Handle type(check(H5Tcopy(H5T_C_S1), where, "cannot create a string type"));
   check_status(H5Tset_size(type.get(), size), where, "cannot create a string type");
   check_status(H5Tset_strpad(type.get(), H5T_STR_NULLPAD), where, "cannot create a string type");
@@ -223,6 +283,10 @@ void write_fixed_strings(hid_t obj, const std::string& name, const std::vector<s
 }
 
 }  // namespace
+
+std::size_t fixed_strings_bytes(const std::vector<std::string>& values) {
+  return fixed_string_size(values) * std::max<std::size_t>(values.size(), 1);
+}
 
 void Handle::reset() {
   if (id_ < 0) return;
@@ -256,7 +320,10 @@ File File::open_read(const std::string& path) {
   if (!std::filesystem::exists(path)) fail(path, "no such file");
   if (!is_hdf5(path)) fail(path, "not an HDF5 file");
   const hid_t id = H5Fopen(path.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
-  if (id < 0) fail(path, "cannot open the HDF5 file");
+  if (id < 0) {
+    const std::string reason = open_failure(path);
+    fail(path, "cannot open the HDF5 file" + (reason.empty() ? std::string() : ": " + reason));
+  }
   return File(Handle(id), path);
 }
 
@@ -266,7 +333,7 @@ File File::open_read_write(const std::string& path) {
   if (!is_hdf5(path)) fail(path, "not an HDF5 file");
   const hid_t id = H5Fopen(path.c_str(), H5F_ACC_RDWR, H5P_DEFAULT);
   if (id < 0) {
-    const std::string reason = system_reason();
+    const std::string reason = open_failure(path);
     fail(path, "cannot open the HDF5 file for writing" +
                    (reason.empty() ? std::string(" (is it read-only, or open in another program?)") : ": " + reason));
   }
@@ -282,6 +349,48 @@ bool File::is_hdf5(const std::string& path) {
 void File::flush() {
   if (!handle_.valid()) fail(path_, "the HDF5 file is closed");
   if (H5Fflush(handle_.get(), H5F_SCOPE_GLOBAL) < 0) fail_call(path_, "cannot write the HDF5 file");
+}
+
+namespace {
+
+// The file descriptor of an HDF5 file opened with the default (POSIX) driver; -1 for another.
+int descriptor(hid_t file) {
+  const Handle fapl(H5Fget_access_plist(file));
+  if (!fapl.valid() || H5Pget_driver(fapl.get()) != H5FD_SEC2) return -1;
+  void* handle = nullptr;
+  if (H5Fget_vfd_handle(file, fapl.get(), &handle) < 0 || !handle) return -1;
+  return *static_cast<int*>(handle);
+}
+
+}  // namespace
+
+void File::reserve(std::uint64_t bytes) {
+  if (!handle_.valid()) fail(path_, "the HDF5 file is closed");
+  haddr_t eoa = 0;
+  const int fd = descriptor(handle_.get());
+  if (fd < 0 || H5Fget_eoa(handle_.get(), &eoa) < 0) return;  // nothing to reserve with
+  struct stat st {};
+  if (::fstat(fd, &st) != 0) return;
+  const off_t end = off_t(eoa + bytes);
+  if (end <= st.st_size) return;
+  const int code = ::posix_fallocate(fd, st.st_size, end - st.st_size);
+  if (code == 0) return;
+  if (::ftruncate(fd, st.st_size) != 0) {
+    // The file keeps a longer end of zeros, which HDF5 ignores.
+  }
+  if (code == EOPNOTSUPP || code == ENOSYS || code == EINVAL) return;  // no reservation on this file system
+  fail(path_, "cannot write the HDF5 file: " + errno_reason(code));
+}
+
+void File::trim() {
+  if (!handle_.valid()) return;
+  haddr_t eoa = 0;
+  const int fd = descriptor(handle_.get());
+  struct stat st {};
+  if (fd < 0 || H5Fget_eoa(handle_.get(), &eoa) < 0 || ::fstat(fd, &st) != 0 || off_t(eoa) >= st.st_size) return;
+  if (::ftruncate(fd, off_t(eoa)) != 0) {
+    // The unused room stays at the end of the file, which HDF5 ignores.
+  }
 }
 
 void File::close() {
@@ -300,7 +409,7 @@ void File::close() {
 void write_file_atomically(const std::string& path, const std::function<void(hid_t root)>& fill) {
   // A name no other run uses, created exclusively, so that concurrent runs and a user's own files
   // beside `path` are never overwritten.
-  const std::string tmp = path + ".partial-" + std::to_string(::getpid()) + "-" + std::to_string(std::random_device{}());
+  const std::string tmp = partial_name(path);
   try {
     File file = File::create(tmp, /*exclusive=*/true, path);
     fill(file.id());
@@ -428,10 +537,10 @@ std::vector<hsize_t> dataset_shape(hid_t set, const std::string& where, std::vec
 void set_rows(hid_t set, hsize_t rows, const std::string& where) {
   quiet();
   std::vector<hsize_t> shape = dataset_shape(set, where);
-  if (shape.empty()) fail(where, "'" + object_path(set) + "' is a scalar; it has no rows");
+  const std::string name = object_path(set);
+  if (shape.empty()) fail(where, "'" + name + "' is a scalar; it has no rows");
   shape[0] = rows;
-  check_status(H5Dset_extent(set, shape.data()), where,
-               "cannot resize '" + object_path(set) + "' to " + std::to_string(rows) + " rows");
+  check_status(H5Dset_extent(set, shape.data()), where, "cannot resize '" + name + "' to " + std::to_string(rows) + " rows");
 }
 
 void write_row(hid_t set, hsize_t row, hid_t mem_type, const void* values, const std::string& where) {

@@ -66,6 +66,12 @@ class File {
   bool is_open() const { return handle_.valid(); }
   // Writes every buffer to the file (H5Fflush): what was written so far survives the process.
   void flush();
+  // Sets aside room for `bytes` more bytes past the file's allocated end (posix_fallocate), so
+  // that the writes that use it cannot fail for want of space: a full disk (or a file-size
+  // limit) fails here, before anything changes, with the system's reason. trim() gives back what
+  // was not used (after a flush: the file then ends where HDF5's allocation ends).
+  void reserve(std::uint64_t bytes);
+  void trim();
   // Flushes and closes; errors surface here rather than in a destructor.
   void close();
 
@@ -149,6 +155,14 @@ void write_attribute(hid_t obj, const std::string& name, const std::vector<doubl
                      const std::string& where);
 void write_attribute(hid_t obj, const std::string& name, const std::vector<std::string>& value,
                      const std::string& where);
+
+// The most bytes of data one attribute may hold here: HDF5 stores an attribute in its object's
+// header, whose messages hold at most 64 KiB (65,484 bytes of data with HDF5 1.10; the name, type
+// and shape take the rest), and fails only when the attribute is written.
+inline constexpr std::size_t kMaxAttributeBytes = 64512;
+// The bytes of data of write_fixed_string_attribute's attribute for `values`: each is padded to
+// the longest.
+std::size_t fixed_strings_bytes(const std::vector<std::string>& values);
 
 // Fixed-length, null-padded strings (ASCII, or UTF-8 when a value needs it), as the H5MD
 // specification asks of its string attributes; the other write_attribute overloads for strings
