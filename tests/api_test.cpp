@@ -391,6 +391,30 @@ TEST(CApi, BadInputGivesAStatusAndAMessageNamingIt) {
   cf_destroy(c);
 }
 
+// Choice names are read in any letter case, as the command line and scene files read them.
+TEST(Api, NamesInAnyLetterCase) {
+  cf::Context ctx(3);
+  ctx.set_option("backend", "CPU");
+  EXPECT_EQ(ctx.backend_name(), "cpu");
+  ctx.set_option("backend", "Auto");
+  ctx.set_option("backend", "cpu");
+  EXPECT_EQ(ctx.backend_name(), "cpu");
+  EXPECT_NO_THROW(ctx.set_option("precision", "Double"));
+  EXPECT_NO_THROW(ctx.set_option("skin", "AUTO"));
+  EXPECT_NO_THROW(ctx.set_option("neighbor-check", "True"));
+  // The keys are as documented: a key in another case is unknown.
+  EXPECT_THROW(ctx.set_option("Backend", "cpu"), cf::Error);
+
+  cf_context* c = nullptr;
+  ASSERT_EQ(cf_create(&c, 3), CF_OK);
+  EXPECT_EQ(cf_set_option(c, "backend", "Cpu"), CF_OK) << cf_last_error(c);
+  EXPECT_EQ(cf_set_option(c, "cutoff-mode", "FORCE-SHIFT"), CF_OK) << cf_last_error(c);
+  EXPECT_EQ(cf_set_cutoff(c, 2.5, "Shift"), CF_OK) << cf_last_error(c);
+  EXPECT_EQ(cf_set_option(c, "backend", "gpu"), CF_ERROR_INPUT);
+  EXPECT_THAT(cf_last_error(c), HasSubstr("'gpu' is not one of auto, cpu or cuda"));
+  cf_destroy(c);
+}
+
 TEST(CApi, FailedComputeLeavesTheOutputsUnwritten) {
   cf_context* c = ready_context();
   const double pos[6] = {1, 1, 1, std::nan(""), 1, 1};

@@ -279,7 +279,7 @@ void Context::set_option(std::string_view key, std::string_view value) {
   } else if (key == "cutoff-mode") {
     impl_->ff.mode = parse_option(key, value, kCutoffModeNames);
   } else if (key == "skin") {
-    if (value == "auto") {
+    if (same_name(value, "auto")) {
       c.reuse.automatic = true;  // skin and lists from the rule; a later skin length restores the caller's
       c.reuse.skin = 0.0;
       impl_->engine_changed();
@@ -288,8 +288,8 @@ void Context::set_option(std::string_view key, std::string_view value) {
     }
   } else if (key == "neighbor-check" || key == "neighbor-audit" || key == "neighbor-list") {
     bool v = false;
-    if (value == "true") v = true;
-    else if (value != "false")
+    if (same_name(value, "true")) v = true;
+    else if (!same_name(value, "false"))
       throw Error("option " + std::string(key) + ": " + quote_excerpt(std::string(value)) + " is not true or false");
     ReuseOptions reuse = c.reuse;
     (key == "neighbor-check" ? reuse.check : key == "neighbor-audit" ? reuse.audit : reuse.list) = v;
