@@ -353,6 +353,8 @@ TEST(CApi, BadInputGivesAStatusAndAMessageNamingIt) {
   expect(cf_set_option(c, "backend", "opencl"), c, {CF_ERROR_INPUT, "is not one of auto, cpu or cuda"});
   expect(cf_set_option(c, "skin", "-0.3"), c, {CF_ERROR_INPUT, "skin -0.3"});
   expect(cf_set_option(c, "skin", "thick"), c, {CF_ERROR_INPUT, "option skin: 'thick' is not auto or a number"});
+  expect(cf_set_option(c, "skin", "1e400"), c, {CF_ERROR_INPUT, "option skin: '1e400' is out of range"});
+  expect(cf_set_option(c, "device", "99999999999"), c, {CF_ERROR_INPUT, "option device: '99999999999' is out of range"});
   expect(cf_set_option(c, "device", "-1"), c, {CF_ERROR_INPUT, "device -1"});
   expect(cf_set_option(c, "memory", "tiny"), c,
          {CF_ERROR_INPUT, "option memory: 'tiny' is not one of auto, fast or lean"});

@@ -4,7 +4,6 @@
 #include <cellforce/cellforce.hpp>
 
 #include <algorithm>
-#include <charconv>
 #include <cmath>
 #include <cstring>
 #include <optional>
@@ -16,6 +15,7 @@
 #include "core/error.h"
 #include "core/force_field.h"
 #include "core/names.h"
+#include "core/numbers.h"
 #include "core/system.h"
 #include "core/text.h"
 
@@ -40,8 +40,9 @@ E parse_option(std::string_view key, std::string_view value, const Named<E> (&ta
 
 double parse_number(std::string_view key, std::string_view value, const char* expected = "a number") {
   double v = 0;
-  const auto [end, ec] = std::from_chars(value.data(), value.data() + value.size(), v);
-  if (ec != std::errc() || end != value.data() + value.size() || value.empty())
+  const NumberText r = read_real(value, v);
+  if (r == NumberText::kOutOfRange) throw Error("option " + std::string(key) + ": " + real_problem(value, r));
+  if (r != NumberText::kOk)
     throw Error("option " + std::string(key) + ": " + quote_excerpt(std::string(value)) + " is not " + expected);
   return v;
 }
@@ -49,8 +50,9 @@ double parse_number(std::string_view key, std::string_view value, const char* ex
 template <class Int = int>
 Int parse_int(std::string_view key, std::string_view value) {
   Int v = 0;
-  const auto [end, ec] = std::from_chars(value.data(), value.data() + value.size(), v);
-  if (ec != std::errc() || end != value.data() + value.size() || value.empty())
+  const NumberText r = read_decimal(value, v);
+  if (r == NumberText::kOutOfRange) throw Error("option " + std::string(key) + ": " + integer_problem<Int>(value, r));
+  if (r != NumberText::kOk)
     throw Error("option " + std::string(key) + ": " + quote_excerpt(std::string(value)) + " is not an integer");
   return v;
 }

@@ -1,7 +1,6 @@
 #include "cli/forces.h"
 
 #include <chrono>
-#include <charconv>
 #include <cmath>
 #include <cstdio>
 #include <map>

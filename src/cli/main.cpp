@@ -5,7 +5,6 @@
 // pipeline's counts and its stage times, optionally next to the O(n^2) brute force.
 #include <CLI/CLI.hpp>
 #include <algorithm>
-#include <charconv>
 #include <csignal>
 #include <chrono>
 #include <cmath>
