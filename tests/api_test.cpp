@@ -415,6 +415,8 @@ TEST(CApi, BadInputGivesAStatusAndAMessageNamingIt) {
   expect(cf_set_option(c, "backend", "opencl"), c, {CF_ERROR_INPUT, "is not one of auto, cpu or cuda"});
   expect(cf_set_option(c, "skin", "-0.3"), c, {CF_ERROR_INPUT, "skin -0.3"});
   expect(cf_set_option(c, "skin", "thick"), c, {CF_ERROR_INPUT, "option skin: 'thick' is not auto or a number"});
+  expect(cf_set_option(c, "skin", "1e400"), c, {CF_ERROR_INPUT, "option skin: '1e400' is out of range"});
+  expect(cf_set_option(c, "device", "99999999999"), c, {CF_ERROR_INPUT, "option device: '99999999999' is out of range"});
   expect(cf_set_option(c, "device", "-1"), c, {CF_ERROR_INPUT, "device -1"});
   expect(cf_set_option(c, "memory", "tiny"), c,
          {CF_ERROR_INPUT, "option memory: 'tiny' is not one of auto, fast or lean"});
@@ -450,6 +452,30 @@ TEST(CApi, BadInputGivesAStatusAndAMessageNamingIt) {
   EXPECT_STREQ(cf_last_error(c), "");
   EXPECT_EQ(cf_compute(c, 4, pos, nullptr, f, &e, nullptr), CF_OK) << cf_last_error(c);
   EXPECT_TRUE(std::isfinite(e));
+  cf_destroy(c);
+}
+
+// Choice names are read in any letter case, as the command line and scene files read them.
+TEST(Api, NamesInAnyLetterCase) {
+  cf::Context ctx(3);
+  ctx.set_option("backend", "CPU");
+  EXPECT_EQ(ctx.backend_name(), "cpu");
+  ctx.set_option("backend", "Auto");
+  ctx.set_option("backend", "cpu");
+  EXPECT_EQ(ctx.backend_name(), "cpu");
+  EXPECT_NO_THROW(ctx.set_option("precision", "Double"));
+  EXPECT_NO_THROW(ctx.set_option("skin", "AUTO"));
+  EXPECT_NO_THROW(ctx.set_option("neighbor-check", "True"));
+  // The keys are as documented: a key in another case is unknown.
+  EXPECT_THROW(ctx.set_option("Backend", "cpu"), cf::Error);
+
+  cf_context* c = nullptr;
+  ASSERT_EQ(cf_create(&c, 3), CF_OK);
+  EXPECT_EQ(cf_set_option(c, "backend", "Cpu"), CF_OK) << cf_last_error(c);
+  EXPECT_EQ(cf_set_option(c, "cutoff-mode", "FORCE-SHIFT"), CF_OK) << cf_last_error(c);
+  EXPECT_EQ(cf_set_cutoff(c, 2.5, "Shift"), CF_OK) << cf_last_error(c);
+  EXPECT_EQ(cf_set_option(c, "backend", "gpu"), CF_ERROR_INPUT);
+  EXPECT_THAT(cf_last_error(c), HasSubstr("'gpu' is not one of auto, cpu or cuda"));
   cf_destroy(c);
 }
 

@@ -135,8 +135,8 @@ void expect_holds(const std::string& p, const std::vector<Source>& frames) {
         EXPECT_EQ(r.config.box.periodic[a], run.box.periodic[a]);
       }
       ASSERT_EQ(r.config.size(), run.n());
-      for (std::size_t i = 0; i < run.n(); ++i)  // read_h5md names species by their integer
-        EXPECT_EQ(r.species[r.config.types[i]], std::to_string(run.species[i]));
+      for (std::size_t i = 0; i < run.n(); ++i)  // read_h5md names species by the names stored
+        EXPECT_EQ(r.species[r.config.types[i]], run.names[run.species[i]]);
     }
   }
   h5::File f = h5::File::open_read(p);

@@ -9,11 +9,13 @@
 #include <filesystem>
 #include <fstream>
 #include <functional>
+#include <tuple>
 
 #include "cli/forces.h"
 #include "core/error.h"
 #include "core/names.h"
 #include "io/configuration_file.h"
+#include "io/h5md_writer.h"
 #include "io/hdf5.h"
 #include "oracle.h"
 #include "reference/brute_force.h"
@@ -162,6 +164,41 @@ TEST_F(ExtXyz, MalformedFilesNameTheLineAndParticle) {
   EXPECT_THAT(error_of([&] { read_extxyz(path("missing.xyz")); }), HasSubstr("cannot open"));
 }
 
+// A column named twice in Properties is refused by its name (it read the last one before).
+TEST_F(ExtXyz, PropertiesNamingAColumnTwiceAreRefused) {
+  const std::string lat = "Lattice=\"5 0 0 0 5 0 0 0 5\" ";
+  for (const auto& [properties, row, name] : std::vector<std::tuple<std::string, std::string, std::string>>{
+           {"species:S:1:pos:R:3:pos:R:3", "A 0 0 0 1 1 1", "'pos'"},
+           {"species:S:1:pos:R:3:species:S:1", "A 0 0 0 B", "'species'"},
+           {"species:S:1:pos:R:3:mass:R:1:MASS:R:1", "A 0 0 0 1 2", "'MASS'"}}) {
+    SCOPED_TRACE(properties);
+    const std::string p = write("twice.xyz", "1\n" + lat + "Properties=" + properties + "\n" + row + "\n");
+    const std::string message = error_of([&] { read_extxyz(p); });
+    EXPECT_THAT(message, HasSubstr("twice.xyz:2: Properties: " + name + " is described twice"));
+  }
+}
+
+// A coordinate beyond a double's range is "out of range", not "not a number"; a compressed file's
+// bytes are escaped and named as compressed; a long file name is cut.
+TEST_F(ExtXyz, MessagesNameTheRealCause) {
+  const std::string lat = "Lattice=\"5 0 0 0 5 0 0 0 5\"";
+  const std::string big = error_of([&] { read_extxyz(write("big.xyz", "1\n" + lat + "\nA 1 1e400 1\n")); });
+  EXPECT_THAT(big, HasSubstr("big.xyz:3: particle 0: coordinate y: '1e400' is out of range"));
+  EXPECT_THAT(big, ::testing::Not(HasSubstr("not a number")));
+  EXPECT_THAT(error_of([&] { read_extxyz(write("lat.xyz", "1\nLattice=\"5 0 0 0 -1e999 0 0 0 5\"\nA 1 1 1\n")); }),
+              HasSubstr("Lattice: '-1e999' is out of range"));
+  // Below the smallest double: 0, as Python reads it.
+  EXPECT_EQ(read_extxyz(write("tiny.xyz", "1\n" + lat + "\nA 1 1e-400 1\n")).config.positions[1], 0.0);
+  const std::string gz = error_of(
+      [&] { read_extxyz(write("conf.xyz", std::string("\x1F\x8B\x08\x08\x8B\x9C\xFE\x5A\x00\x03\x63\x6F", 12))); });
+  EXPECT_THAT(gz, HasSubstr("conf.xyz:1: expected a particle count, found '\\x1F\\x8B\\x08\\x08\\x8B\\x9C\\xFE"));
+  EXPECT_THAT(gz, HasSubstr("gzip signature: compressed?"));
+  const std::string missing = error_of([&] { read_configuration(path(std::string(100000, 'q') + ".xyz")); });
+  EXPECT_THAT(missing, HasSubstr("cannot open the file"));
+  EXPECT_THAT(missing, HasSubstr("bytes)"));
+  EXPECT_LT(missing.size(), 400u);
+}
+
 // ---- H5MD ------------------------------------------------------------------------------------------
 
 using H5md = TempDir;
@@ -223,6 +260,50 @@ TEST_F(H5md, ReadsTheFrameTheBoxAndTheSpecies) {
   for (std::size_t i = 0; i < a.size(); ++i)
     EXPECT_EQ(r.species[r.config.types[i]], a.types[i] == 0 ? "7" : "3");
   for (int ax = 0; ax < 3; ++ax) EXPECT_TRUE(r.config.box.periodic[ax]);
+}
+
+// A trajectory that cellforce writes reads back with its type names: the species' attribute names
+// (species k is names[k]) names them, and the type indices are the written ones.
+TEST_F(H5md, TrajectoryReadsBackWithItsTypeNames) {
+  const Configuration c = two_species_liquid(3, 8);
+  std::vector<uint32_t> species(c.types.begin(), c.types.end());
+  ASSERT_EQ(species[0], 0u);  // the first particle's type first: the read order equals the written
+  const std::string p = path("traj.h5");
+  {
+    H5mdWriter w(p, c.box, species, {"Ar", "Kr"}, H5mdOptions{});
+    w.write_frame(0, 0.0, c.positions.data(), nullptr, nullptr, {});
+    w.close();
+  }
+  const ConfigurationFile r = read_configuration(p);
+  EXPECT_EQ(r.species, (std::vector<std::string>{"Ar", "Kr"}));
+  ASSERT_EQ(r.config.types.size(), species.size());
+  EXPECT_EQ(r.config.types, species);
+  EXPECT_EQ(r.config.positions, c.positions);
+
+  // Written in the other order (Kr first), each particle keeps its name.
+  std::vector<uint32_t> swapped = species;
+  for (uint32_t& t : swapped) t = 1 - t;
+  const std::string q = path("swapped.h5");
+  {
+    H5mdWriter w(q, c.box, swapped, {"Kr", "Ar"}, H5mdOptions{});
+    w.write_frame(0, 0.0, c.positions.data(), nullptr, nullptr, {});
+    w.close();
+  }
+  const ConfigurationFile s = read_h5md(q);
+  for (std::size_t i = 0; i < species.size(); ++i)
+    ASSERT_EQ(s.species[s.config.types[i]], species[i] == 0 ? "Ar" : "Kr") << "particle " << i;
+
+  // A species index beyond the names is refused, naming the particle.
+  {
+    h5::File f = h5::File::open_read_write(q);
+    h5::Handle set = h5::open_dataset(f.id(), "particles/all/species", q);
+    H5Adelete(set.get(), "names");
+    h5::write_attribute(set.get(), "names", std::vector<std::string>{"Kr"}, q);
+    f.close();
+  }
+  const std::size_t first_ar = std::size_t(std::find(swapped.begin(), swapped.end(), 1u) - swapped.begin());
+  EXPECT_THAT(error_of([&] { read_h5md(q); }),
+              HasSubstr("species: particle " + std::to_string(first_ar) + " has species 1, but the attribute names holds 1 names"));
 }
 
 TEST_F(H5md, TwoDimensionsOpenAxesAndNoSpecies) {
@@ -480,6 +561,7 @@ TEST_F(ForcesCommand, BadInputNamesTheCauseAndWritesNothing) {
       {"species without type", two, {"A:1:1", "B:1:1"}, {}, 2.5, {"particle 2 has species 'C'", "no --type"}},
       {"malformed type", two, {"A:1"}, {}, 2.5, {"--type A:1", "NAME:SIGMA:EPSILON"}},
       {"type number", two, {"A:one:1"}, {}, 2.5, {"'one' is not a number"}},
+      {"type number out of range", two, {"A:1e400:1"}, {}, 2.5, {"--type 'A:1e400:1': '1e400' is out of range"}},
       {"duplicate type", two, {"A:1:1", "A:1:2"}, {}, 2.5, {"type 'A' is given twice"}},
       {"negative sigma", two, {"A:-1:1", "B:1:1", "C:1:1"}, {}, 2.5, {"A", "sigma"}},
       {"pair type", two, {"A:1:1", "B:1:1", "C:1:1"}, {"A:D:1:1"}, 2.5, {"--pair A:D:1:1", "type 'D'"}},

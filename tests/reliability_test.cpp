@@ -783,6 +783,24 @@ TEST_F(Folder, BenchAndEvaluateRefuseAMissingOutputFolderBeforeTheWork) {
   EXPECT_THAT(log, Not(HasSubstr("cellforce evaluate:")));
 }
 
+// Bytes that are no UTF-8 (a compressed or binary file's) are escaped, well-formed characters kept;
+// a file name is shown as given when short and plain, else cut and escaped; a compressed file's
+// signature gives a hint.
+TEST(Text, BinaryBytesPathsAndCompressedFiles) {
+  EXPECT_EQ(quote_excerpt(std::string("\x1F\x8B\x08\x00", 4)), "'\\x1F\\x8B\\x08\\0'");
+  EXPECT_EQ(quote_excerpt("\xC3\xA4\xC3"), "'\xC3\xA4\\xC3'");           // a cut character
+  EXPECT_EQ(quote_excerpt("\xE2\x82\xAC \xED\xA0\x80"), "'\xE2\x82\xAC \\xED\\xA0\\x80'");  // euro; a surrogate
+  EXPECT_EQ(quote_excerpt("\xF0\x9F\x99\x82"), "'\xF0\x9F\x99\x82'");  // outside the BMP
+  EXPECT_EQ(display_path("runs/Ärger.toml"), "runs/Ärger.toml");
+  EXPECT_EQ(display_path("a\nb"), "'a\\nb'");
+  const std::string long_name = display_path(std::string(100000, 'p'));
+  EXPECT_LT(long_name.size(), 260u);
+  EXPECT_THAT(long_name, HasSubstr("... (100000 bytes)"));
+  EXPECT_THAT(compressed_hint("\x1F\x8B\x08"), HasSubstr("gzip signature: compressed?"));
+  EXPECT_THAT(compressed_hint("\x28\xB5\x2F\xFD"), HasSubstr("zstd"));
+  EXPECT_EQ(compressed_hint("3\nLattice"), "");
+}
+
 TEST(Text, ExcerptsAndNumbers) {
   EXPECT_EQ(quote_excerpt("\xEF\xBB\xBF" "4"), "'\\uFEFF4'");
   EXPECT_EQ(quote_excerpt(std::string("a\0b\t\x01", 5)), "'a\\0b\\t\\x01'");

@@ -307,6 +307,87 @@ TEST(Scene, StartsFromAFile) {
   }
 }
 
+// Fractions whose sum overflows a double keep their proportions: 1.5e308 and 0.5e308 are 3 : 1,
+// not 1 : 1 (their sum, inf, made every share 0 and the counts equal).
+TEST(Scene, CompositionBeyondTheLargestDoubleKeepsItsShares) {
+  const std::string types = "[[types]]\nname = \"A\"\n[[types]]\nname = \"B\"\n";
+  const Scene s = parse_scene(types + "[particles]\ncells = [2, 2, 2]\ncomposition = { A = 1.5e308, B = 0.5e308 }\n",
+                              "huge.toml");
+  ASSERT_EQ(s.particles.composition.size(), 2u);
+  EXPECT_EQ(s.particles.composition[0].second, 0.75);
+  EXPECT_EQ(s.particles.composition[1].second, 0.25);
+  const Configuration c = build_configuration(s);  // 32 fcc sites
+  std::size_t b = 0;
+  for (uint32_t t : c.types) b += t;
+  EXPECT_EQ(b, 8u) << "a quarter of 32 are B";
+  // Ordinary fractions read as before (the scaling is by a power of two: exact).
+  const Scene plain = parse_scene(types + "[particles]\ncomposition = { A = 0.8, B = 0.2 }\n", "plain.toml");
+  EXPECT_EQ(plain.particles.composition[0].second, 0.8 / (0.8 + 0.2));
+  EXPECT_EQ(plain.particles.composition[1].second, 0.2 / (0.8 + 0.2));
+  EXPECT_THAT(error_of(types + "[particles]\ncomposition = { A = 0, B = 0.0 }\n"), HasSubstr("more than 0"));
+}
+
+// A number beyond its type in a scene is "out of range" (as on the command line), not a value that
+// "could not be interpreted"; a compressed scene file is named as such.
+TEST(Scene, NumbersOutOfRangeAndCompressedFilesAreNamed) {
+  const std::string big = error_of(std::string(kMinimal) + "[particles]\ndensity = 1e400\n");
+  EXPECT_THAT(big, HasSubstr("bad.toml:4: '1e400' is out of range"));
+  EXPECT_THAT(big, ::testing::Not(HasSubstr("could not be interpreted")));
+  EXPECT_THAT(error_of(std::string(kMinimal) + "[system]\nperiodic = [true, true, true]\n[particles]\nbox = [5, -2e999, 5]\n"),
+              HasSubstr("bad.toml:6: '-2e999' is out of range"));
+  EXPECT_THAT(error_of(std::string(kMinimal) + "[run]\nsteps = 99999999999999999999\n"),
+              HasSubstr("bad.toml:4: '99999999999999999999' is out of range (-9223372036854775808 .. "
+                        "9223372036854775807)"));
+  // A syntax error that is not a number keeps toml++'s words.
+  EXPECT_THAT(error_of(std::string(kMinimal) + "[run]\nsteps = 12abc\n"), HasSubstr("bad.toml:4"));
+  const std::string gz = error_of(std::string("\x1F\x8B\x08\x00\x00\x00\x00\x00\x00\x03\xAB", 11));
+  EXPECT_THAT(gz, HasSubstr("bad.toml:1"));
+  EXPECT_THAT(gz, HasSubstr("gzip signature: compressed?"));
+}
+
+// A scene file's name is shown cut and escaped in messages (a 100 KB name is not echoed whole).
+TEST(Scene, LongFileNamesAreCut) {
+  const std::string name = "/nonexistent/" + std::string(100000, 'x') + ".toml";
+  try {
+    read_scene(name);
+    ADD_FAILURE() << "no such file";
+  } catch (const Error& e) {
+    const std::string message = e.what();
+    EXPECT_THAT(message, HasSubstr("cannot open the scene file"));
+    EXPECT_THAT(message, HasSubstr("(100018 bytes)"));
+    EXPECT_LT(message.size(), 400u);
+  }
+}
+
+// Choice names are read in any letter case, as the command line and the API read them.
+TEST(Scene, NamesInAnyLetterCase) {
+  const Scene s = parse_scene(std::string(kMinimal) +
+                                  "[particles]\nlattice = \"FCC\"\n[interactions]\nmode = \"Force-Shift\"\n"
+                                  "[neighbor]\nskin = \"AUTO\"\n[run]\nbackend = \"CPU\"\nprecision = \"Double\"\n",
+                              "case.toml");
+  EXPECT_EQ(s.particles.lattice, Lattice::kFcc);
+  EXPECT_EQ(s.force_field.mode, CutoffMode::kForceShift);
+  EXPECT_TRUE(s.backend.reuse.automatic);
+  EXPECT_EQ(s.backend.backend, Backend::kCpu);
+  EXPECT_EQ(s.backend.precision, Precision::kDouble);
+  EXPECT_THAT(error_of(std::string(kMinimal) + "[run]\nbackend = \"gpu\"\n"), HasSubstr("'gpu' is not one of auto, cpu, cuda"));
+}
+
+// A file of no particles is refused as a lattice that places none is.
+using SceneFiles = cftest::TempFolder;
+TEST_F(SceneFiles, AFileOfNoParticlesIsRefused) {
+  const std::string file = write("empty.xyz", "0\nLattice=\"5 0 0 0 5 0 0 0 5\"\n");
+  const Scene s = parse_scene(std::string(kMinimal) + "[particles]\nsource = \"file\"\npath = \"empty.xyz\"\n",
+                              "empty.toml", std::filesystem::path(file).parent_path().string());
+  try {
+    build_configuration(s);
+    ADD_FAILURE() << "a file of no particles";
+  } catch (const Error& e) {
+    EXPECT_THAT(std::string(e.what()), HasSubstr("[particles] path: the scene places no particle"));
+    EXPECT_THAT(std::string(e.what()), HasSubstr("empty.xyz holds none"));
+  }
+}
+
 // Every scene shipped in systems/ is valid and builds its configuration.
 TEST(Scene, SystemsScenesAreValid) {
   const std::filesystem::path dir = cftest::data_dir() / "systems";

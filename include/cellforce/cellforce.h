@@ -66,7 +66,8 @@ CELLFORCE_API cf_status cf_add_type(cf_context* ctx, const char* name, double si
 /* An explicit pair value replacing the mixing rule for types a and b (either order). */
 CELLFORCE_API cf_status cf_set_pair(cf_context* ctx, uint32_t a, uint32_t b, double sigma, double epsilon);
 
-/* A choice by name:
+/* A choice by name (the keys as written here; the names in any letter case, "CUDA" as "cuda", as
+ * the command line and scene files read them):
  *   backend       cpu | cuda | auto        precision     single | mixed | double
  *   mixing        lorentz-berthelot | geometric
  *   cutoff-mode   truncate | shift | force-shift
@@ -115,7 +116,8 @@ CELLFORCE_API cf_status cf_synchronize(cf_context* ctx);
  * this thread failed. The text stays valid until the next call on ctx. */
 CELLFORCE_API const char* cf_last_error(const cf_context* ctx);
 
-/* Frees the context; NULL is ignored. */
+/* Frees the context; NULL is ignored. As with free(), the pointer is invalid afterwards: passing
+ * it to any cf_ function again, cf_destroy included (a double destroy), is undefined behaviour. */
 CELLFORCE_API void cf_destroy(cf_context* ctx);
 
 #ifdef __cplusplus

@@ -208,7 +208,8 @@ class CELLFORCE_API Context {
   // rule of the backend, the box, the particle count and the device's memory, not a timing: skin()
   // and neighbor() say what it chose.
   void set_skin(double skin);
-  // Every choice by name, as the C API and scene files write them:
+  // Every choice by name, as the C API and scene files write them (keys as written here, names in
+  // any letter case: "CUDA" is "cuda"):
   //   backend       cpu | cuda | auto
   //   device        CUDA device ordinal, 0, 1, ...
   //   precision     single | mixed | double

@@ -4,7 +4,6 @@
 #include <cellforce/cellforce.hpp>
 
 #include <algorithm>
-#include <charconv>
 #include <cmath>
 #include <cstring>
 #include <optional>
@@ -16,6 +15,7 @@
 #include "core/error.h"
 #include "core/force_field.h"
 #include "core/names.h"
+#include "core/numbers.h"
 #include "core/system.h"
 #include "core/text.h"
 
@@ -40,8 +40,9 @@ E parse_option(std::string_view key, std::string_view value, const Named<E> (&ta
 
 double parse_number(std::string_view key, std::string_view value, const char* expected = "a number") {
   double v = 0;
-  const auto [end, ec] = std::from_chars(value.data(), value.data() + value.size(), v);
-  if (ec != std::errc() || end != value.data() + value.size() || value.empty())
+  const NumberText r = read_real(value, v);
+  if (r == NumberText::kOutOfRange) throw Error("option " + std::string(key) + ": " + real_problem(value, r));
+  if (r != NumberText::kOk)
     throw Error("option " + std::string(key) + ": " + quote_excerpt(std::string(value)) + " is not " + expected);
   return v;
 }
@@ -49,8 +50,9 @@ double parse_number(std::string_view key, std::string_view value, const char* ex
 template <class Int = int>
 Int parse_int(std::string_view key, std::string_view value) {
   Int v = 0;
-  const auto [end, ec] = std::from_chars(value.data(), value.data() + value.size(), v);
-  if (ec != std::errc() || end != value.data() + value.size() || value.empty())
+  const NumberText r = read_decimal(value, v);
+  if (r == NumberText::kOutOfRange) throw Error("option " + std::string(key) + ": " + integer_problem<Int>(value, r));
+  if (r != NumberText::kOk)
     throw Error("option " + std::string(key) + ": " + quote_excerpt(std::string(value)) + " is not an integer");
   return v;
 }
@@ -280,7 +282,7 @@ void Context::set_option(std::string_view key, std::string_view value) {
   } else if (key == "cutoff-mode") {
     impl_->ff.mode = parse_option(key, value, kCutoffModeNames);
   } else if (key == "skin") {
-    if (value == "auto") {
+    if (same_name(value, "auto")) {
       c.reuse.automatic = true;  // skin and lists from the rule; a later skin length restores the caller's
       c.reuse.skin = 0.0;
       impl_->engine_changed();
@@ -289,8 +291,8 @@ void Context::set_option(std::string_view key, std::string_view value) {
     }
   } else if (key == "neighbor-check" || key == "neighbor-audit" || key == "neighbor-list") {
     bool v = false;
-    if (value == "true") v = true;
-    else if (value != "false")
+    if (same_name(value, "true")) v = true;
+    else if (!same_name(value, "false"))
       throw Error("option " + std::string(key) + ": " + quote_excerpt(std::string(value)) + " is not true or false");
     ReuseOptions reuse = c.reuse;
     (key == "neighbor-check" ? reuse.check : key == "neighbor-audit" ? reuse.audit : reuse.list) = v;

@@ -1,7 +1,6 @@
 #include "cli/forces.h"
 
 #include <chrono>
-#include <charconv>
 #include <cmath>
 #include <cstdio>
 #include <map>
@@ -12,6 +11,7 @@
 #include "cli/engine_context.h"
 #include "cli/options.h"
 #include "core/error.h"
+#include "core/numbers.h"
 #include "core/text.h"
 #include "io/configuration_file.h"
 #include "io/forces_file.h"
@@ -36,7 +36,8 @@ std::vector<std::string> split(const std::string& s, char sep) {
 
 double parse_number(const std::string& text, const std::string& option, const std::string& spec) {
   double v = 0;
-  if (!parse_real(text, v)) throw Error(option + " " + spec + ": '" + text + "' is not a number");
+  if (const NumberText r = read_real(text, v); r != NumberText::kOk)
+    throw Error(option + " " + quote_excerpt(spec) + ": " + real_problem(text, r));
   return v;
 }
 

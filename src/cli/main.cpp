@@ -5,7 +5,6 @@
 // pipeline's counts and its stage times, optionally next to the O(n^2) brute force.
 #include <CLI/CLI.hpp>
 #include <algorithm>
-#include <charconv>
 #include <csignal>
 #include <chrono>
 #include <cmath>
@@ -17,10 +16,13 @@
 #include "backends/force_engine.h"
 #include "cli/bench.h"
 #include "cli/forces.h"
+#include "cli/option_rules.h"
 #include "cli/options.h"
 #include "cli/run.h"
 #include "core/error.h"
 #include "core/memory.h"
+#include "core/numbers.h"
+#include "core/text.h"
 #include "io/output_paths.h"
 #include "io/text_file.h"
 #include "reference/brute_force.h"
@@ -167,7 +169,7 @@ CLI::Validator one_of(const std::map<std::string, T>& names) {
             value = std::to_string(static_cast<int>(v));
             return {};
           }
-        return "'" + value + "' is not one of " + keys;
+        return quote_excerpt(value) + " is not one of " + keys;
       },
       "{" + keys + "}");
 }
@@ -201,16 +203,16 @@ int main(int argc, char** argv) {
                   "(default: the LAMMPS in.lj fluid, fcc at density 0.8442, 32,000 particles, rc 2.5)");
   evaluate_cmd->add_option("--lattice", ev.lattice, "Lattice")
       ->transform(one_of(cli::kLattices));
-  evaluate_cmd->add_option("--cells", ev.cells, "Unit cells per axis")->check(CLI::PositiveNumber);
-  evaluate_cmd->add_option("--density", ev.density, "Number density")->check(CLI::PositiveNumber);
-  evaluate_cmd->add_option("--jitter", ev.jitter, "Uniform random displacement amplitude per axis")
-      ->check(CLI::NonNegativeNumber);
-  evaluate_cmd->add_option("--seed", ev.seed, "Seed of the jitter");
-  evaluate_cmd->add_option("--cutoff", ev.cutoff, "Cutoff radius rc")->check(CLI::PositiveNumber);
+  cli::add_number(evaluate_cmd, "--cells", ev.cells, "Unit cells per axis", cli::kPositive);
+  cli::add_number(evaluate_cmd, "--density", ev.density, "Number density", cli::kPositive);
+  cli::add_number(evaluate_cmd, "--jitter", ev.jitter, "Uniform random displacement amplitude per axis",
+                  cli::kNonNegative);
+  cli::add_number(evaluate_cmd, "--seed", ev.seed, "Seed of the jitter");
+  cli::add_number(evaluate_cmd, "--cutoff", ev.cutoff, "Cutoff radius rc", cli::kPositive);
   evaluate_cmd->add_option("--cutoff-mode", ev.mode, "truncate, shift or force-shift")
       ->transform(one_of(cli::kCutoffModes));
   add_backend_options(evaluate_cmd, ev.engine);
-  evaluate_cmd->add_option("--repeats", ev.repeats, "Evaluations to time")->check(CLI::PositiveNumber);
+  cli::add_number(evaluate_cmd, "--repeats", ev.repeats, "Evaluations to time", cli::kPositive);
   evaluate_cmd->add_flag("--brute-force", ev.brute, "Also run the O(n^2) double brute force and compare");
   evaluate_cmd->add_option("--json", ev.json, "Write a JSON summary here");
 
@@ -220,9 +222,9 @@ int main(int argc, char** argv) {
                 "or H5MD) with the CPU or CUDA pipeline, written to HDF5 (/forces, /energies, "
                 "/energy, /virial, and attributes saying how)");
   forces_cmd->add_option("input", fa.input, "Configuration: extended XYZ (ASE convention) or H5MD")
-      ->required()->check(CLI::ExistingFile);
+      ->required()->check(cli::existing_file());
   forces_cmd->add_option("--out,-o", fa.out, "HDF5 file to write")->required();
-  forces_cmd->add_option("--cutoff", fa.cutoff, "Cutoff radius rc")->capture_default_str();
+  cli::add_number(forces_cmd, "--cutoff", fa.cutoff, "Cutoff radius rc", cli::kPositive)->capture_default_str();
   forces_cmd->add_option("--cutoff-mode", fa.mode, "truncate, shift or force-shift")
       ->transform(one_of(cli::kCutoffModes));
   forces_cmd->add_option("--type", fa.types,
@@ -232,13 +234,13 @@ int main(int argc, char** argv) {
   forces_cmd->add_option("--mixing", fa.mixing, "lorentz-berthelot or geometric")
       ->transform(one_of(cli::kMixings));
   add_backend_options(forces_cmd, fa.backend);
-  forces_cmd->add_option("--dim", fa.read.dim, "2 or 3 (XYZ: default 3, a 2D file has z = 0; H5MD: from the file)")
-      ->check(CLI::IsMember({2, 3}));
-  forces_cmd->add_option("--frame", fa.read.frame, "Frame to read, 0-based; negative counts from the end (-1: the last)")
+  cli::add_number(forces_cmd, "--dim", fa.read.dim, "2 or 3 (XYZ: default 3, a 2D file has z = 0; H5MD: from the file)",
+                  cli::between(2, 3));
+  cli::add_number(forces_cmd, "--frame", fa.read.frame, "Frame to read, 0-based; negative counts from the end (-1: the last)")
       ->capture_default_str();
   forces_cmd->add_option("--group", fa.read.group, "H5MD particles group (default: the only one)");
-  forces_cmd->add_option("--repeats", fa.repeats, "Evaluations to time (the file records their median)")
-      ->check(CLI::PositiveNumber)->capture_default_str();
+  cli::add_number(forces_cmd, "--repeats", fa.repeats, "Evaluations to time (the file records their median)",
+                  cli::kPositive)->capture_default_str();
   forces_cmd->add_flag("--quiet,-q", fa.quiet, "No summary on stdout");
   forces_cmd->add_flag("--overwrite", fa.overwrite, "Replace an existing --out file (refused otherwise)");
 
@@ -247,31 +249,33 @@ int main(int argc, char** argv) {
       "run", "Molecular dynamics of a scene file (systems/*.toml); without one, the built-in LAMMPS in.lj "
              "fluid (fcc at density 0.8442, 32,000 particles, rc 2.5, T 1.44, dt 0.005, NVE), on the GPU "
              "when one can be used");
-  run_cmd->add_option("scene", ra.scene, "Scene file (TOML)")->check(CLI::ExistingFile);
-  run_cmd->add_option("--steps", ra.steps, "Override the scene's number of steps")->check(CLI::NonNegativeNumber);
+  run_cmd->add_option("scene", ra.scene, "Scene file (TOML)")->check(cli::existing_file());
+  cli::add_number(run_cmd, "--steps", ra.steps, "Override the scene's number of steps", cli::kNonNegative);
   run_cmd->add_option("--backend", ra.backend, "Override the scene's backend: cpu, cuda or auto")
-      ->check(CLI::IsMember({"cpu", "cuda", "auto"}));
+      ->transform(cli::name_in(cli::kBackends));
   run_cmd->add_option("--precision", ra.precision, "Override the scene's precision: single, mixed or double")
-      ->check(CLI::IsMember({"single", "mixed", "double"}));
-  run_cmd->add_option("--traversal", ra.traversal, "CUDA traversal: auto (default), warp, thread or tile");
+      ->transform(cli::name_in(cli::kPrecisions));
+  run_cmd->add_option("--traversal", ra.traversal, "CUDA traversal: auto (default), warp, thread or tile")
+      ->transform(cli::name_in(cli::kTraversals));
   run_cmd->add_option("--thermo-file", ra.thermo_file, "Write the thermodynamics to this CSV file");
   run_cmd->add_option("--trajectory", ra.trajectory, "Write an H5MD trajectory to this file");
-  run_cmd->add_option("--trajectory-every", ra.trajectory_every, "Steps between trajectory frames")
-      ->check(CLI::PositiveNumber);
+  cli::add_number(run_cmd, "--trajectory-every", ra.trajectory_every, "Steps between trajectory frames",
+                  cli::kPositive);
   run_cmd->add_option("--restart", ra.restart, "Continue from this checkpoint (written by the same scene)")
-      ->check(CLI::ExistingFile);
+      ->check(cli::existing_file());
   run_cmd
       ->add_option_function<std::string>(
           "--skin",
           [&ra](const std::string& value) {
-            if (value == "auto") {
+            if (cli::lowercase(value) == "auto") {
               ra.skin_auto = true;
               return;
             }
             double skin = 0;
-            const auto [end, ec] = std::from_chars(value.data(), value.data() + value.size(), skin);
-            if (ec != std::errc() || end != value.data() + value.size() || !(skin >= 0))
-              throw CLI::ValidationError("--skin", "expected auto or a length >= 0, got " + value);
+            if (const NumberText r = read_real(value, skin); r != NumberText::kOk)
+              throw CLI::ValidationError("--skin", "expected auto or a length >= 0: " + real_problem(value, r));
+            if (!(skin >= 0) || !std::isfinite(skin))
+              throw CLI::ValidationError("--skin", "must be auto or a finite length >= 0, got " + format_number(skin));
             ra.skin = skin;
           },
           "Override the scene's [neighbor] skin: auto (the engine's rule, the default without [neighbor]) or "
@@ -287,10 +291,9 @@ int main(int argc, char** argv) {
       "bench", "Time MD steps of the LAMMPS in.lj fluid (fcc at density 0.8442, rc 2.5, T 1.44, NVE, dt 0.005) "
                "at several sizes: steps/s, particle-steps/s, stage times, memory per particle, median force "
                "error against double precision, NVE drift; a table, and JSON rows with --json");
-  bench_cmd->add_option("--sizes", ba.sizes, "Particle counts (each runs the nearest fcc size, 4 c^3; default "
-                                             "32000 256000 1048576 4194304)");
-  bench_cmd->add_option("--cells", ba.cells, "fcc unit cells per axis instead (4 c^3 particles)")
-      ->check(CLI::PositiveNumber);
+  cli::add_number(bench_cmd, "--sizes", ba.sizes, "Particle counts (each runs the nearest fcc size, 4 c^3; default "
+                                                  "32000 256000 1048576 4194304)", cli::Limits{1.0});
+  cli::add_number(bench_cmd, "--cells", ba.cells, "fcc unit cells per axis instead (4 c^3 particles)", cli::kPositive);
   add_backend_options(bench_cmd, ba.engine);
   bench_cmd
       ->add_option_function<double>(
@@ -301,7 +304,8 @@ int main(int argc, char** argv) {
           },
           "Build the cell structure for rc + skin and reuse it while no particle moved more than skin/2 (0: "
           "rebuild every step; default: auto, the engine's rule, as a scene without [neighbor])")
-      ->check(CLI::NonNegativeNumber);
+      ->transform(cli::number<double>(cli::kNonNegative))
+      ->type_name("NUMBER");
   bench_cmd->add_flag("--neighbor-list", ba.engine.reuse.list,
                       "With a skin (CUDA, Jacobi): each build records every particle's partners within rc + skin and "
                       "the steps it serves walk those lists");
@@ -310,13 +314,14 @@ int main(int argc, char** argv) {
                       "rebuild every step");
   bench_cmd->add_option("--cutoff-mode", ba.mode, "truncate (in.lj, the default), shift or force-shift")
       ->transform(one_of(cli::kCutoffModes));
-  bench_cmd->add_option("--seconds", ba.seconds, "Timed seconds per size (sets the steps)")
-      ->check(CLI::PositiveNumber)->capture_default_str();
-  bench_cmd->add_option("--steps", ba.steps, "Timed steps per size instead of --seconds")->check(CLI::PositiveNumber);
-  bench_cmd->add_option("--warmup", ba.warmup, "Steps before the timing (excluded)")
-      ->check(CLI::PositiveNumber)->capture_default_str();
-  bench_cmd->add_option("--samples", ba.samples, "Energy samples over the timed steps, for the NVE drift")
-      ->check(CLI::Range(2, 100000))->capture_default_str();
+  cli::add_number(bench_cmd, "--seconds", ba.seconds, "Timed seconds per size (sets the steps)", cli::kPositive)
+      ->capture_default_str();
+  cli::add_number(bench_cmd, "--steps", ba.steps, "Timed steps per size instead of --seconds", cli::kPositive);
+  cli::add_number(bench_cmd, "--warmup", ba.warmup, "Steps before the timing (excluded)", cli::kPositive)
+      ->capture_default_str();
+  cli::add_number(bench_cmd, "--samples", ba.samples, "Energy samples over the timed steps, for the NVE drift",
+                  cli::between(2, 100000))
+      ->capture_default_str();
   bench_cmd->add_flag("!--no-reference", ba.reference, "Skip the force error against double precision");
   bench_cmd->add_flag("--langevin", ba.langevin,
                       "Langevin dynamics (BAOAB, kT 1.44, friction 1) instead of NVE: the same fluid at its "

@@ -39,11 +39,22 @@ inline constexpr Named<SortMethod> kSortNames[] = {{"cub", SortMethod::kCub}, {"
 inline constexpr Named<ListMemory> kListMemoryNames[] = {
     {"auto", ListMemory::kAuto}, {"fast", ListMemory::kFast}, {"lean", ListMemory::kLean}};
 
-// The value named `name` exactly, or nothing.
+// Whether `a` and `b` are the same name in any letter case (ASCII): every entry point (the CLI,
+// scene files, the API's set_option) reads names so, "CUDA" as "cuda".
+inline bool same_name(std::string_view a, std::string_view b) {
+  if (a.size() != b.size()) return false;
+  for (std::size_t k = 0; k < a.size(); ++k) {
+    const auto lower = [](char c) { return c >= 'A' && c <= 'Z' ? char(c - 'A' + 'a') : c; };
+    if (lower(a[k]) != lower(b[k])) return false;
+  }
+  return true;
+}
+
+// The value named `name` (in any letter case), or nothing.
 template <class E, std::size_t N>
 std::optional<E> parse_name(std::string_view name, const Named<E> (&table)[N]) {
   for (const Named<E>& entry : table)
-    if (name == entry.name) return entry.value;
+    if (same_name(name, entry.name)) return entry.value;
   return std::nullopt;
 }
 

@@ -30,15 +30,13 @@ ConfigurationFile read_extxyz(const std::string& path, const ReadOptions& option
 
 // H5MD 1.x: /particles/GROUP/position/value (frames x n x dim), the box's dimension, boundary
 // ("periodic" or "none" per axis) and edges (fixed, or a value per frame), and species (fixed or
-// per frame; integers, named by their decimal value; all "0" when absent).
+// per frame; integers, named by the species' string attribute `names` where it has one, as
+// cellforce's trajectories do (species k is names[k]), else by their decimal value; all "0" when
+// absent).
 ConfigurationFile read_h5md(const std::string& path, const ReadOptions& options = {});
 
 // Either of the above, chosen by the file's contents (HDF5 signature or not).
 ConfigurationFile read_configuration(const std::string& path, const ReadOptions& options = {});
-
-// Parses a whole string as a real number as C++ and Python read it (a leading '+' allowed,
-// "nan" and "inf" included); false when any of it is not part of the number.
-bool parse_real(const std::string& text, double& value);
 
 // Writes one extended XYZ frame (17 significant digits, so that reading it back is exact).
 void write_extxyz(const std::string& path, const Configuration& config,

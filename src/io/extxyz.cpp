@@ -7,10 +7,12 @@
 #include <cstdio>
 #include <fstream>
 #include <map>
+#include <set>
 #include <sstream>
 #include <unordered_map>
 
 #include "core/error.h"
+#include "core/numbers.h"
 #include "core/text.h"
 #include "io/configuration_file.h"
 
@@ -98,8 +100,12 @@ Columns parse_properties(const std::string& spec, const std::string& where) {
     throw Error(where + ": Properties=" + quote_excerpt(spec) + " is not a list of name:type:count");
   Columns c;
   bool have_species = false, have_pos = false;
+  std::set<std::string> names;
   for (std::size_t k = 0; k < parts.size(); k += 3) {
     const std::string name = lower(parts[k]);
+    // Two columns of one name leave it unclear which one is meant (ASE keeps a dictionary).
+    if (!names.insert(name).second)
+      throw Error(where + ": Properties: " + quote_excerpt(parts[k]) + " is described twice in " + quote_excerpt(spec));
     const std::string type = lower(parts[k + 1]);
     int count = 0;
     auto [ptr, ec] = std::from_chars(parts[k + 2].data(), parts[k + 2].data() + parts[k + 2].size(), count);
@@ -135,7 +141,8 @@ std::vector<std::size_t> frame_starts(const std::vector<std::string>& lines, con
     auto [ptr, ec] = std::from_chars(t[0].data(), t[0].data() + t[0].size(), count);
     if (t.size() != 1 || ec != std::errc() || ptr != t[0].data() + t[0].size() || count < 0)
       throw Error(path + ":" + std::to_string(at + 1) + ": expected a particle count, found " + quote_excerpt(lines[at]) +
-                  (lines[at].rfind("\xEF\xBB\xBF", 0) == 0 ? " (the file starts with a UTF-8 byte-order mark; save it without one)" : ""));
+                  (lines[at].rfind("\xEF\xBB\xBF", 0) == 0 ? " (the file starts with a UTF-8 byte-order mark; save it without one)" : "") +
+                  (at == 0 ? compressed_hint(lines[at]) : ""));
     if (at + 2 + std::size_t(count) > lines.size())
       throw Error(path + ":" + std::to_string(at + 1) + ": the frame declares " + std::to_string(count) +
                   " particles but the file ends after " +
@@ -148,16 +155,9 @@ std::vector<std::size_t> frame_starts(const std::vector<std::string>& lines, con
 
 }  // namespace
 
-bool parse_real(const std::string& text, double& value) {
-  const char* begin = text.data();
-  const char* end = text.data() + text.size();
-  if (begin != end && *begin == '+' && end - begin > 1 && begin[1] != '-') ++begin;
-  auto [ptr, ec] = std::from_chars(begin, end, value);
-  return begin != end && ec == std::errc() && ptr == end;
-}
-
-ConfigurationFile read_extxyz(const std::string& path, const ReadOptions& options) {
-  std::ifstream in(path);
+ConfigurationFile read_extxyz(const std::string& file, const ReadOptions& options) {
+  const std::string path = display_path(file);  // as messages show it
+  std::ifstream in(file);
   if (!in) throw Error(path + ": cannot open the file");
   std::vector<std::string> lines;
   for (std::string l; std::getline(in, l);) {
@@ -192,7 +192,9 @@ ConfigurationFile read_extxyz(const std::string& path, const ReadOptions& option
     const std::vector<std::string> t = split_ws(it->second);
     if (t.size() != 9) throw Error(where2 + ": Lattice needs 9 numbers, found " + std::to_string(t.size()));
     for (int k = 0; k < 9; ++k)
-      if (!parse_real(t[std::size_t(k)], lattice[k]) || !std::isfinite(lattice[k]))
+      if (const NumberText r = read_real(t[std::size_t(k)], lattice[k]); r == NumberText::kOutOfRange)
+        throw Error(where2 + ": Lattice: " + real_problem(t[std::size_t(k)], r));
+      else if (r != NumberText::kOk || !std::isfinite(lattice[k]))
         throw Error(where2 + ": Lattice: " + quote_excerpt(t[std::size_t(k)]) + " is not a finite number");
     for (int r = 0; r < 3; ++r)
       for (int c = 0; c < 3; ++c)
@@ -233,8 +235,8 @@ ConfigurationFile read_extxyz(const std::string& path, const ReadOptions& option
                   std::to_string(cols.total));
     double x[3];
     for (int a = 0; a < 3; ++a) {
-      if (!parse_real(t[cols.pos + std::size_t(a)], x[a]))
-        throw Error(where + ": " + quote_excerpt(t[cols.pos + std::size_t(a)]) + " is not a number");
+      if (const NumberText r = read_real(t[cols.pos + std::size_t(a)], x[a]); r != NumberText::kOk)
+        throw Error(where + ": coordinate " + std::string(1, "xyz"[a]) + ": " + real_problem(t[cols.pos + std::size_t(a)], r));
       if (!std::isfinite(x[a]))
         throw Error(where + ": coordinate " + std::string(1, "xyz"[a]) + " is " + format_number(x[a]) +
                     "; coordinates must be finite");

@@ -48,8 +48,9 @@ h5::Array<double> element_frame(hid_t group, const std::string& name, long frame
 
 }  // namespace
 
-ConfigurationFile read_h5md(const std::string& path, const ReadOptions& options) {
-  h5::File file = h5::File::open_read(path);
+ConfigurationFile read_h5md(const std::string& file_name, const ReadOptions& options) {
+  h5::File file = h5::File::open_read(file_name);
+  const std::string path = display_path(file_name);  // as messages show it
   const hid_t root = file.id();
   if (!h5::exists(root, "particles")) throw Error(path + ": no /particles group (not an H5MD file?)");
   h5::Handle particles = h5::open_group(root, "particles", path);
@@ -151,21 +152,34 @@ ConfigurationFile read_h5md(const std::string& path, const ReadOptions& options)
     b.length[a] = std::max(1.0, n ? hi - lo : 1.0);
   }
 
-  // Species: integers, fixed or per frame; named by their decimal value in order of appearance.
+  // Species: integers, fixed or per frame. Named by the species' attribute `names` where it has one
+  // (species k is names[k], as cellforce's trajectories store them), else by their decimal value;
+  // in order of appearance.
   out.config.types.assign(n, 0);
   if (h5::exists(group.get(), "species")) {
     const h5::Array<double> s = element_frame(group.get(), "species", frame, steps, std::size_t(frames), where);
     if (s.values.size() != n)
       throw Error(where + "/species: " + std::to_string(s.values.size()) + " values for " + std::to_string(n) +
                   " particles");
-    std::map<long long, uint32_t> index;
+    std::vector<std::string> names;
+    {
+      const h5::Handle object(H5Oopen(group.get(), "species", H5P_DEFAULT));
+      if (!object.valid()) throw Error(where + ": cannot open 'species'");
+      if (h5::has_attribute(object.get(), "names"))
+        names = h5::read_string_attribute(object.get(), "names", where + "/species");
+    }
+    std::map<std::string, uint32_t> index;
     for (std::size_t i = 0; i < n; ++i) {
       const double v = s.values[i];
       if (!(v == std::floor(v) && std::abs(v) < 9.0e15))
         throw Error(where + "/species: particle " + std::to_string(i) + " has species " + format_number(v) +
                     ", not an integer species index");
-      auto [it, added] = index.try_emplace((long long)v, uint32_t(out.species.size()));
-      if (added) out.species.push_back(std::to_string((long long)v));
+      if (!names.empty() && !(v >= 0 && v < double(names.size())))
+        throw Error(where + "/species: particle " + std::to_string(i) + " has species " + format_number(v) +
+                    ", but the attribute names holds " + std::to_string(names.size()) + " names");
+      const std::string name = names.empty() ? std::to_string((long long)v) : names[std::size_t(v)];
+      auto [it, added] = index.try_emplace(name, uint32_t(out.species.size()));
+      if (added) out.species.push_back(name);
       out.config.types[i] = it->second;
     }
   } else {

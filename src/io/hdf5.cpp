@@ -43,7 +43,7 @@ void quiet() {
 }
 
 [[noreturn]] void fail(const std::string& where, const std::string& what) {
-  throw Error(where + ": " + what);
+  throw Error(display_path(where) + ": " + what);
 }
 
 std::string errno_reason(int code) {
@@ -317,7 +317,8 @@ File File::create(const std::string& path, bool exclusive, const std::string& wh
 
 File File::open_read(const std::string& path) {
   quiet();
-  if (!std::filesystem::exists(path)) fail(path, "no such file");
+  std::error_code error;  // a name too long to look up is no such file, not an exception
+  if (!std::filesystem::exists(path, error)) fail(path, "no such file");
   if (!is_hdf5(path)) fail(path, "not an HDF5 file");
   const hid_t id = H5Fopen(path.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
   if (id < 0) {
@@ -342,7 +343,8 @@ File File::open_read_write(const std::string& path) {
 
 bool File::is_hdf5(const std::string& path) {
   quiet();
-  if (!std::filesystem::is_regular_file(path)) return false;
+  std::error_code error;
+  if (!std::filesystem::is_regular_file(path, error)) return false;
   return H5Fis_hdf5(path.c_str()) > 0;
 }
 

@@ -15,6 +15,7 @@
 #include "core/error.h"
 #include "core/memory.h"
 #include "core/names.h"
+#include "core/numbers.h"
 #include "core/text.h"
 #include "io/configuration_file.h"
 
@@ -91,7 +92,7 @@ class Section {
     const toml::node* n = node(key);
     if (!n) return fallback;
     const std::string s = string(key, "");
-    const auto it = names.find(s);
+    const auto it = std::find_if(names.begin(), names.end(), [&](const auto& entry) { return same_name(s, entry.first); });
     if (it == names.end()) {
       std::string list;
       for (const auto& [k, v] : names) list += (list.empty() ? "" : ", ") + k;
@@ -290,7 +291,7 @@ void read_particles(const toml::table& root, const std::string& name, const std:
   auto composition = [&] {
     const toml::table* c = pa.table("composition");
     if (!c) return;
-    double total = 0;
+    double largest = 0;
     for (const auto& [key, value] : *c) {
       const std::string tn(key.str());
       if (!type_index.count(tn))
@@ -301,9 +302,16 @@ void read_particles(const toml::table& root, const std::string& name, const std:
         throw Error(name + ":" + std::to_string(value.source().begin.line) + ": [particles] composition." + tn +
                     ": expected a fraction >= 0");
       p.composition.emplace_back(tn, *f);
-      total += *f;
+      largest = std::max(largest, *f);
     }
-    if (!(total > 0)) pa.fail("composition", "the fractions must add up to more than 0");
+    if (!(largest > 0)) pa.fail("composition", "the fractions must add up to more than 0");
+    // Scaled first by the power of two at the largest fraction (exact), so that the sum stays finite
+    // (1.5e308 + 0.5e308 would be inf, and every share 0 or NaN) and the shares are those of the
+    // unscaled fractions.
+    int exponent = 0;
+    std::frexp(largest, &exponent);
+    double total = 0;
+    for (auto& entry : p.composition) total += entry.second = std::ldexp(entry.second, -exponent);
     for (auto& entry : p.composition) entry.second /= total;
   };
   if (p.source == ParticleSource::kLattice) {
@@ -400,9 +408,9 @@ void read_neighbor(const toml::table& root, const std::string& name, Scene& scen
   ReuseOptions& reuse = scene.backend.reuse;
   // skin: "auto" (also when absent) lets the engine choose (resolve_reuse), or a length.
   const toml::node* skin = neighbor.node("skin");
-  reuse.automatic = !skin || (skin->is_string() && skin->value<std::string>() == "auto");
+  reuse.automatic = !skin || (skin->is_string() && same_name(*skin->value<std::string>(), "auto"));
   if (skin && skin->is_string() && !reuse.automatic)
-    neighbor.fail("skin", "expected \"auto\" or a length >= 0, got \"" + *skin->value<std::string>() + "\"");
+    neighbor.fail("skin", "expected \"auto\" or a length >= 0, got " + quote_excerpt(*skin->value<std::string>()));
   reuse.skin = reuse.automatic ? 0.0 : neighbor.non_negative("skin", 0.0);
   reuse.check = neighbor.boolean("check", true);
   reuse.every = neighbor.integer("every", 0, 0);
@@ -446,6 +454,29 @@ void read_run_and_output(const toml::table& root, const std::string& name, Scene
   out.finish();
 }
 
+// What toml++ says of a syntax error, except for a number too large for its type: toml++ calls
+// 1e400 "could not be interpreted as a value", which reads as if it were no number; that is said
+// as out of range, as the command line says it. toml++ places such an error just after the number.
+std::string parse_error_text(std::string_view text, const toml::parse_error& e) {
+  const std::string description(e.description());
+  std::size_t line_start = 0;
+  for (auto line = e.source().begin.line; line > 1 && line_start != std::string_view::npos; --line) {
+    line_start = text.find('\n', line_start);
+    if (line_start != std::string_view::npos) ++line_start;
+  }
+  if (line_start == std::string_view::npos || e.source().begin.column < 2) return description;
+  const std::size_t end = std::min(text.size(), line_start + e.source().begin.column - 1);
+  std::size_t begin = end;
+  while (begin > line_start && std::string_view(" \t=[,{").find(text[begin - 1]) == std::string_view::npos) --begin;
+  const std::string_view token = text.substr(begin, end - begin);
+  double real = 0;
+  int64_t integer = 0;
+  if (read_real(token, real) == NumberText::kOutOfRange) return real_problem(token, NumberText::kOutOfRange);
+  if (read_decimal(token, integer) == NumberText::kOutOfRange)
+    return integer_problem<int64_t>(token, NumberText::kOutOfRange);
+  return description;
+}
+
 }  // namespace
 
 Scene parse_scene(const std::string& text, const std::string& name, const std::string& folder) {
@@ -453,7 +484,8 @@ Scene parse_scene(const std::string& text, const std::string& name, const std::s
   try {
     root = toml::parse(text, name);
   } catch (const toml::parse_error& e) {
-    throw Error(name + ":" + std::to_string(e.source().begin.line) + ": " + std::string(e.description()));
+    throw Error(name + ":" + std::to_string(e.source().begin.line) + ": " + parse_error_text(text, e) +
+                compressed_hint(text));
   }
   Scene scene;
   scene.source = name;
@@ -505,11 +537,11 @@ uint64_t scene_fingerprint(const Scene& scene) {
 
 Scene read_scene(const std::string& path) {
   std::ifstream in(path);
-  if (!in) throw Error(path + ": cannot open the scene file");
+  if (!in) throw Error(display_path(path) + ": cannot open the scene file");
   std::stringstream text;
   text << in.rdbuf();
   const std::filesystem::path folder = std::filesystem::path(path).parent_path();
-  return parse_scene(text.str(), path, folder.empty() ? "." : folder.string());
+  return parse_scene(text.str(), display_path(path), folder.empty() ? "." : folder.string());
 }
 
 namespace {
@@ -577,6 +609,8 @@ Configuration build_configuration(const Scene& scene, std::size_t* wrapped) {
     o.dim = dim;
     o.frame = p.frame;
     ConfigurationFile f = read_configuration(p.path, o);
+    if (f.config.size() == 0)
+      throw Error("[particles] path: the scene places no particle (" + f.source + " holds none)");
     std::map<std::string, uint32_t> index;
     for (std::size_t k = 0; k < scene.force_field.types.size(); ++k) index[scene.force_field.types[k].name] = uint32_t(k);
     std::vector<uint32_t> type_of_species;

@@ -38,7 +38,9 @@
 // partners within rc + skin, and the steps it serves walk those lists instead of the cells'
 // candidates. Reuse is exact, so it is not part of the fingerprint.
 // Input paths ([particles] path) are relative to the scene file's folder; output paths are
-// relative to the working folder.
+// relative to the working folder. The quoted choices ("fcc", "cuda", "auto", ...) are read in any
+// letter case ("CUDA"), as on the command line and in the API; keys and type names are not.
+// Composition fractions need not add up to 1 (they are shares of their sum, however large).
 //
 //   [output]       thermo_every = 100, thermo_file = "thermo.csv", trajectory = "traj.h5",
 //                  trajectory_every = 1000, velocities = false, forces = false,

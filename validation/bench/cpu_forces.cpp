@@ -14,6 +14,7 @@
 #include <string>
 #include <vector>
 
+#include "cli/option_rules.h"
 #include "cli/options.h"
 #include "cpu/engine.h"
 #include "reference/brute_force.h"
@@ -54,10 +55,11 @@ int main(int argc, char** argv) {
   int repeats = 9, brute_repeats = 3;
   double jitter_amplitude = 0.05;
   std::string json_path;
-  app.add_option("--cells", cells, "fcc unit cells per axis (N = 4 cells^3); several allowed");
-  app.add_option("--repeats", repeats, "timed evaluations per pipeline variant (after one warm-up)");
-  app.add_option("--brute-repeats", brute_repeats, "timed brute-force evaluations");
-  app.add_option("--jitter", jitter_amplitude, "uniform displacement amplitude (sigma)");
+  cli::add_number(&app, "--cells", cells, "fcc unit cells per axis (N = 4 cells^3); several allowed", cli::kPositive);
+  cli::add_number(&app, "--repeats", repeats, "timed evaluations per pipeline variant (after one warm-up)",
+                  cli::kPositive);
+  cli::add_number(&app, "--brute-repeats", brute_repeats, "timed brute-force evaluations", cli::kNonNegative);
+  cli::add_number(&app, "--jitter", jitter_amplitude, "uniform displacement amplitude (sigma)", cli::kNonNegative);
   app.add_option("--json", json_path, "write the rows here");
   CLI11_PARSE(app, argc, argv);
 
