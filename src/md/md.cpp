@@ -48,6 +48,25 @@ void drift(MdState& s, double h, double limit, bool wrap) {
 
 }  // namespace
 
+void check_step_arithmetic(double dt, const std::vector<double>& masses, const std::vector<uint32_t>& types,
+                           const ForceField& ff) {
+  if (!std::isfinite(dt * dt))
+    throw Error("dt = " + format_number(dt) + " makes the step's arithmetic overflow: dt^2 = " +
+                format_number(dt * dt) + " is not a finite number (a step moves a particle by dt v + dt^2 F / 2m); "
+                "lower dt");
+  for (std::size_t i = 0; i < masses.size(); ++i) {
+    const double kick = 0.5 * dt / masses[i], move = kick * dt;
+    if (std::isfinite(kick) && std::isfinite(move)) continue;
+    std::string type;
+    if (i < types.size() && types[i] < ff.types.size()) type = " (type \"" + ff.types[types[i]].name + "\")";
+    throw Error("the mass " + format_number(masses[i]) + " of particle " + std::to_string(i) + type +
+                " with dt = " + format_number(dt) + " makes the step's arithmetic overflow: " +
+                (std::isfinite(kick) ? "dt^2 / 2m = " + format_number(move) : "dt / 2m = " + format_number(kick)) +
+                " is not a finite number (a step kicks by dt F / 2m and moves by dt v + dt^2 F / 2m); raise the "
+                "mass or lower dt");
+  }
+}
+
 double degrees_of_freedom(std::size_t n, int dim, bool com_conserved) {
   return std::max(1.0, double(dim) * (double(n) - (com_conserved ? 1.0 : 0.0)));
 }

@@ -59,6 +59,15 @@ struct IntegratorSettings {
   uint64_t seed = 1;
 };
 
+// Refuses a time step whose arithmetic overflows for these masses: a step kicks by (dt / 2m) F and
+// moves a particle by dt v + dt^2 F / 2m, so dt^2 and, for every particle's mass m, dt / 2m and
+// dt^2 / 2m must be finite numbers. Throws cellforce::Error naming dt, or the particle, its type
+// (ff's name for types[i]) and its mass. Called where dt and the masses enter: the API's
+// set_state and set_integrator (so `cellforce run` meets it before any output), and
+// check_stable_start.
+void check_step_arithmetic(double dt, const std::vector<double>& masses, const std::vector<uint32_t>& types,
+                           const ForceField& ff);
+
 // One time step. `compute_forces(state)` must set state.forces at state's positions.
 //   NVE, velocity Verlet:  v += dt/2 F/m; x += dt v; F(x); v += dt/2 F/m
 //   Langevin, BAOAB (Leimkuhler & Matthews): v += dt/2 F/m; x += dt/2 v;
