@@ -493,6 +493,37 @@ cf::Context drifting_pair(cf::Backend backend, double vx, double vy, bool langev
   return ctx;
 }
 
+// On an open axis a drift longer than the cutoff is a divergence (a particle that far in one step
+// can pass a partner without their force acting), named with the particle, axis, displacement and
+// limit as on a periodic axis, whose limit stays the box edge. Before, open axes took any finite
+// drift, and a run that blew up there ended at the grid's cell limit ("the box is too large").
+TEST_P(MdApi, AnOpenAxisDriftLongerThanTheCutoffIsADivergence) {
+  const cf::Backend backend = GetParam();
+  auto message = [&](double vx, double vy, bool langevin) {
+    cf::Context ctx = drifting_pair(backend, vx, vy, langevin);
+    try {
+      ctx.step(1);
+    } catch (const cf::Error& e) {
+      return e.message();
+    }
+    return std::string();
+  };
+  EXPECT_EQ(message(0, 384, false),  // dt v = 3 along the open y
+            "step 1: particle 1 moved 3 along y in one drift, more than 2.5 (the cutoff, on an open axis: a longer "
+            "move can pass through a partner without their force acting): the integration diverged; lower dt, or "
+            "remove overlaps first");
+  EXPECT_EQ(message(0, -384, true),  // dt/2 v = 1.5 in the Langevin step's first half drift
+            "step 1: particle 1 moved -1.5 along y in one drift, more than 1.25 (half the cutoff, on an open axis: a "
+            "longer move can pass through a partner without their force acting, for each of a step's two half "
+            "drifts): the integration diverged; lower dt, or remove overlaps first");
+  EXPECT_EQ(message(384, 0, false), "") << "3 along the periodic x is within its limit, the edge 20";
+  cf::Context ctx = drifting_pair(backend, 0, 300, false);  // dt v = 2.34375: within the cutoff
+  ctx.step(1);
+  double x[6];
+  ctx.get_state(x, nullptr, nullptr);
+  EXPECT_EQ(x[4], 1 + 2.34375);
+}
+
 // A dt or a mass whose step overflows the doubles is named where it enters (set_integrator,
 // set_state), not left to a divergence blamed on overlaps.
 TEST(MdApiSteps, ADtOrAMassThatOverflowsTheStepIsNamed) {
