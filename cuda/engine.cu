@@ -394,7 +394,7 @@ struct GpuEngine::Impl {
       st.grid = plan_from_corners ? plan_grid(sys.box, ff.cutoff, corners, corner_count, go, skin)
                                   : plan_grid(sys.box, ff.cutoff, sys.positions, sys.n, go, skin);
       check_grid(st.grid, sys.box, ff.cutoff, o.grid.rule, skin);
-      check_staging(st.grid, ff.cutoff, o.precision);
+      check_staging(st.grid, ff.cutoff, o.precision, skin, o.grid.rule);
     }
     check_precision_range(ff, o.precision);
     const Grid& g = st.grid;

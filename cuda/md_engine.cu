@@ -23,6 +23,8 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdio>
+#include <cstdlib>
 #include <cstring>
 #include <optional>
 
@@ -76,14 +78,14 @@ __global__ void kick_kernel(double* __restrict__ v, const double* __restrict__ f
 // A gated step's last drift of coordinate k (particle i, on `axis`) from xa by h va, wrapped,
 // stored (also into `moved`, for Placing::place) and checked. Returns its term of the particle's
 // squared displacement from `then` (the build's position), for the gate.
-__device__ __forceinline__ double last_drift(double* __restrict__ x, std::size_t k, std::size_t i, double xa,
+__device__ __forceinline__ double last_drift(double* __restrict__ x, std::size_t k, std::size_t i, int a, double xa,
                                              double va, double h, const DriftAxis& axis, double then,
                                              MdFlags* flags, double& moved) {
   bool bad;
   xa = drift_value(xa, va, h, axis, true, bad);
   x[k] = xa;
   moved = xa;
-  flag_diverged(bad, i, flags);
+  flag_diverged(bad, i, a, h, va, flags);
   return displacement_term(xa, then, axis.length, axis.inv_length);
 }
 
@@ -91,10 +93,12 @@ __device__ __forceinline__ double last_drift(double* __restrict__ x, std::size_t
 __device__ __forceinline__ double drift_coordinate(double* __restrict__ x, const double* __restrict__ v, double h,
                                                    const DriftBox& box, bool wrap, std::size_t k, MdFlags* flags) {
   const std::size_t i = k / std::size_t(box.dim);
+  const int a = int(k - i * std::size_t(box.dim));
+  const double va = v[k];
   bool bad;
-  const double xa = drift_value(x[k], v[k], h, drift_axis(box, int(k - i * std::size_t(box.dim))), wrap, bad);
+  const double xa = drift_value(x[k], va, h, drift_axis(box, a), wrap, bad);
   x[k] = xa;
-  flag_diverged(bad, i, flags);
+  flag_diverged(bad, i, a, h, va, flags);
   return xa;
 }
 
@@ -311,7 +315,8 @@ __global__ void __launch_bounds__(kGateParticles * 3)
     }
     va = kick_value(va, fa, m, h, kicks);
     a.v_out[w] = va;
-    sq = last_drift(a.x_out, w, at.particle, xa, va, dt, drift_axis(box, at.axis), then, flags, moved[threadIdx.x]);
+    sq = last_drift(a.x_out, w, at.particle, at.axis, xa, va, dt, drift_axis(box, at.axis), then, flags,
+                    moved[threadIdx.x]);
   }
   raise_displacement(sq, D, n, gate);  // its barrier: `moved` is written
   placing.template place<D>(to, moved);
@@ -354,7 +359,7 @@ __global__ void __launch_bounds__(kGateParticles * 3)
   a.v_out[w] = va;
   bool bad;
   a.x_out[w] = drift_value(xa, va, h, drift_axis(box, at.axis), false, bad);
-  flag_diverged(bad, at.particle, flags);
+  flag_diverged(bad, at.particle, at.axis, h, va, flags);
 }
 
 template <int D, StateOrder O>
@@ -376,7 +381,7 @@ __global__ void __launch_bounds__(kGateParticles * 3)
   __shared__ double moved[kGateParticles * D];
   double sq = 0;
   if (in) {
-    sq = last_drift(a.x_out, at.write(), at.particle, xa, va, h, drift_axis(box, at.axis), then, flags,
+    sq = last_drift(a.x_out, at.write(), at.particle, at.axis, xa, va, h, drift_axis(box, at.axis), then, flags,
                     moved[threadIdx.x]);
   }
   raise_displacement(sq, D, n, gate);  // its barrier: `moved` is written
@@ -758,6 +763,7 @@ class CudaMdEngine final : public MdEngine {
     const int dim = box_.dim;
     const double dt = settings.dt;
     const int64_t first = step_ + 1;
+    drift_share_ = settings.langevin ? 0.5 : 1.0;  // as drift_box's limits below
     CF_CUDA_CHECK(cudaEventRecord(chunk_start_, stream_));
     std::size_t timed = 0;
     waits_ = 0;
@@ -1099,7 +1105,7 @@ class CudaMdEngine final : public MdEngine {
     for (int a = 0; a < box_.dim; ++a) {
       b.length[a] = box_.length[a];
       b.periodic[a] = box_.periodic[a];
-      b.most[a] = box_.periodic[a] ? limit * box_.length[a] : INFINITY;
+      b.most[a] = drift_limit(box_, a, ff_.cutoff, limit);
       b.inv_length[a] = box_.periodic[a] ? 1.0 / box_.length[a] : 0.0;  // as cuda/reuse.cu
     }
     return b;
@@ -1267,9 +1273,18 @@ class CudaMdEngine final : public MdEngine {
     }
     if (f.diverged != ~0ull) {
       reset_flags();
+      if (cuda::drift_key_particle(f.drift) == f.diverged) {  // the particle's drift (below 2^32 particles)
+        double dx;
+        const unsigned long long bits = cuda::drift_key_displacement_bits(f.drift);
+        std::memcpy(&dx, &bits, sizeof dx);
+        char digits[32];  // the key keeps 6 digits: shown as such, not as the truncated double's
+        std::snprintf(digits, sizeof digits, "%.6g", dx);
+        if (std::isfinite(dx)) dx = std::strtod(digits, nullptr);
+        throw Error(steps + ": " + diverged_message(std::size_t(f.diverged), cuda::drift_key_axis(f.drift), dx, NAN,
+                                                    box_, ff_.cutoff, drift_share_));
+      }
       throw Error(steps + ": particle " + std::to_string(f.diverged) +
-                  " moved too far in one drift or left the finite numbers (more than the box edge, or half "
-                  "of it in each of a Langevin step's two half drifts): the integration diverged; lower dt, "
+                  " moved too far in one drift or left the finite numbers: the integration diverged; lower dt, "
                   "or remove overlaps first");
     }
   }
@@ -1283,6 +1298,7 @@ class CudaMdEngine final : public MdEngine {
   ForceField ff_;
   int64_t step_ = 0;
   double time_ = 0;
+  double drift_share_ = 1.0;  // drift_limit's share in the steps last queued: 0.5 under Langevin
   std::vector<uint32_t> host_types_;
   DeviceBuffer<double> positions_, velocities_, masses_;
   DeviceBuffer<uint32_t> types_;

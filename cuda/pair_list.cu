@@ -681,7 +681,7 @@ __device__ __forceinline__ void next_kick_drift(const NextKickDrift& s, std::siz
       bool bad;
       xa = drift_value(xa, va, s.dt, axis, true, bad);
       s.x[k] = xa;
-      if (bad) flag_diverged(true, s.order[q], s.flags);
+      if (bad) flag_diverged(true, s.order[q], a, s.dt, va, s.flags);
       term = displacement_term(xa, then, axis.length, axis.inv_length);
       value[c] = xa;  // this thread read the force at c above
     }

@@ -55,9 +55,14 @@ __device__ __forceinline__ double drift_value(double xa, double va, double h, co
   return xa;
 }
 
-// A particle whose drift failed the check raises its index (the caller's).
-__device__ __forceinline__ void flag_diverged(bool bad, std::size_t i, MdFlags* flags) {
-  if (bad) atomicMin(&flags->diverged, static_cast<unsigned long long>(i));
+// A particle whose drift h * va along `axis` failed the check raises its index (the caller's) and
+// the drift's key (drift_key), for the message.
+__device__ __forceinline__ void flag_diverged(bool bad, std::size_t i, int axis, double h, double va,
+                                              MdFlags* flags) {
+  if (!bad) return;
+  atomicMin(&flags->diverged, static_cast<unsigned long long>(i));
+  const double dx = mul_rn(h, va);  // drift_value's displacement
+  atomicMin(&flags->drift, drift_key(i, axis, static_cast<unsigned long long>(__double_as_longlong(dx))));
 }
 
 }  // namespace cellforce::cuda

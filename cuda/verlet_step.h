@@ -8,21 +8,39 @@
 #include <cstdint>
 
 #include "core/box.h"  // kMaxDim
+#include "core/hd.h"   // CF_HD
 
 namespace cellforce::cuda {
 
 // What the integration kernels raise: the smallest index (the caller's) of a particle whose drift
-// diverged (a displacement not finite or longer than allowed on a periodic axis, or a position no
-// longer finite), ~0 when none.
+// diverged (a displacement not finite or beyond md/md.h's drift_limit, or a position no longer
+// finite), ~0 when none; and, for the message, the smallest drift_key() of those drifts: the same
+// particle (below 2^32) with its axis and displacement.
 struct MdFlags {
   unsigned long long diverged;
+  unsigned long long drift;
 };
+
+// A failed drift as one 64-bit key that an atomicMin orders by particle, then axis: the particle
+// (saturated at 2^32 - 1) in bits 32-63, the axis in bits 30-31, and the displacement's sign,
+// exponent and 18 leading mantissa bits (its double's top 30 bits: 6 digits, enough for a message;
+// infinities and quiet NaNs kept) in bits 0-29.
+CF_HD constexpr unsigned long long drift_key(unsigned long long particle, int axis,
+                                              unsigned long long displacement_bits) {
+  return (particle < 0xffffffffull ? particle : 0xffffffffull) << 32 | (unsigned long long)(axis & 3) << 30 |
+         displacement_bits >> 34;
+}
+CF_HD constexpr unsigned long long drift_key_particle(unsigned long long key) { return key >> 32; }
+CF_HD constexpr int drift_key_axis(unsigned long long key) { return int((key >> 30) & 3); }
+CF_HD constexpr unsigned long long drift_key_displacement_bits(unsigned long long key) {
+  return (key & 0x3fffffffull) << 34;
+}
 
 // The box as a drift sees it.
 struct DriftBox {
   int dim;
   double length[kMaxDim];
-  double most[kMaxDim];        // largest displacement allowed per axis (infinite on open axes)
+  double most[kMaxDim];        // largest displacement allowed per axis (md/md.h's drift_limit)
   double inv_length[kMaxDim];  // 1 / length on periodic axes, 0 on open ones (minimum image)
   bool periodic[kMaxDim];
 };

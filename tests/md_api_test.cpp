@@ -510,6 +510,83 @@ TEST_P(MdApi, DivergenceNamesTheParticleAndTheSteps) {
   }
 }
 
+// Two particles 10 apart along x (beyond the cutoff 2.5: no force) in a box periodic along x and
+// z (edge 20) and open along y, particle 1 moving at `vx`, `vy`; dt = 2^-7, so that dt v is exact.
+cf::Context drifting_pair(cf::Backend backend, double vx, double vy, bool langevin) {
+  cf::Context ctx(3);
+  const double lengths[3] = {20, 0, 20};
+  const bool periodic[3] = {true, false, true};
+  ctx.set_box(lengths, periodic);
+  ctx.set_cutoff(2.5, cf::CutoffMode::kForceShift);
+  ctx.add_type("A", 1.0, 1.0);
+  ctx.set_backend(backend);
+  cf::IntegratorOptions integrator;
+  integrator.dt = 0.0078125;
+  if (langevin) {
+    integrator.kind = cf::Integrator::kLangevin;
+    integrator.temperature = 0;  // no noise: each half drift moves by dt/2 x (the decayed) velocity
+    integrator.friction = 1e-9;
+  }
+  ctx.set_integrator(integrator);
+  const double x[6] = {1, 1, 1, 11, 1, 1}, v[6] = {0, 0, 0, vx, vy, 0}, m[2] = {1, 1};
+  ctx.set_state(2, x, v, nullptr, m);
+  return ctx;
+}
+
+// On an open axis a drift longer than the cutoff is a divergence (a particle that far in one step
+// can pass a partner without their force acting), named with the particle, axis, displacement and
+// limit as on a periodic axis, whose limit stays the box edge. Before, open axes took any finite
+// drift, and a run that blew up there ended at the grid's cell limit ("the box is too large").
+TEST_P(MdApi, AnOpenAxisDriftLongerThanTheCutoffIsADivergence) {
+  const cf::Backend backend = GetParam();
+  auto message = [&](double vx, double vy, bool langevin) {
+    cf::Context ctx = drifting_pair(backend, vx, vy, langevin);
+    try {
+      ctx.step(1);
+    } catch (const cf::Error& e) {
+      return e.message();
+    }
+    return std::string();
+  };
+  EXPECT_EQ(message(0, 384, false),  // dt v = 3 along the open y
+            "step 1: particle 1 moved 3 along y in one drift, more than 2.5 (the cutoff, on an open axis: a longer "
+            "move can pass through a partner without their force acting): the integration diverged; lower dt, or "
+            "remove overlaps first");
+  EXPECT_EQ(message(0, -384, true),  // dt/2 v = 1.5 in the Langevin step's first half drift
+            "step 1: particle 1 moved -1.5 along y in one drift, more than 1.25 (half the cutoff, on an open axis: a "
+            "longer move can pass through a partner without their force acting, for each of a step's two half "
+            "drifts): the integration diverged; lower dt, or remove overlaps first");
+  EXPECT_EQ(message(384, 0, false), "") << "3 along the periodic x is within its limit, the edge 20";
+  cf::Context ctx = drifting_pair(backend, 0, 300, false);  // dt v = 2.34375: within the cutoff
+  ctx.step(1);
+  double x[6];
+  ctx.get_state(x, nullptr, nullptr);
+  EXPECT_EQ(x[4], 1 + 2.34375);
+}
+
+// A dt or a mass whose step overflows the doubles is named where it enters (set_integrator,
+// set_state), not left to a divergence blamed on overlaps.
+TEST(MdApiSteps, ADtOrAMassThatOverflowsTheStepIsNamed) {
+  cf::Context ctx = drifting_pair(cf::Backend::kCpu, 0, 0, false);
+  cf::IntegratorOptions huge;
+  huge.dt = 1e300;
+  try {
+    ctx.set_integrator(huge);
+    ADD_FAILURE() << "dt = 1e300 was accepted";
+  } catch (const cf::Error& e) {
+    EXPECT_THAT(e.message(), HasSubstr("dt = 1e+300 makes the step's arithmetic overflow: dt^2 = inf"));
+    EXPECT_THAT(e.message(), ::testing::Not(HasSubstr("overlap")));
+  }
+  const double x[6] = {1, 1, 1, 11, 1, 1}, m[2] = {1, 1e-320};  // dt / 2m = 0.0039 / 1e-320 overflows
+  try {
+    ctx.set_state(2, x, nullptr, nullptr, m);
+    ADD_FAILURE() << "mass 1e-320 was accepted at dt 2^-7";
+  } catch (const cf::Error& e) {
+    EXPECT_THAT(e.message(), HasSubstr("the mass 1e-320 of particle 1 (type \"A\") with dt = 0.0078125 makes the "
+                                       "step's arithmetic overflow: dt / 2m = inf"));
+  }
+}
+
 // ---- FIRE (Context::minimize; CUDA: kernels on the device) ----
 
 // 256 particles of the fcc lattice at density 0.8442 (4 cells), each moved by up to 0.1 sigma per

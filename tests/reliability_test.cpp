@@ -44,6 +44,7 @@
 #include "io/h5md_writer.h"
 #include "io/hdf5.h"
 #include "io/output_paths.h"
+#include "md/minimize.h"
 #include "reference/brute_force.h"
 #include "scene/lattice.h"
 #include "scene/scene.h"
@@ -374,7 +375,9 @@ TEST_P(LargeBox, PeriodicEdgeOrOpenExtentOf5e9GivesTheBruteForcesPairsAndEnergyO
         refusal = e.what();
       }
       if (refused_expected) {
-        EXPECT_THAT(refusal, HasSubstr("too large for the grid"));
+        EXPECT_THAT(refusal, HasSubstr(periodic ? "the cutoff 2.5 is too small for the box: along x, its edge "
+                                                : "the cutoff 2.5 is too small for the particles' span: along x"));
+        EXPECT_THAT(refusal, HasSubstr("cells at least 4.27 wide"));
         continue;
       }
       ASSERT_EQ(refusal, "");
@@ -799,6 +802,113 @@ TEST(Text, BinaryBytesPathsAndCompressedFiles) {
   EXPECT_THAT(compressed_hint("\x1F\x8B\x08"), HasSubstr("gzip signature: compressed?"));
   EXPECT_THAT(compressed_hint("\x28\xB5\x2F\xFD"), HasSubstr("zstd"));
   EXPECT_EQ(compressed_hint("3\nLattice"), "");
+}
+
+// ---- 8: messages that name the cause --------------------------------------------------------------
+
+// A cutoff tiny against the box takes more cells than the grid's limit; the coarsened grid's cells
+// are too wide to stage r_ij in double. The message names the cutoff, the box edge and the cells it
+// would take (it said "the box is too large for the grid ... shrink the periodic box").
+TEST(CauseNamed, ATinyCutoffNamesTheCutoffTheBoxEdgeAndTheCellsItWouldTake) {
+  const ForceField ff = cftest::lj_field(1e-9);
+  cftest::RandomSpec spec;
+  spec.min_distance = 0.9;
+  const Configuration c = cftest::random_configuration(cftest::cube(3, 10), 30, 7, spec);
+  for (const std::size_t id : cftest::backend_ids()) {
+    const cftest::Backend& backend = cftest::backends()[id];
+    SCOPED_TRACE(backend.name);
+    if (!backend.unavailable().empty()) continue;
+    ForceResult got;
+    const std::string msg = error_of([&] { backend.make(cftest::EngineSpec{})->evaluate(c.view(), ff, Request{}, got); });
+    // cells >= rc + h = 1e-9 (1 + 0.7071): 10 / 1.7071e-9 = 5.86e9 a side
+    EXPECT_THAT(msg, HasSubstr("the cutoff 1e-09 is too small for the box: along x, its edge 10 would take 5.86e+09 "
+                               "cells at least 1.71e-09 wide (2.01e+29 in all), more than the grid's limit of "
+                               "1073741824 cells"));
+    EXPECT_THAT(msg, HasSubstr("use a larger cutoff or a smaller periodic box"));
+    EXPECT_THAT(msg, Not(HasSubstr("too large for the grid")));
+  }
+}
+
+// A skin far beyond the cutoff (finite, so every boundary takes it): the finest cells for rc + skin
+// are already too wide to stage. The message names the skin, the largest skin that stages here and
+// the box (it said "the box is too large for the grid").
+TEST(CauseNamed, AHugeSkinNamesTheSkinTheLargestThatWorksAndTheBox) {
+  const ForceField ff = cftest::lj_field(2.5);
+  cftest::RandomSpec spec;
+  spec.min_distance = 0.9;
+  const Configuration c = cftest::random_configuration(cftest::cube(3, 10), 30, 7, spec);
+  for (const auto& [id, precision] : all_targets()) {
+    const cftest::Backend& backend = cftest::backends()[id];
+    SCOPED_TRACE(backend.name + " " + to_string(precision));
+    if (!backend.unavailable().empty()) continue;
+    cftest::EngineSpec engine;
+    engine.precision = precision;
+    engine.reuse.skin = 1e300;
+    ForceResult got;
+    const std::string msg = error_of([&] { backend.make(engine)->evaluate(c.view(), ff, Request{}, got); });
+    EXPECT_THAT(msg, HasSubstr("skin 1e+300 is too large: the neighbour structure holds the pairs within rc + skin "
+                               "= 1e+300"));
+    // double: |x - centre| below 2^14, where an ulp is 2^-39 < 2^-40 x 2.5; c/2 + h = 1.5607 (rc + skin)
+    EXPECT_THAT(msg, HasSubstr(precision == Precision::kDouble ? "a skin here must be below 1.05e+04"
+                                                               : "a skin here must be below 1.38e+09"));
+    EXPECT_THAT(msg, HasSubstr("(largest periodic edge 10)"));
+    EXPECT_THAT(msg, Not(HasSubstr("too large for the grid")));
+    engine.reuse.skin = 1e4;  // below the double limit: served
+    EXPECT_NO_THROW(backend.make(engine)->evaluate(c.view(), ff, Request{}, got));
+  }
+}
+
+// dt = 1e300 or a mass of 1e-300 made the first step's dt^2 |F| / 2m enormous, and the run blamed
+// overlapping particles. Now the factor out of range is named, before any output: dt whose square
+// overflows, or dt too long for the mass (even the force of a pair at distance sigma would move the
+// particle more than 0.1 sigma).
+TEST_F(Folder, ADtOrMassThatBreaksTheStepIsNamedNotBlamedOnOverlaps) {
+  const std::string random = "[particles]\nsource = \"random\"\ncount = 20\nbox = [10.0, 10.0]\nmin_distance = 1.0\n";
+  std::string text = scene_text("thermo_file = \"thermo.csv\"\n", 5, random);
+  text.replace(text.find("dt = 0.005"), 10, "dt = 1e300");
+  std::ofstream("scene.toml") << text;
+  std::string msg = error_of([&] { run_md(quiet_run("scene.toml")); });
+  EXPECT_THAT(msg, HasSubstr("dt = 1e+300 makes the step's arithmetic overflow: dt^2 = inf"));
+  EXPECT_THAT(msg, Not(HasSubstr("overlap")));
+  EXPECT_FALSE(fs::exists("thermo.csv"));
+
+  text = scene_text("thermo_file = \"thermo.csv\"\n", 5, random);
+  text.replace(text.find("name = \"A\""), 10, "name = \"A\"\nmass = 1e-300");
+  std::ofstream("scene.toml") << text;
+  msg = error_of([&] { run_md(quiet_run("scene.toml")); });
+  EXPECT_THAT(msg, HasSubstr("dt = 0.005 is too long a step for the mass 1e-300 of particle "));
+  EXPECT_THAT(msg, HasSubstr("(type \"A\"): a step moves it by dt^2 |F| / 2m = 1.25e+295 x |F|"));
+  EXPECT_THAT(msg, HasSubstr("(24 epsilon/sigma = 24) would move it by 3e+296"));
+  EXPECT_THAT(msg, Not(HasSubstr("overlap")));
+  EXPECT_FALSE(fs::exists("thermo.csv"));
+}
+
+// The rule that tells the two apart, at ordinary values: the first step's move dt^2 |F| / 2m is
+// beyond 0.1 sigma; when dt^2 / 2m x 24 epsilon/sigma (the force at r = sigma) is beyond it too, dt
+// and the mass are named, else the force (an overlap).
+TEST(CauseNamed, TheStartCheckNamesTheFactorOutOfRange) {
+  const ForceField ff = cftest::lj_field(2.5);
+  MdState s;
+  s.config.box = cftest::cube(3, 10);
+  s.config.positions = {1, 1, 1, 4, 4, 4};
+  s.config.types = {0, 0};
+  s.forces = {0, 0, 0, 600, 800, 0};  // |F| = 1000 on particle 1
+  // dt 0.01 moves it 0.05 (passes); dt 0.02 moves it 0.2, where a force of 24 would move it 0.0048
+  EXPECT_NO_THROW(check_stable_start(s, {1, 1}, 0.01, ff));
+  std::string msg = error_of([&] { check_stable_start(s, {1, 1}, 0.02, ff); });
+  EXPECT_THAT(msg, HasSubstr("particle 1 has a force of 1000"));
+  EXPECT_THAT(msg, HasSubstr("the start has overlapping particles"));
+  // |F| = 25 at dt 0.1: 0.005 x 25 = 0.125, and 0.005 x 24 = 0.12 is beyond 0.1 as well: dt's fault
+  s.forces = {0, 0, 0, 15, 20, 0};
+  msg = error_of([&] { check_stable_start(s, {1, 1}, 0.1, ff); });
+  EXPECT_THAT(msg, HasSubstr("dt = 0.1 is too long a step for the mass 1 of particle 1 (type \"A\")"));
+  EXPECT_THAT(msg, HasSubstr("would move it by 0.12, more than 0.1 x the smallest sigma (0.1); with this mass dt "
+                             "must be below 0.0912871"));  // sqrt(2 x 0.1 x 1 / 24)
+  EXPECT_THAT(msg, Not(HasSubstr("overlap")));
+  // A heavier particle (mass 1.5: 0.08 at r = sigma) with a force of 1000 is the force's fault again.
+  s.forces = {0, 0, 0, 600, 800, 0};
+  msg = error_of([&] { check_stable_start(s, {1, 1.5}, 0.1, ff); });
+  EXPECT_THAT(msg, HasSubstr("the start has overlapping particles"));
 }
 
 TEST(Text, ExcerptsAndNumbers) {

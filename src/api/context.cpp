@@ -389,6 +389,7 @@ void Context::set_integrator(const IntegratorOptions& o) {
     if (!std::isfinite(o.friction) || o.friction <= 0)
       throw Error("friction is " + format_number(o.friction) + "; it must be finite and > 0");
   }
+  if (impl_->md) check_step_arithmetic(o.dt, impl_->masses, impl_->types, impl_->md_ff);
   impl_->integrator = o;
 }
 
@@ -416,6 +417,8 @@ void Context::set_state(std::size_t n, const double* positions, const double* ve
   state.step = step;
   state.time = double(step) * s.integrator.dt;
   std::vector<double> m(masses, masses + n);
+  validate_masses(m, n);
+  check_step_arithmetic(s.integrator.dt, m, state.config.types, s.ff);
   const ListMemory memory = md_list_memory(s.choice, n);
   const EngineChoice resolved = s.resolved(s.box, true, memory);
   // An automatic skin for another box, or another memory mode (another particle count)

@@ -72,7 +72,7 @@ class CpuMdEngine final : public MdEngine {
           const auto tf = Clock::now();
           evaluate(observe && last);
           force_seconds += seconds_since(tf);
-        });
+        }, ff_.cutoff);
       } catch (const Error& e) {  // the step that failed (built only then)
         rethrow_with("step " + std::to_string(next) + ": ", e);
       }

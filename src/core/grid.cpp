@@ -76,6 +76,10 @@ void set_axis_geometry(Grid& g, const Box& box, int a, uint32_t n, double lo, do
   }
 }
 
+// The spacing of doubles at x (x >= 0): what a coordinate staged at distance x from its cell's centre
+// rounds by.
+double ulp(double x) { return std::nextafter(x, INFINITY) - x; }
+
 // Whether a particle of a periodic axis's cell c, its box of half-width h, moved by up to skin/2
 // since the build, stays within half a box edge of the cell centre (staged as the right image).
 bool holds_moved_box(double cell, double half_width, double skin, double length) {
@@ -142,25 +146,66 @@ Grid make_grid_unchecked(const Box& box, const uint32_t cells[kMaxDim], double h
   return g;
 }
 
-void check_staging(const Grid& g, double physical_cutoff, Precision precision) {
+void check_staging(const Grid& g, double physical_cutoff, Precision precision, double skin, CellRule rule) {
   double largest = 0;  // the largest |x - centre| a staged coordinate can have
   int axis = 0;
   for (int a = 0; a < g.dim; ++a)
     if (0.5 * g.cell[a] + g.half_width > largest) largest = 0.5 * g.cell[a] + g.half_width, axis = a;
-  const double rounding = std::nextafter(largest, INFINITY) - largest;  // ulp in double
   const double resolution =
       precision == Precision::kDouble
           ? std::ldexp(physical_cutoff, -40)
           : double(std::nextafter(float(physical_cutoff), INFINITY) - float(physical_cutoff));
-  if (rounding <= resolution) return;
+  if (ulp(largest) <= resolution) return;
+
+  // Which of the two lengths in c/2 + h is too large: the reach rc + skin itself (cells of the finest
+  // edge it allows already round too much: a skin far beyond the cutoff), or the cell edge, which
+  // the grid's limit on its cell count widened (a cutoff tiny against the box, or particles far apart
+  // on an open axis).
+  const double reach = physical_cutoff + skin;
+  const double width = g.half_width / reach;  // h / (rc + skin), from the grid options
+  const double finest_per_reach = std::max(min_cell_edge(rule, 1.0, width), 2.0 * width);
+  const double finest = finest_per_reach * reach;                    // the smallest cell edge allowed
+  const double finest_largest = (0.5 * finest_per_reach + width) * reach;  // c/2 + h in such cells
+  const std::string resolves = std::string(to_string(precision)) + " pairs resolve at the cutoff";
   std::ostringstream s;
   s.precision(3);
-  s << "the box is too large for the grid: within its limit of " << kMaxCells << " cells, cells are "
-    << g.cell[axis] << " wide along " << kAxisName[axis] << " (" << g.n[0] << " x " << g.n[1] << " x " << g.n[2]
-    << " cells), and positions staged relative to their cell's centre would round each r_ij component by up to "
-    << rounding << ", more than " << to_string(precision) << " pairs resolve at the cutoff (" << resolution
-    << "); shrink the periodic box, or remove particles far from the others on an open axis"
-    << (precision == Precision::kDouble ? ", or use mixed or single precision" : "");
+  if (!(ulp(finest_largest) <= resolution)) {  // also a reach so large that the cells overflow
+    // The largest reach whose finest cells stage within the resolution: |x - centre| below the
+    // power of two where a double's ulp exceeds it.
+    const double below = std::ldexp(1.0, std::ilogb(resolution) + 53);
+    const double most_skin = below / (0.5 * finest_per_reach + width) - physical_cutoff;
+    double widest_edge = 0;
+    for (int a = 0; a < g.dim; ++a) widest_edge = std::max(widest_edge, g.length[a]);
+    s << "skin " << skin << " is too large: the neighbour structure holds the pairs within rc + skin = " << reach
+      << ", in cells at least " << finest << " wide, and positions staged relative to a cell's centre would round "
+      << "each r_ij component by up to " << ulp(finest_largest) << ", more than " << resolves << " "
+      << physical_cutoff << " (" << resolution << "); a skin here must be below " << most_skin;
+    if (widest_edge > 0)
+      s << ", and beyond the box (largest periodic edge " << widest_edge << ") it adds nothing: a structure for "
+        << "rc + skin >= half the edge already holds every pair along that axis";
+    throw Error(s.str());
+  }
+  // The cells the reach needs along each axis: the box edge on a periodic axis, the particles' span
+  // (at most n x c) on an open one.
+  double need[kMaxDim] = {1, 1, 1}, extent[kMaxDim] = {0, 0, 0};
+  int most = 0;
+  for (int a = 0; a < g.dim; ++a) {
+    extent[a] = g.inv_length[a] != 0.0 ? g.length[a] : g.cell[a] * g.n[a];
+    need[a] = std::max(1.0, std::floor(extent[a] / finest));
+    if (need[a] > need[most]) most = a;
+  }
+  const bool open = g.inv_length[most] == 0.0;
+  s << "the cutoff " << physical_cutoff << (skin > 0 ? " (plus skin " : "");
+  if (skin > 0) s << skin << ")";
+  s << " is too small for the " << (open ? "particles' span" : "box") << ": along " << kAxisName[most] << ", "
+    << (open ? "their span " : "its edge ") << extent[most] << (open ? " (an open axis)" : "")
+    << " would take " << need[most] << " cells at least " << finest << " wide (" << need[0] * need[1] * need[2]
+    << " in all), more than the grid's limit of " << kMaxCells << " cells; coarsened to " << g.n[0] << " x " << g.n[1]
+    << " x " << g.n[2] << " cells " << g.cell[axis] << " wide along " << kAxisName[axis]
+    << ", positions staged relative to their cell's centre would round each r_ij component by up to " << ulp(largest)
+    << ", more than " << resolves << " (" << resolution << "); use a larger cutoff or "
+    << (open ? "bring the particles far from the others closer on the open axis" : "a smaller periodic box")
+    << (precision == Precision::kDouble ? ", or mixed or single precision" : "");
   throw Error(s.str());
 }
 

@@ -256,9 +256,13 @@ Grid make_grid_unchecked(const Box& box, const uint32_t cells[kMaxDim], double h
 // a grid of a huge box (edge 5e9, or one particle 5e9 away on an open axis) within kMaxCells with
 // cells of ~5e6, where each staged coordinate rounds by ~5e-10 in double. Float pairs resolve
 // ulp_float(rc) and take a rounding up to that; double pairs take up to 2^-40 rc (~1e-12 rc, cells
-// up to ~8000 rc wide; the double engine's own error is ~1e-16). Throws cellforce::Error with the
-// cell edge, the rounding and what would help.
-void check_staging(const Grid& grid, double physical_cutoff, Precision precision);
+// up to ~8000 rc wide; the double engine's own error is ~1e-16). Throws cellforce::Error naming the
+// length at fault and what would help: a skin so far beyond the cutoff that even the finest cells for
+// rc + skin are too wide (the skin, the largest one that stages exactly, the box), or a grid that its
+// cell limit coarsened (the cutoff, the box edge or the particles' span on an open axis, and the
+// cells the cutoff would take). skin and rule: as the grid was planned with (plan_grid, GridOptions).
+void check_staging(const Grid& grid, double physical_cutoff, Precision precision, double skin = 0.0,
+                   CellRule rule = CellRule::kTight);
 
 // Throws cellforce::Error naming the violated condition (and axis, box, cutoff) when the grid
 // does not satisfy the design note's conditions for this cutoff and rule. With skin > 0 the

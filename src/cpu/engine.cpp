@@ -95,7 +95,7 @@ void CpuEngine::build(const SystemView& system, const ForceField& ff) {
   } else {
     stats.grid = plan_grid(system.box, ff.cutoff, system.positions, system.n, options.grid, skin);
     check_grid(stats.grid, system.box, ff.cutoff, options.grid.rule, skin);
-    check_staging(stats.grid, ff.cutoff, options.precision);
+    check_staging(stats.grid, ff.cutoff, options.precision, skin, options.grid.rule);
   }
   check_precision_range(ff, options.precision);
   cpu::build_cell_ids(stats.grid, system, s.ids);

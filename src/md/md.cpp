@@ -11,42 +11,74 @@
 namespace cellforce {
 namespace {
 
-[[noreturn]] void throw_diverged(std::size_t i, int axis, double displacement, double most, double limit) {
-  throw Error("particle " + std::to_string(i) + " moved " + format_number(displacement) + " along " +
-              std::string(1, "xyz"[axis]) + " in one drift, more than " + format_number(most) +
-              (limit == 1.0 ? " (the box edge)" : " (half the box edge, for each of a step's two half drifts)") +
-              ": the integration diverged; lower dt, or remove overlaps first");
-}
-
-// Moves every particle by h * v, in one pass over the arrays. A displacement that is not finite,
-// or longer than `limit` times the box length on a periodic axis, means the integration diverged:
-// the check compares displacements, never raw coordinates, so an unwrapped start is no
-// divergence. With `wrap` (a step's last drift) each moved position is then wrapped into [0, L)
-// on periodic axes; one that is no longer finite (an open axis that ran away) is named.
-void drift(MdState& s, double h, double limit, bool wrap) {
+// Moves every particle by h * v, in one pass over the arrays. A displacement that is not finite or
+// beyond drift_limit (share x the box edge on a periodic axis, share x the cutoff on an open one)
+// means the integration diverged: the check compares displacements, never raw coordinates, so an
+// unwrapped start is no divergence. With `wrap` (a step's last drift) each moved position is then
+// wrapped into [0, L) on periodic axes; one that is no longer finite is named.
+void drift(MdState& s, double h, double share, bool wrap, double cutoff) {
   const Box& box = s.config.box;
   const int dim = box.dim;
   const std::size_t n = s.config.size();
   double most[kMaxDim];
-  for (int a = 0; a < dim; ++a)
-    most[a] = box.periodic[a] ? limit * box.length[a] : std::numeric_limits<double>::infinity();
+  for (int a = 0; a < dim; ++a) most[a] = drift_limit(box, a, cutoff, share);
   for (std::size_t i = 0; i < n; ++i) {
     for (int a = 0; a < dim; ++a) {
       const double dx = h * s.velocities[i * dim + a];
-      if (!(std::abs(dx) <= most[a])) throw_diverged(i, a, dx, most[a], limit);  // also catches nan
       double& x = s.config.positions[i * dim + a];
+      if (!(std::abs(dx) <= most[a])) throw Error(diverged_message(i, a, dx, x + dx, box, cutoff, share));  // also nan
       x += dx;
       if (!wrap) continue;
-      if (!std::isfinite(x))
-        throw Error("particle " + std::to_string(i) + " left the finite numbers in one step (" +
-                    std::string(1, "xyz"[a]) + " = " + format_number(x) +
-                    "): the integration diverged; lower dt, or remove overlaps first");
+      if (!std::isfinite(x)) throw Error(diverged_message(i, a, dx, x, box, cutoff, share));
       if (box.periodic[a]) x = wrap_coordinate(x, box.length[a]);
     }
   }
 }
 
 }  // namespace
+
+double drift_limit(const Box& box, int axis, double cutoff, double share) {
+  return share * (box.periodic[axis] ? box.length[axis] : cutoff);
+}
+
+std::string diverged_message(std::size_t particle, int axis, double displacement, double position, const Box& box,
+                             double cutoff, double share) {
+  const std::string who = "particle " + std::to_string(particle);
+  const std::string along = std::string(1, "xyz"[axis]);
+  const double most = drift_limit(box, axis, cutoff, share);
+  std::string what;
+  if (std::abs(displacement) <= most) {  // a finite move from a position that ran out of the doubles
+    what = who + " left the finite numbers in one step (" + along +
+           (std::isnan(position) ? "" : " = " + format_number(position)) + ")";  // nan: not known
+  } else {
+    const std::string half = share == 1.0 ? "" : "half ";
+    what = who + " moved " + format_number(displacement) + " along " + along + " in one drift, more than " +
+           format_number(most) + " (" +
+           (box.periodic[axis] ? half + "the box edge" : half + "the cutoff, on an open axis: a longer move can pass "
+                                                                 "through a partner without their force acting") +
+           (share == 1.0 ? "" : ", for each of a step's two half drifts") + ")";
+  }
+  return what + ": the integration diverged; lower dt, or remove overlaps first";
+}
+
+void check_step_arithmetic(double dt, const std::vector<double>& masses, const std::vector<uint32_t>& types,
+                           const ForceField& ff) {
+  if (!std::isfinite(dt * dt))
+    throw Error("dt = " + format_number(dt) + " makes the step's arithmetic overflow: dt^2 = " +
+                format_number(dt * dt) + " is not a finite number (a step moves a particle by dt v + dt^2 F / 2m); "
+                "lower dt");
+  for (std::size_t i = 0; i < masses.size(); ++i) {
+    const double kick = 0.5 * dt / masses[i], move = kick * dt;
+    if (std::isfinite(kick) && std::isfinite(move)) continue;
+    std::string type;
+    if (i < types.size() && types[i] < ff.types.size()) type = " (type \"" + ff.types[types[i]].name + "\")";
+    throw Error("the mass " + format_number(masses[i]) + " of particle " + std::to_string(i) + type +
+                " with dt = " + format_number(dt) + " makes the step's arithmetic overflow: " +
+                (std::isfinite(kick) ? "dt^2 / 2m = " + format_number(move) : "dt / 2m = " + format_number(kick)) +
+                " is not a finite number (a step kicks by dt F / 2m and moves by dt v + dt^2 F / 2m); raise the "
+                "mass or lower dt");
+  }
+}
 
 double degrees_of_freedom(std::size_t n, int dim, bool com_conserved) {
   return std::max(1.0, double(dim) * (double(n) - (com_conserved ? 1.0 : 0.0)));
@@ -109,7 +141,7 @@ ThermoValues thermo(const MdState& s, const std::vector<double>& masses, const F
 }
 
 void advance(MdState& s, const std::vector<double>& masses, const IntegratorSettings& settings,
-             const std::function<void(MdState&)>& compute_forces) {
+             const std::function<void(MdState&)>& compute_forces, double cutoff) {
   const int dim = s.config.box.dim;
   const std::size_t n = s.config.size();
   const double dt = settings.dt;
@@ -121,7 +153,7 @@ void advance(MdState& s, const std::vector<double>& masses, const IntegratorSett
   };
   kick(0.5 * dt);
   if (settings.langevin) {
-    drift(s, 0.5 * dt, 0.5, false);  // two half drifts of at most L / 2: a step of at most L
+    drift(s, 0.5 * dt, 0.5, false, cutoff);  // two half drifts of at most half the limit: a step of at most it
     const double c1 = std::exp(-settings.friction * dt);
     const double c2 = std::sqrt(1.0 - c1 * c1);
     // stream = step number + 1 (stream 0 draws the initial velocities)
@@ -131,9 +163,9 @@ void advance(MdState& s, const std::vector<double>& masses, const IntegratorSett
       for (int a = 0; a < dim; ++a)
         s.velocities[i * dim + a] = c1 * s.velocities[i * dim + a] + sigma * counter_normal(settings.seed, stream, i * dim + a);
     }
-    drift(s, 0.5 * dt, 0.5, true);
+    drift(s, 0.5 * dt, 0.5, true, cutoff);
   } else {
-    drift(s, dt, 1.0, true);
+    drift(s, dt, 1.0, true, cutoff);
   }
   s.step += 1;
   s.time = double(s.step) * dt;  // not summed: the same after a restart

@@ -8,6 +8,8 @@
 
 #include <cstdint>
 #include <functional>
+#include <limits>
+#include <string>
 #include <vector>
 
 #include "core/random.h"
@@ -59,15 +61,41 @@ struct IntegratorSettings {
   uint64_t seed = 1;
 };
 
+// Refuses a time step whose arithmetic overflows for these masses: a step kicks by (dt / 2m) F and
+// moves a particle by dt v + dt^2 F / 2m, so dt^2 and, for every particle's mass m, dt / 2m and
+// dt^2 / 2m must be finite numbers. Throws cellforce::Error naming dt, or the particle, its type
+// (ff's name for types[i]) and its mass. Called where dt and the masses enter: the API's
+// set_state and set_integrator (so `cellforce run` meets it before any output), and
+// check_stable_start.
+void check_step_arithmetic(double dt, const std::vector<double>& masses, const std::vector<uint32_t>& types,
+                           const ForceField& ff);
+
+// The longest displacement one drift may make along `axis` before the integration counts as
+// diverged: `share` x the box edge on a periodic axis (beyond it the particle's image is
+// ambiguous) and `share` x the cutoff on an open axis (a particle that moves farther than the
+// cutoff in one step can pass a partner without their force ever acting: a collision the
+// integration cannot resolve). share: 1 for velocity Verlet's drift, 0.5 for each of a Langevin
+// step's two half drifts. The CPU's drift and the CUDA engine's kernels both take it from here.
+double drift_limit(const Box& box, int axis, double cutoff, double share);
+
+// The message of a drift that failed drift_limit, or whose new position is no longer finite
+// (`position`; NaN where it is not known), naming the particle, the axis, the displacement and the
+// limit.
+std::string diverged_message(std::size_t particle, int axis, double displacement, double position,
+                             const Box& box, double cutoff, double share);
+
 // One time step. `compute_forces(state)` must set state.forces at state's positions.
 //   NVE, velocity Verlet:  v += dt/2 F/m; x += dt v; F(x); v += dt/2 F/m
 //   Langevin, BAOAB (Leimkuhler & Matthews): v += dt/2 F/m; x += dt/2 v;
 //     v = c1 v + sqrt((1 - c1^2) kT/m) xi, c1 = exp(-gamma dt); x += dt/2 v; F(x); v += dt/2 F/m
 // Positions are wrapped into the box on periodic axes after the drift. Throws cellforce::Error
-// naming the particle when its displacement in one step is not finite or longer than the box on a
-// periodic axis, or its position is no longer finite (the integration diverged). Positions given
-// outside the box are no divergence: the check looks at displacements only.
+// naming the particle when its displacement in one drift is not finite or beyond drift_limit (the
+// box edge on a periodic axis, the cutoff on an open one), or its position is no longer finite (the
+// integration diverged). Positions given outside the box are no divergence: the check looks at
+// displacements only. cutoff: the force field's (the MD engines pass it; infinite leaves open axes
+// unchecked but for finite numbers).
 void advance(MdState& state, const std::vector<double>& masses, const IntegratorSettings& settings,
-             const std::function<void(MdState&)>& compute_forces);
+             const std::function<void(MdState&)>& compute_forces,
+             double cutoff = std::numeric_limits<double>::infinity());
 
 }  // namespace cellforce

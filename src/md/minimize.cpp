@@ -209,9 +209,29 @@ double smallest_sigma(const ForceField& ff) {
 
 void check_stable_start(const MdState& s, const std::vector<double>& masses, double dt, const ForceField& ff,
                         const std::string& remedy) {
+  check_step_arithmetic(dt, masses, s.config.types, ff);
   const FirstStepKick kick = first_step_kick(s, masses, dt);
   const double limit = 0.1 * smallest_sigma(ff);
   if (kick.displacement <= limit) return;
+
+  // The move is (dt^2 / 2m) |F|: either the step's scale dt^2 / 2m is too large for this particle's
+  // mass, so that a force of ordinary size (24 epsilon/sigma, two particles at distance sigma)
+  // already moves it too far, or the force is beyond that size (overlapping particles).
+  const std::size_t p = kick.particle;
+  const uint32_t type = p < s.config.types.size() ? s.config.types[p] : 0;
+  double contact = 0;  // the largest pair force at r = sigma among the particle type's pairs
+  for (std::size_t b = 0; b < ff.num_types(); ++b)
+    contact = std::max(contact, 24.0 * ff.pair_epsilon(type, b) / ff.pair_sigma(type, b));
+  const double scale = 0.5 * dt * dt / masses[p];
+  if (scale * contact > limit) {
+    const std::string name = type < ff.types.size() ? " (type \"" + ff.types[type].name + "\")" : "";
+    throw Error("dt = " + number(dt) + " is too long a step for the mass " + number(masses[p]) + " of particle " +
+                std::to_string(p) + name + ": a step moves it by dt^2 |F| / 2m = " + number(scale) +
+                " x |F|, so that already the force between two particles at distance sigma (24 epsilon/sigma = " +
+                number(contact) + ") would move it by " + number(scale * contact) +
+                ", more than 0.1 x the smallest sigma (" + number(limit) + "); with this mass dt must be below " +
+                number(std::sqrt(2.0 * limit * masses[p] / contact)) + " (lower dt, or check the mass)");
+  }
 
   // The nearest neighbour of the particle (minimum image on periodic axes): usually the overlap.
   const Box& box = s.config.box;

@@ -132,7 +132,10 @@ FirstStepKick first_step_kick(const MdState& state, const std::vector<double>& m
 double smallest_sigma(const ForceField& ff);
 
 // Refuses to start dynamics from state.forces when the first step would move a particle by more
-// than 0.1 x the smallest sigma: throws cellforce::Error naming the particle, its force, its
+// than 0.1 x the smallest sigma, or when the step's arithmetic overflows (check_step_arithmetic).
+// The cause it names is the factor of dt^2 |F| / 2m that is out of range: where even the force of
+// a pair at distance sigma (24 epsilon/sigma) would move the particle too far, dt and its mass
+// (with the dt that mass allows); otherwise the force, an overlap: the particle, its force, its
 // nearest neighbour (minimum image) and their distance, the displacement, and what to do (a
 // [minimize] section, or a lower dt; `remedy`, when given, replaces that advice). Lattice starts
 // (forces ~0) and random starts with a minimum distance of ~0.8 sigma (forces up to ~1e3) pass at
