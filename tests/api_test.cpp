@@ -250,6 +250,44 @@ TEST(CApi, SiUnitsGiveTheReducedForcesInEveryPrecision) {
     }
 }
 
+// A sigma far from the particles' spacing (1e4, the liquid's unit spacing left as it was) makes
+// the force of two particles 1 apart overflow float: in single and mixed precision the error names
+// the pair, the distance in sigmas, sigma and its type, and F/r against the precision's range, not
+// only the particles (F/r = 48 eps sigma^12 / r^14 ~ 4.8e49); double evaluates the pair (F = 48 eps
+// sigma^12 / r^13 - 24 eps sigma^6 / r^7, to 1e-13).
+TEST(Api, AFloatForceBeyondRangeNamesSigma) {
+  const double pos[6] = {2.0, 3.0, 3.0, 3.0, 3.0, 3.0};
+  const double box[3] = {10, 10, 10};
+  const bool periodic[3] = {true, true, true};
+  for (cf::Backend backend : backends_here())
+    for (cf::Precision p : kPrecisions) {
+      SCOPED_TRACE(std::string(cf::to_string(backend)) + " " + cf::to_string(p));
+      cf::Context ctx(3);
+      ctx.set_box(box, periodic);
+      ctx.set_cutoff(2.5);
+      ctx.add_type("A", 1e4, 1.0);
+      ctx.set_backend(backend);
+      ctx.set_precision(p);
+      double f[6] = {};
+      if (p == cf::Precision::kDouble) {
+        ctx.compute(2, pos, nullptr, {f, nullptr, nullptr, nullptr});
+        const double want = 48 * std::pow(1e4, 12) - 24 * std::pow(1e4, 6);  // r = 1
+        EXPECT_NEAR(f[3], want, 1e-13 * want);
+        continue;
+      }
+      try {
+        ctx.compute(2, pos, nullptr, {f, nullptr, nullptr, nullptr});
+        ADD_FAILURE() << "the float evaluation was accepted";
+      } catch (const cf::Error& e) {
+        const std::string msg = e.what();
+        EXPECT_THAT(msg, HasSubstr("particles 0 and 1 are too close (r = 1, 1e-04 sigma with sigma 10000 of type 'A')"));
+        EXPECT_THAT(msg, HasSubstr("F/r ~ 4.8"));
+        EXPECT_THAT(msg, HasSubstr("e+49, is beyond " + std::string(cf::to_string(p)) + " precision's float range"));
+        EXPECT_THAT(msg, HasSubstr("else correct sigma of type 'A'"));
+      }
+    }
+}
+
 // The box, the particle count and the types may change between calls: each call equals a fresh
 // context's, and the brute force.
 TEST(Api, BoxAndParticleCountMayChangeBetweenCalls) {

@@ -535,8 +535,8 @@ cf::Context drifting_pair(cf::Backend backend, double vx, double vy, bool langev
 
 // On an open axis a drift longer than the cutoff is a divergence (a particle that far in one step
 // can pass a partner without their force acting), named with the particle, axis, displacement and
-// limit as on a periodic axis, whose limit stays the box edge. Before, open axes took any finite
-// drift, and a run that blew up there ended at the grid's cell limit ("the box is too large").
+// limit as on a periodic axis, whose limit stays the box edge; a run that blows up on an open axis
+// is named so, not left to end at the grid's cell limit.
 TEST_P(MdApi, AnOpenAxisDriftLongerThanTheCutoffIsADivergence) {
   const cf::Backend backend = GetParam();
   auto message = [&](double vx, double vy, bool langevin) {
@@ -582,7 +582,7 @@ TEST(MdApiSteps, ADtOrAMassThatOverflowsTheStepIsNamed) {
     ctx.set_state(2, x, nullptr, nullptr, m);
     ADD_FAILURE() << "mass 1e-320 was accepted at dt 2^-7";
   } catch (const cf::Error& e) {
-    EXPECT_THAT(e.message(), HasSubstr("the mass 1e-320 of particle 1 (type \"A\") with dt = 0.0078125 makes the "
+    EXPECT_THAT(e.message(), HasSubstr("the mass 1e-320 of particle 1 (type 'A') with dt = 0.0078125 makes the "
                                        "step's arithmetic overflow: dt / 2m = inf"));
   }
 }

@@ -357,13 +357,12 @@ std::size_t thermo_rows(const std::string& path) {
 
 // Two `cellforce run` processes started at once into one folder (fresh, with --overwrite, and two
 // restarts from one checkpoint): exactly one runs; the other is refused before it writes anything,
-// naming the file another run holds; the survivor's thermo file and trajectory are whole. Before
-// outputs were claimed, both passed their checks, the loser's header-only thermo file replaced
-// the survivor's and the trajectory was truncated under it.
+// naming the file another run holds; the survivor's thermo file and trajectory are whole (not
+// the loser's header-only thermo file, nor a trajectory truncated under the survivor).
 TEST_F(RunFolder, TwoRunsStartedAtOnceIntoOneFolderOneRunsAndTheOtherTouchesNothing) {
   const std::string program = cftest::cellforce_binary();
   if (program.empty()) GTEST_SKIP() << "no cellforce program beside the tests (set CELLFORCE_EXE)";
-  // 10,000 steps (about a second): the second run starts long before the first ends.
+  // 10,000 steps of a small system: the second run starts long before the first ends.
   const int64_t steps = 10000;
   std::ofstream("scene.toml") << scene_text("nve", "cpu", steps);
   const std::size_t rows = steps / 7 + 2;    // steps 0, 7, ..., 9996 and the last, 10000
@@ -402,7 +401,7 @@ TEST_F(RunFolder, TwoRunsStartedAtOnceIntoOneFolderOneRunsAndTheOtherTouchesNoth
     EXPECT_EQ(f.velocities.size(), f.positions.size());
     EXPECT_EQ(load("ckpt.h5").step, steps);
     for (const auto& e : fs::directory_iterator(dir_))  // no temporary or lock file is left
-      EXPECT_THAT(e.path().filename().string(), Not(testing::AnyOf(HasSubstr(".partial"), HasSubstr(".lock"))));
+      EXPECT_THAT(e.path().filename().string(), Not(testing::AnyOf(HasSubstr(".partial"), HasSubstr(".cellforce-lock"))));
   }
 }
 
@@ -424,7 +423,7 @@ TEST_F(RunFolder, AnOutputAnotherRunHoldsIsRefusedBeforeAnythingIsWritten) {
       args.steps = restart ? 60 : -1;
       const std::string msg = cftest::error_of([&] { run_md(args); });
       EXPECT_THAT(msg, HasSubstr(held + ": in use by another cellforce run (process " + std::to_string(::getpid())));
-      EXPECT_THAT(msg, HasSubstr(held + ".lock"));
+      EXPECT_THAT(msg, HasSubstr(held + ".cellforce-lock"));
       EXPECT_EQ(read("thermo.csv"), thermo);
       EXPECT_EQ(read("traj.h5"), traj);
       EXPECT_EQ(read("ckpt.h5"), ckpt);
@@ -436,7 +435,7 @@ TEST_F(RunFolder, AnOutputAnotherRunHoldsIsRefusedBeforeAnythingIsWritten) {
   args.steps = 60;
   EXPECT_EQ(run_md(args), 0);
   EXPECT_EQ(load("ckpt.h5").step, 60);
-  for (const auto& e : fs::directory_iterator(dir_)) EXPECT_THAT(e.path().filename().string(), Not(HasSubstr(".lock")));
+  for (const auto& e : fs::directory_iterator(dir_)) EXPECT_THAT(e.path().filename().string(), Not(HasSubstr(".cellforce-lock")));
 }
 
 // Temporary files that killed writers left beside the outputs are removed by the next run that

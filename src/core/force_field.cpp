@@ -80,8 +80,10 @@ void check_precision_range(const ForceField& ff, Precision precision) {
       // Length: the unit lambda (~sigma) and the cutoff in it; energy: epsilon and the force
       // constants epsilon / lambda^2.
       const bool length_ok = inside(p.inv_s2) && inside(rc2 * p.inv_s2);
-      const bool energy_ok = inside(p.e12) && inside(p.e6) && inside(p.f12) && inside(p.f6) && inside(p.u_rc) &&
-                             inside(p.f_rc);
+      // U(rc) and F(rc) only shift what they are subtracted from: below float's range they are
+      // nothing to it; only overflow matters.
+      const bool energy_ok = inside(p.e12) && inside(p.e6) && inside(p.f12) && inside(p.f6) &&
+                             std::fabs(p.u_rc) <= kFloatRangeHigh && std::fabs(p.f_rc) <= kFloatRangeHigh;
       if (length_ok && energy_ok) continue;
       const std::string pair = a == b ? "type " + quote_excerpt(ff.types[a].name)
                                       : "pair " + quote_excerpt(ff.types[a].name) + "-" + quote_excerpt(ff.types[b].name);

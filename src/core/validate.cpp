@@ -79,15 +79,16 @@ void throw_close_pair(const SystemView& system, uint32_t i, uint32_t j, double r
     if (!ff || ti >= ff->num_types() || tj >= ff->num_types()) {
       s += "): the Lennard-Jones force is not finite in this precision";
     } else {
-      // F(r) ~ 48 eps / sigma (sigma / r)^13 near contact, in double (inf where double overflows too).
+      // The evaluator forms F(r) / r ~ 48 eps / sigma^2 (sigma / r)^14 near contact (in double here:
+      // inf where double overflows too), and each of its factors is below it there.
       const double r = std::sqrt(exact2), sigma = ff->pair_sigma(ti, tj), eps = ff->pair_epsilon(ti, tj);
-      const double force = 48.0 * eps / sigma * std::pow(sigma / r, 13.0);
+      const double force = 48.0 * eps / (sigma * sigma) * std::pow(sigma / r, 14.0);
       const std::string pair = ti == tj ? "type " + quote_excerpt(ff->types[ti].name)
                                         : "pair " + quote_excerpt(ff->types[std::min(ti, tj)].name) + "-" +
                                               quote_excerpt(ff->types[std::max(ti, tj)].name);
       const bool in_float = precision != Precision::kDouble;
       s += ", " + format_number(r / sigma) + " sigma with sigma " + format_number(sigma) + " of " + pair +
-           "): the Lennard-Jones force there, ~" + format_number(force) + ", is beyond " +
+           "): the Lennard-Jones force over the distance there, F/r ~ " + format_number(force) + ", is beyond " +
            (in_float ? std::string(to_string(precision)) + " precision's float range (~3.4e38)"
                      : std::string("double's range")) +
            "; if sigma of " + pair + " is right, the particles overlap (minimise first" +

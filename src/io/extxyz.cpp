@@ -15,6 +15,7 @@
 #include "core/numbers.h"
 #include "core/text.h"
 #include "io/configuration_file.h"
+#include "io/text_file.h"
 
 namespace cellforce {
 namespace {
@@ -263,35 +264,27 @@ ConfigurationFile read_extxyz(const std::string& file, const ReadOptions& option
 void write_extxyz(const std::string& path, const Configuration& config,
                   const std::vector<std::string>& species) {
   const int dim = config.box.dim;
-  const std::string tmp = path + ".partial";
-  {
-    std::FILE* f = std::fopen(tmp.c_str(), "w");
-    if (!f) throw Error(path + ": cannot write the file");
-    const double* L = config.box.length;
-    const bool* p = config.box.periodic;
-    std::fprintf(f, "%zu\nLattice=\"%.17g 0 0 0 %.17g 0 0 0 %.17g\" Properties=species:S:1:pos:R:3 pbc=\"%c %c %c\"\n",
-                 config.size(), L[0], L[1], dim == 3 ? L[2] : 1.0, p[0] ? 'T' : 'F', p[1] ? 'T' : 'F',
-                 dim == 3 && p[2] ? 'T' : 'F');
-    for (std::size_t i = 0; i < config.size(); ++i) {
-      const double* x = &config.positions[i * std::size_t(dim)];
-      const uint32_t t = config.types.empty() ? 0 : config.types[i];
-      if (t >= species.size()) {
-        std::fclose(f);
-        std::remove(tmp.c_str());
-        throw Error(path + ": particle " + std::to_string(i) + " has type " + std::to_string(t) +
-                    " but only " + std::to_string(species.size()) + " species are named");
-      }
-      std::fprintf(f, "%s %.17g %.17g %.17g\n", species[t].c_str(), x[0], x[1], dim == 3 ? x[2] : 0.0);
-    }
-    if (std::fclose(f) != 0) {
-      std::remove(tmp.c_str());
-      throw Error(path + ": cannot write the file");
-    }
+  const double* L = config.box.length;
+  const bool* p = config.box.periodic;
+  std::string text;
+  char line[512];
+  std::snprintf(line, sizeof line,
+                "%zu\nLattice=\"%.17g 0 0 0 %.17g 0 0 0 %.17g\" Properties=species:S:1:pos:R:3 pbc=\"%c %c %c\"\n",
+                config.size(), L[0], L[1], dim == 3 ? L[2] : 1.0, p[0] ? 'T' : 'F', p[1] ? 'T' : 'F',
+                dim == 3 && p[2] ? 'T' : 'F');
+  text += line;
+  for (std::size_t i = 0; i < config.size(); ++i) {
+    const double* x = &config.positions[i * std::size_t(dim)];
+    const uint32_t t = config.types.empty() ? 0 : config.types[i];
+    if (t >= species.size())
+      throw Error(path + ": particle " + std::to_string(i) + " has type " + std::to_string(t) + " but only " +
+                  std::to_string(species.size()) + " species are named");
+    std::snprintf(line, sizeof line, " %.17g %.17g %.17g\n", x[0], x[1], dim == 3 ? x[2] : 0.0);
+    text += species[t];
+    text += line;
   }
-  if (std::rename(tmp.c_str(), path.c_str()) != 0) {
-    std::remove(tmp.c_str());
-    throw Error(path + ": cannot move the finished file into place");
-  }
+  // Whole or not at all, under a temporary name of its own (text_file.h).
+  write_bytes_atomically(path, text.data(), text.size(), "the configuration");
 }
 
 }  // namespace cellforce

@@ -37,7 +37,8 @@ fs::path resolved(const std::string& path) {
 
 std::string in_quotes(const std::string& path) { return "'" + path + "'"; }
 
-std::string lock_path_of(const std::string& path) { return resolved(path).string() + ".lock"; }
+// A name of cellforce's own, so that a user's file (NAME.lock, say) is never taken for a lock.
+std::string lock_path_of(const std::string& path) { return resolved(path).string() + ".cellforce-lock"; }
 
 // The process ID written in a lock file (0 when it holds none).
 long read_pid(int fd) {
@@ -183,7 +184,9 @@ OutputClaim claim_output_files(const std::vector<OutputFile>& outputs, const std
                       (pid > 0 ? "process " + std::to_string(pid) : std::string("another process")) +
                       " holds its lock file " + in_quotes(lock.lock_path) + "; " + out.name +
                       "); wait for that run to end, or write to other files");
-        // A file system without locks (ENOLCK, EOPNOTSUPP): the outputs are checked, not claimed.
+        // A file system without locks (ENOLCK, EOPNOTSUPP): the outputs are checked, not claimed,
+        // and the lock file goes again unless another run wrote its ID into it.
+        if (pid == 0) ::unlink(lock.lock_path.c_str());
         lock.fd = -1;
         break;
       }

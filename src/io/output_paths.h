@@ -6,8 +6,8 @@
 // as files, not as text: "./a.h5" and "a.h5", a symbolic link and its target, and two hard links
 // to one file are the same file.
 //
-// The checks also claim the outputs for the command: each output's lock file, PATH.lock beside
-// it (PATH resolved, so every spelling of one file shares one lock), is locked with flock(2) and
+// The checks also claim the outputs for the command: each output's lock file, PATH.cellforce-lock
+// beside it (PATH resolved, so every spelling of one file shares one lock), is locked with flock(2) and
 // holds the owner's process ID. Two commands started at once on the same output (two processes,
 // or two threads of one) cannot both hold it: the second is refused before it writes anything,
 // and told which process holds it. The kernel drops a lock when its process dies, so a killed run

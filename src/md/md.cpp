@@ -71,7 +71,7 @@ void check_step_arithmetic(double dt, const std::vector<double>& masses, const s
     const double kick = 0.5 * dt / masses[i], move = kick * dt;
     if (std::isfinite(kick) && std::isfinite(move)) continue;
     std::string type;
-    if (i < types.size() && types[i] < ff.types.size()) type = " (type \"" + ff.types[types[i]].name + "\")";
+    if (i < types.size() && types[i] < ff.types.size()) type = " (type " + quote_excerpt(ff.types[types[i]].name) + ")";
     throw Error("the mass " + format_number(masses[i]) + " of particle " + std::to_string(i) + type +
                 " with dt = " + format_number(dt) + " makes the step's arithmetic overflow: " +
                 (std::isfinite(kick) ? "dt^2 / 2m = " + format_number(move) : "dt / 2m = " + format_number(kick)) +

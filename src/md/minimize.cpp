@@ -8,6 +8,7 @@
 
 #include "core/box.h"
 #include "core/error.h"
+#include "core/text.h"
 #include "md/fire_step.h"
 
 namespace cellforce {
@@ -200,10 +201,12 @@ FirstStepKick first_step_kick(const MdState& s, const std::vector<double>& masse
   return out;
 }
 
+// Pairs with sigma = 0 or epsilon = 0 do not interact (core/lj.h) and set no length.
 double smallest_sigma(const ForceField& ff) {
   double smallest = std::numeric_limits<double>::infinity();
   for (std::size_t a = 0; a < ff.num_types(); ++a)
-    for (std::size_t b = a; b < ff.num_types(); ++b) smallest = std::min(smallest, ff.pair_sigma(a, b));
+    for (std::size_t b = a; b < ff.num_types(); ++b)
+      if (ff.pair_sigma(a, b) > 0.0 && ff.pair_epsilon(a, b) > 0.0) smallest = std::min(smallest, ff.pair_sigma(a, b));
   return smallest;
 }
 
@@ -221,10 +224,11 @@ void check_stable_start(const MdState& s, const std::vector<double>& masses, dou
   const uint32_t type = p < s.config.types.size() ? s.config.types[p] : 0;
   double contact = 0;  // the largest pair force at r = sigma among the particle type's pairs
   for (std::size_t b = 0; b < ff.num_types(); ++b)
-    contact = std::max(contact, 24.0 * ff.pair_epsilon(type, b) / ff.pair_sigma(type, b));
+    if (ff.pair_sigma(type, b) > 0.0 && ff.pair_epsilon(type, b) > 0.0)
+      contact = std::max(contact, 24.0 * ff.pair_epsilon(type, b) / ff.pair_sigma(type, b));
   const double scale = 0.5 * dt * dt / masses[p];
   if (scale * contact > limit) {
-    const std::string name = type < ff.types.size() ? " (type \"" + ff.types[type].name + "\")" : "";
+    const std::string name = type < ff.types.size() ? " (type " + quote_excerpt(ff.types[type].name) + ")" : "";
     throw Error("dt = " + number(dt) + " is too long a step for the mass " + number(masses[p]) + " of particle " +
                 std::to_string(p) + name + ": a step moves it by dt^2 |F| / 2m = " + number(scale) +
                 " x |F|, so that already the force between two particles at distance sigma (24 epsilon/sigma = " +

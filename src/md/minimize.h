@@ -128,7 +128,8 @@ struct FirstStepKick {
 };
 FirstStepKick first_step_kick(const MdState& state, const std::vector<double>& masses, double dt);
 
-// The smallest pair sigma of the force field (over every pair of types, explicit pairs included).
+// The smallest pair sigma of the force field over the pairs that interact (sigma and epsilon > 0;
+// explicit pairs included); infinity when none does.
 double smallest_sigma(const ForceField& ff);
 
 // Refuses to start dynamics from state.forces when the first step would move a particle by more
