@@ -623,9 +623,9 @@ __global__ void gather_sizes(const unsigned long long* __restrict__ sizes,
 // power of two, exact) once, at the end. The constants take one more rounding (2^-24 relative,
 // against the two roundings per axis the fold saves).
 struct FixedFold {
-  double kf13 = 1, kf7 = 1;  // lambda g^-13 and lambda g^-7: f12 and f6
-  double ke13 = 1, ke7 = 1;  // g^-13 / lambda and g^-7 / lambda: e12 and e6
-  double k1 = 1;             // 1 / G: u_rc and rc
+  // The single type's constants (table[0]), folded on the host: f12 lambda g^-13, f6 lambda g^-7,
+  // e12 g^-13 / lambda, e6 g^-7 / lambda, u_rc / G and rc / G (f_rc as it is).
+  float f12 = 0, f6 = 0, e12 = 0, e6 = 0, u_rc = 0, rc = 0;
   float hi = 0;              // s_hi / lambda
   float rc2 = 0;             // rc^2 / G^2
   double eps = 0;            // g - 1: the observables' sums times g, as v + v eps
@@ -768,16 +768,12 @@ __global__ void __launch_bounds__(B)
   Accum f[D] = {};
   Accum ea = 0;
   if (p < n) {
-    LJParams<Real> single = args.table[0];
+    LJParams<Real> single = args.first;
     Real rc2 = args.rc2;
     if constexpr (Folded) {
       single.inv_s2 = Real(1);  // d' is in the pair's unit already: lj_terms' multiply folds away
-      single.f12 = Real(double(single.f12) * fold.kf13);
-      single.f6 = Real(double(single.f6) * fold.kf7);
-      single.e12 = Real(double(single.e12) * fold.ke13);
-      single.e6 = Real(double(single.e6) * fold.ke7);
-      single.u_rc = Real(double(single.u_rc) * fold.k1);
-      single.rc = Real(double(single.rc) * fold.k1);
+      single.f12 = fold.f12, single.f6 = fold.f6, single.e12 = fold.e12, single.e6 = fold.e6;
+      single.u_rc = fold.u_rc, single.rc = fold.rc;
       rc2 = fold.rc2;
     }
     // Entry k at entries[(k / kChunk) * kGroup * kChunk + k % kChunk] (list_entry): a warp's
@@ -1323,12 +1319,13 @@ void list_forces(const Switches& sw, const ListArgs<Real, Accum>& given, PairLis
     const float hi = scale.axis[0].hi;  // 0 only for an empty axis: no fold (g = 1)
     const double g = hi != 0.0f ? 1.0 + double(scale.axis[0].lo) / double(hi) : 1.0;
     const int k = args.unit_exponent;  // the single type's length unit lambda = 2^k
-    const double lambda = std::ldexp(1.0, k);
-    fold.kf13 = lambda * std::pow(g, -13.0);
-    fold.kf7 = lambda * std::pow(g, -7.0);
-    fold.ke13 = std::pow(g, -13.0) / lambda;
-    fold.ke7 = std::pow(g, -7.0) / lambda;
-    fold.k1 = 1.0 / (g * lambda);
+    const double lambda = std::ldexp(1.0, k), g13 = std::pow(g, -13.0), g7 = std::pow(g, -7.0);
+    fold.f12 = float(double(args.first.f12) * (lambda * g13));
+    fold.f6 = float(double(args.first.f6) * (lambda * g7));
+    fold.e12 = float(double(args.first.e12) * (g13 / lambda));
+    fold.e6 = float(double(args.first.e6) * (g7 / lambda));
+    fold.u_rc = float(double(args.first.u_rc) / (g * lambda));
+    fold.rc = float(double(args.first.rc) / (g * lambda));
     fold.hi = std::ldexp(hi, -k);
     fold.eps = g - 1.0;
     fold.lambda = lambda;

@@ -252,6 +252,7 @@ struct ListArgs {
   const uint32_t* types = nullptr;     // n or null (all type 0)
   uint32_t num_types = 1;
   const LJParams<Real>* table = nullptr;
+  LJParams<Real> first;                // table[0], as the host made it (the kernels' single type)
   int unit_exponent = 0;               // table[0]'s length unit lambda = 2^k (lj_unit_exponent)
   Real rc2 = 0;
   double* forces = nullptr;            // n x dim, user order (written, not added to)
