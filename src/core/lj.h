@@ -20,9 +20,9 @@ namespace cellforce {
 
 // Per type pair, in a length unit lambda of its own: lambda = 2^k, the power of two at or below the
 // pair's sigma (1 <= sigma / lambda < 2), so that r^2 / lambda^2 is r^2 * inv_s2 without rounding.
-// The evaluator works with q = lambda^2 / r^2 and constants near 1 (up to 48 * 2^12 eps), which
-// keeps every intermediate of a float evaluation inside float's range for any sigma with
-// r^2 normal (sigma^12 or r^-12 in the pair's own units would leave it: sigma = 3.4e-10 m has
+// The evaluator works with q = lambda^2 / r^2 (near 1 at contact) and constants of epsilon's size
+// in that unit (e12 < 2^14 eps, f12 < 48 x 2^12 eps / lambda^2), which keeps every intermediate of
+// a float evaluation inside float's range for any sigma with r^2 normal (sigma^12 or r^-12 in the pair's own units would leave it: sigma = 3.4e-10 m has
 // sigma^12 ~ 1e-113), and makes the float result the same as that of the system in reduced
 // units, roundings and all, whatever its length scale.
 //   F(r) / r = f12 q^7 - f6 q^4      f12 = 48 eps (sigma / lambda)^12 / lambda^2
