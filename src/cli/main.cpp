@@ -156,22 +156,18 @@ int evaluate(const EvaluateArgs& args) {
   return 0;
 }
 
-// A name from `names` (case-insensitive), shown in --help as {a,b,c}; the option receives the
-// named enum value (CLI11 reads an enum from its integer).
+// A name from `names` as cli::name_in reads it (any letter case, shown in --help as {a,b,c}); the
+// option receives the named enum value (CLI11 reads an enum from its integer).
 template <class T>
 CLI::Validator one_of(const std::map<std::string, T>& names) {
-  std::string keys;
-  for (const auto& entry : names) keys += (keys.empty() ? "" : ", ") + entry.first;
+  const CLI::Validator name = cli::name_in(names);
   return CLI::Validator(
-      [names, keys](std::string& value) -> std::string {
-        for (const auto& [name, v] : names)
-          if (cli::lowercase(value) == name) {
-            value = std::to_string(static_cast<int>(v));
-            return {};
-          }
-        return quote_excerpt(value) + " is not one of " + keys;
+      [names, name](std::string& value) -> std::string {
+        std::string error = name(value);  // value in lower case when it names one
+        if (error.empty()) value = std::to_string(static_cast<int>(names.at(value)));
+        return error;
       },
-      "{" + keys + "}");
+      name.get_description());
 }
 
 // The options that choose and configure the engine, shared by every command that evaluates.
