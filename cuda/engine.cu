@@ -557,7 +557,6 @@ struct GpuEngine::Impl {
     la.num_types = uint32_t(ff.num_types());
     la.table = as<LJParams<Real>>(table);
     la.first = make_lj_params<Real>(ff.pair_sigma(0, 0), ff.pair_epsilon(0, 0), ff.cutoff, ff.mode);
-    la.unit_exponent = lj_unit_exponent(ff.pair_sigma(0, 0), ff.cutoff);
     la.rc2 = Real(ff.cutoff) * Real(ff.cutoff);
     la.forces = forces.data();
     la.energies = req.energy ? energies.data() : nullptr;

@@ -1318,7 +1318,7 @@ void list_forces(const Switches& sw, const ListArgs<Real, Accum>& given, PairLis
   {
     const float hi = scale.axis[0].hi;  // 0 only for an empty axis: no fold (g = 1)
     const double g = hi != 0.0f ? 1.0 + double(scale.axis[0].lo) / double(hi) : 1.0;
-    const int k = args.unit_exponent;  // the single type's length unit lambda = 2^k
+    const int k = -std::ilogb(double(args.first.inv_s2)) / 2;  // the single type's unit lambda = 2^k
     const double lambda = std::ldexp(1.0, k), g13 = std::pow(g, -13.0), g7 = std::pow(g, -7.0);
     fold.f12 = float(double(args.first.f12) * (lambda * g13));
     fold.f6 = float(double(args.first.f6) * (lambda * g7));

@@ -253,7 +253,6 @@ struct ListArgs {
   uint32_t num_types = 1;
   const LJParams<Real>* table = nullptr;
   LJParams<Real> first;                // table[0], as the host made it (the kernels' single type)
-  int unit_exponent = 0;               // table[0]'s length unit lambda = 2^k (lj_unit_exponent)
   Real rc2 = 0;
   double* forces = nullptr;            // n x dim, user order (written, not added to)
   double* energies = nullptr;          // n or null: half of each pair's energy

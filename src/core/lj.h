@@ -41,18 +41,12 @@ struct LJParams {
   Real rc = 0;    // the cutoff, used by force shift's energy
 };
 
-// The exponent k of a pair's length unit lambda = 2^k (see LJParams): floor(log2 sigma), or of
-// the cutoff for a pair with sigma = 0.
-inline int lj_unit_exponent(double sigma, double cutoff) {
-  return std::ilogb(sigma > 0.0 ? sigma : cutoff);
-}
-
 // Builds the parameters of one pair in double and rounds them once to Real. In double the
 // constants are near 1 too; in float they must also be normal floats, which check_precision_range
 // (core/force_field.h) checks before any evaluation.
 template <class Real>
 LJParams<Real> make_lj_params(double sigma, double epsilon, double cutoff, CutoffMode mode) {
-  const int k = lj_unit_exponent(sigma, cutoff);
+  const int k = std::ilogb(sigma > 0.0 ? sigma : cutoff);  // lambda = 2^k (the cutoff's for sigma = 0)
   const bool interacts = sigma > 0.0 && epsilon > 0.0;
   const double s = std::ldexp(sigma, -k);            // sigma / lambda, in [1, 2)
   const double inv_l2 = std::ldexp(1.0, -2 * k);     // 1 / lambda^2

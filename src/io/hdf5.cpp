@@ -46,13 +46,6 @@ void quiet() {
   throw Error(display_path(where) + ": " + what);
 }
 
-std::string errno_reason(int code) {
-  if (code == ENOSPC) return "no space left on the device (the disk is full)";
-  if (code == EDQUOT) return "the disk quota is exceeded";
-  if (code == EFBIG) return "the file is larger than the system allows";
-  return std::strerror(code);
-}
-
 // The operating system's reason for the HDF5 call that just failed, from HDF5's error stack (its
 // POSIX file driver records errno in the message of a failed read, write or truncate: "...,
 // errno = 28, error message = 'No space left on device', ..."); empty when the stack names none.
@@ -112,8 +105,7 @@ std::string open_failure(const std::string& path) {
     return "the file is locked by another process that has it open for writing (HDF5 file locking); read it "
            "when that process has closed it, or read a copy";
   }
-  const std::string reason = system_reason();
-  return reason.empty() ? std::string() : reason;
+  return system_reason();
 }
 
 // fail() for an HDF5 call that returned an error: the system's reason is added when HDF5 names one.

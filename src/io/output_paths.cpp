@@ -122,6 +122,13 @@ std::string partial_name(const std::string& path) {
   return path + ".partial-" + std::to_string(::getpid()) + "-" + std::to_string(random() % 1000000000000ull);
 }
 
+std::string errno_reason(int code) {
+  if (code == ENOSPC) return "no space left on the device (the disk is full)";
+  if (code == EDQUOT) return "the disk quota is exceeded";
+  if (code == EFBIG) return "the file is larger than the system allows";
+  return std::strerror(code);
+}
+
 long claim_holder(const std::string& path) {
   const int fd = ::open(lock_path_of(path).c_str(), O_RDONLY | O_CLOEXEC);
   if (fd < 0) return 0;
@@ -168,7 +175,7 @@ OutputClaim claim_output_files(const std::vector<OutputFile>& outputs, const std
       if (lock.fd < 0) {
         const int code = errno;
         throw Error(out.path + ": cannot write in its folder " + in_quotes(folder.empty() ? "." : folder.string()) +
-                    " (" + out.name + "): " + std::strerror(code));
+                    " (" + out.name + "): " + errno_reason(code));
       }
       if (::flock(lock.fd, LOCK_EX | LOCK_NB) != 0) {
         const int code = errno;

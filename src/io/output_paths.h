@@ -79,6 +79,10 @@ bool same_file(const std::string& a, const std::string& b);
 // so has no write of `path` under way). A live writer's file is never removed.
 std::string partial_name(const std::string& path);
 
+// The system's reason for a failed file operation (errno `code`), in words a user acts on: "no space
+// left on the device (the disk is full)", the quota, the file-size limit, else strerror's text.
+std::string errno_reason(int code);
+
 // The process that holds the claim of `path` (the ID in its lock file), or 0 when no process holds
 // it: for messages about a file another run is writing.
 long claim_holder(const std::string& path);

@@ -11,23 +11,13 @@
 #include "io/output_paths.h"
 
 namespace cellforce {
-namespace {
-
-std::string reason(int code) {
-  if (code == ENOSPC) return "no space left on the device (the disk is full)";
-  if (code == EDQUOT) return "the disk quota is exceeded";
-  if (code == EFBIG) return "the file is larger than the system allows";
-  return std::strerror(code);
-}
-
-}  // namespace
 
 void write_bytes_atomically(const std::string& path, const void* data, std::size_t size, const std::string& what) {
   const std::string tmp = partial_name(path);
   const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0644);
   if (fd < 0) {
     const int code = errno;
-    throw Error(path + ": cannot write " + what + ": " + reason(code));
+    throw Error(path + ": cannot write " + what + ": " + errno_reason(code));
   }
   const char* p = static_cast<const char*>(data);
   std::size_t left = size;
@@ -45,12 +35,12 @@ void write_bytes_atomically(const std::string& path, const void* data, std::size
   if (::close(fd) != 0 && code == 0) code = errno;
   if (code != 0) {
     std::remove(tmp.c_str());
-    throw Error(path + ": cannot write " + what + ": " + reason(code));
+    throw Error(path + ": cannot write " + what + ": " + errno_reason(code));
   }
   if (std::rename(tmp.c_str(), path.c_str()) != 0) {
     code = errno;
     std::remove(tmp.c_str());
-    throw Error(path + ": cannot move " + what + " into place: " + reason(code));
+    throw Error(path + ": cannot move " + what + " into place: " + errno_reason(code));
   }
 }
 
