@@ -18,7 +18,7 @@
 #include "cpu/stages.h"
 #include "oracle.h"
 #include "scene/lattice.h"
-#include "stages.cuh"
+#include "search/stages.cuh"
 
 namespace {
 

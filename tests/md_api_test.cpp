@@ -19,7 +19,7 @@
 #include <vector>
 
 #ifdef CELLFORCE_HAVE_CUDA
-#include "engine.h"  // cuda/engine.h: GpuEngine::unavailable
+#include "backend/engine.h"  // cuda/engine.h: GpuEngine::unavailable
 #endif
 #include "core/box.h"
 #include "core/engine_options.h"

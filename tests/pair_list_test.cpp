@@ -19,9 +19,9 @@
 
 #include "backends/md_engine.h"
 #include "core/error.h"
-#include "engine.h"        // cuda/engine.h
-#include "force_engine.h"  // cuda/force_engine.h
-#include "list_build.h"  // cuda/list_build.h
+#include "backend/engine.h"        // cuda/engine.h
+#include "backend/force_engine.h"  // cuda/force_engine.h
+#include "search/list_build.h"  // cuda/list_build.h
 #include "md/md.h"
 #include "oracle.h"
 #include "reference/brute_force.h"

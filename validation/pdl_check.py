@@ -63,12 +63,12 @@ class Rule:
     chain_writes: frozenset[str]  # parameters the kernels of the chain write: never read non-coherently
 
 
-# The kernels launched as programmatic dependents (cuda/pair_list.cu, list_forces: change 75).
+# The kernels launched as programmatic dependents (cuda/forces/list_forces.cu, list_forces).
 RULES = {
     "list_force_kernel": Rule(
-        source="cuda/pair_list.cu",
+        source="cuda/forces/list_forces.cu",
         # the list's lengths and group chunks come from the build, which completed before the
-        # gated evaluations began (change 33 reads them before the wait)
+        # gated evaluations began (the kernel reads them before the wait)
         before_wait=frozenset({"length", "group_chunks"}),
         # the positions in rank order (the kernel before wrote them as its `next`), the chunk's
         # rank-order state that the fused kick-drift updates, and the step gate

@@ -5,7 +5,7 @@ toolkit here ships no cuobjdump or nvdisasm; the `nvidia-cuda-nvdisasm` wheel fr
 Prints the kernel's instructions and a count of the ones that matter for a hot loop (local memory,
 calls to slow paths, global loads and stores, barriers).
 
-  python3 validation/sass.py --build build-gpu --file cuda/pair_list.cu \
+  python3 validation/sass.py --build build-gpu --file cuda/forces/list_forces.cu \
       --kernel 'list_force_kernelINS0_6detail6TraitsILi3ELb0ELb0ELNS_10CutoffModeE0ELb0EEELi1ENS0_13FixedParticleEfdEE'
   (--kernel: a substring of the mangled name; the bench's list force kernel is the one above:
    3D, one type, truncated, no observables, one thread per particle, fixed-point, mixed)

@@ -7,30 +7,33 @@
 #include "core/error.h"
 #include "core/random.h"
 #include "core/text.h"
+#include "md/verlet_step.h"
 
 namespace cellforce {
 namespace {
 
-// Moves every particle by h * v, in one pass over the arrays. A displacement that is not finite or
-// beyond drift_limit (share x the box edge on a periodic axis, share x the cutoff on an open one)
-// means the integration diverged: the check compares displacements, never raw coordinates, so an
-// unwrapped start is no divergence. With `wrap` (a step's last drift) each moved position is then
-// wrapped into [0, L) on periodic axes; one that is no longer finite is named.
+// Moves every particle by h * v, in one pass over the arrays (md/verlet_step.h drift_value). A
+// displacement that is not finite or beyond drift_limit (share x the box edge on a periodic axis,
+// share x the cutoff on an open one) means the integration diverged: the check compares
+// displacements, never raw coordinates, so an unwrapped start is no divergence. With `wrap` (a
+// step's last drift) each moved position is then wrapped into [0, L) on periodic axes; one that is
+// no longer finite is named.
 void drift(MdState& s, double h, double share, bool wrap, double cutoff) {
   const Box& box = s.config.box;
   const int dim = box.dim;
   const std::size_t n = s.config.size();
-  double most[kMaxDim];
-  for (int a = 0; a < dim; ++a) most[a] = drift_limit(box, a, cutoff, share);
+  DriftAxis axis[kMaxDim];
+  for (int a = 0; a < dim; ++a)
+    axis[a] = DriftAxis{box.length[a], drift_limit(box, a, cutoff, share),
+                        box.periodic[a] ? 1.0 / box.length[a] : 0.0, box.periodic[a]};
   for (std::size_t i = 0; i < n; ++i) {
     for (int a = 0; a < dim; ++a) {
-      const double dx = h * s.velocities[i * dim + a];
-      double& x = s.config.positions[i * dim + a];
-      if (!(std::abs(dx) <= most[a])) throw Error(diverged_message(i, a, dx, x + dx, box, cutoff, share));  // also nan
-      x += dx;
-      if (!wrap) continue;
-      if (!std::isfinite(x)) throw Error(diverged_message(i, a, dx, x, box, cutoff, share));
-      if (box.periodic[a]) x = wrap_coordinate(x, box.length[a]);
+      const std::size_t k = i * dim + a;
+      const double v = s.velocities[k];
+      bool bad = false;
+      const double x = drift_value(s.config.positions[k], v, h, axis[a], wrap, bad);
+      if (bad) throw Error(diverged_message(i, a, mul_rn(h, v), x, box, cutoff, share));
+      s.config.positions[k] = x;
     }
   }
 }
@@ -146,10 +149,11 @@ void advance(MdState& s, const std::vector<double>& masses, const IntegratorSett
   const std::size_t n = s.config.size();
   const double dt = settings.dt;
   auto kick = [&](double h) {
-    for (std::size_t i = 0; i < n; ++i) {
-      const double hm = h / masses[i];
-      for (int a = 0; a < dim; ++a) s.velocities[i * dim + a] += hm * s.forces[i * dim + a];
-    }
+    for (std::size_t i = 0; i < n; ++i)
+      for (int a = 0; a < dim; ++a) {
+        double& v = s.velocities[i * dim + a];
+        v = kick_value(v, s.forces[i * dim + a], masses[i], h, 1);
+      }
   };
   kick(0.5 * dt);
   if (settings.langevin) {
@@ -159,9 +163,11 @@ void advance(MdState& s, const std::vector<double>& masses, const IntegratorSett
     // stream = step number + 1 (stream 0 draws the initial velocities)
     const uint64_t stream = uint64_t(s.step) + 1;
     for (std::size_t i = 0; i < n; ++i) {
-      const double sigma = c2 * std::sqrt(settings.kT / masses[i]);
-      for (int a = 0; a < dim; ++a)
-        s.velocities[i * dim + a] = c1 * s.velocities[i * dim + a] + sigma * counter_normal(settings.seed, stream, i * dim + a);
+      const double sigma = thermostat_sigma(c2, settings.kT, masses[i]);
+      for (int a = 0; a < dim; ++a) {
+        double& v = s.velocities[i * dim + a];
+        v = thermostat_value(v, c1, sigma, counter_normal(settings.seed, stream, i * dim + a));
+      }
     }
     drift(s, 0.5 * dt, 0.5, true, cutoff);
   } else {

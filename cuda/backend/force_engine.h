@@ -1,0 +1,42 @@
+// The CUDA backend's force job (cuda/force_engine.cpp): GpuEngine behind the ForceEngine
+// interface, declared here so that the CUDA MD engine (cuda/md_engine.cu) can reach the engine's
+// resident evaluations. Plain C++.
+#pragma once
+
+#include <memory>
+#include <string>
+
+#include "backends/force_engine.h"
+#include "backend/engine.h"  // cuda/engine.h
+
+namespace cellforce {
+
+class CudaForceEngine final : public ForceEngine {
+ public:
+  explicit CudaForceEngine(const EngineChoice& choice);
+
+  void evaluate(const SystemView& system, const ForceField& ff, const Request& request,
+                ForceResult& result) override;
+  void evaluate_device(const DeviceSystemView& system, const ForceField& ff, const DeviceOutputs& out,
+                       void* stream) override;
+  void synchronize(const ForceField& ff) override { engine_.synchronize(ff); }
+  PipelineStats stats(const SystemView& system, const ForceField& ff, bool counts) override;
+  const PipelineStats& stats() const override { return engine_.stats(); }
+  std::vector<std::pair<const char*, std::size_t>> buffers() const override { return engine_.buffers(); }
+  std::vector<std::pair<uint32_t, uint32_t>> visited_pairs(const SystemView& system, const ForceField& ff) override {
+    return engine_.visited_pairs(system, ff);
+  }
+  ReuseState reuse_state() const override;
+  void restore_reuse(const SystemView& built_from, const ForceField& ff, int64_t served) override;
+  Backend backend() const override { return Backend::kCuda; }
+  std::string description() const override;
+  std::string traversal() const override;
+  std::string sort() const override;
+
+  GpuEngine& gpu() { return engine_; }
+
+ private:
+  GpuEngine engine_;
+};
+
+}  // namespace cellforce
