@@ -1,6 +1,6 @@
 // A value a kernel posts into mapped host memory for the host to read without a copy or an event
-// (changes 77, 81 and 82: the gate's notice and copy, cuda/gate_readback.cuh, and the list's sizes,
-// cuda/pair_list.cuh SizesReadback). The kernel writes the values, a system-wide fence, then a tag
+// (the gate's notice and copy, integrate/gate_readback.cuh, and the list's sizes,
+// search/pair_list.cuh SizesReadback). The kernel writes the values, a system-wide fence, then a tag
 // (the host's number for the chunk or build, never 0); the host spins on the tag with an acquire
 // load, so that the values it then reads are the ones written before it.
 #pragma once

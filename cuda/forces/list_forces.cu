@@ -31,7 +31,7 @@ __device__ __forceinline__ double distance2(const Grid& g, const RankedParticle&
 
 // The separation P - Q of two gathered particles in the pair precision: formed in double and
 // rounded once (RankedParticle), or as the fixed-point difference (FixedParticle, float), scaled
-// by L_a / 2^32 (`scale`, from the host: fixed_separation in list_build.h).
+// by L_a / 2^32 (`scale`, from the host: fixed_separation in search/list_build.h).
 template <int D, class Real>
 __device__ __forceinline__ void pair_separation(const Grid& g, const RankedParticle& a, const RankedParticle& b,
                                                 const FixedScales&, Real d[3]) {
@@ -76,21 +76,21 @@ struct FixedFold {
 // S threads per rank (S = 1, 2, 4 or 8, adjacent lanes of one warp). With one, the thread reads its
 // list a chunk at a time (one 16-byte load for kChunk entries). With S > 1 (small systems, to fill
 // the GPU), thread j takes entries j, j + S, ..., kChunk at a time (whole chunks per thread would
-// leave the longest share up to a chunk longer: measured 10% slower at 32,000 particles, S = 8),
+// leave the longest share up to a chunk longer, which costs small systems at S = 8 most),
 // and the S partial sums are added by a butterfly over the S lanes. Either way the whole force on
 // the particle is summed in an order fixed by its list. A batch's kChunk partners are gathered
 // before any of its pairs is evaluated (kChunk gathers in flight, not one: the loop waits on the
 // gathers' latency otherwise), and its pairs are added in list order.
 static_assert(kChunk == 4, "a chunk is one uint4");
 
-// The next step's kick-drift (change 59), for a gated Verlet evaluation's force kernel (Drift) on the
+// The next step's kick-drift, for a gated Verlet evaluation's force kernel (Drift) on the
 // chunk's rank-order state: the block's particles are consecutive ranks, so after their forces are
 // summed the block kicks and drifts them a thread per coordinate (the separate kernel's coalesced
 // loads and stores, and no register of the force loop held for them), raises the next step's
 // displacement into the gate and places the new positions into `next` (the list's other
 // rank-ordered array: the partners' positions are read from `ranked` by the kernel's other blocks
 // meanwhile). The forces go through shared memory and are never stored. The arithmetic is
-// gated_kick_drift_kernel's (cuda/md_engine.cu), coordinate for coordinate (verlet_step.cuh).
+// gated_kick_drift_kernel's (integrate/gated_steps.cu), coordinate for coordinate (md/verlet_step.h).
 template <int D, int S, int B, class Particle>
 __device__ __forceinline__ void next_kick_drift(const NextKickDrift& s, std::size_t n, std::size_t p, uint32_t part,
                                                 const double (&force)[D], uint32_t type, Particle* __restrict__ next,
@@ -158,12 +158,12 @@ __device__ __forceinline__ void pdl_wait() {
 #endif
 }
 
-// `ranked` is not __restrict__ (change 91): in a gated chunk the kernel before this one wrote it (a
+// `ranked` is not __restrict__: in a gated chunk the kernel before this one wrote it (a
 // fused force kernel's `next`, or a drift's placing), and this one may run before that one ends
 // (programmatic dependent launch), so it must be read only after pdl_wait(). Through a const
 // __restrict__ pointer nvcc may read it on the non-coherent path (ld.global.nc), which it takes as
-// unchanging while the kernel runs, and issue that read before griddepcontrol.wait (performance.md,
-// change 91: the SASS of such a kernel, and the fused runs it broke).
+// unchanging while the kernel runs, and issue that read before griddepcontrol.wait (performance.md
+// records the SASS of such a kernel; validation/pdl_check.py checks the built kernels for it).
 template <class T, int S, bool Folded, bool Drift, class Particle, class Real, class Accum, int B = kBlock>
 __global__ void __launch_bounds__(B)
     list_force_kernel(const ListArgs<Real, Accum> args, const uint32_t* __restrict__ order,
@@ -180,17 +180,17 @@ __global__ void __launch_bounds__(B)
   const std::size_t t = std::size_t(blockIdx.x) * B + threadIdx.x;  // launched with B threads a block
   const std::size_t p = t / S;
   const uint32_t part = uint32_t(t % S);
-  // Programmatic dependent launch (change 75; the gated evaluations, list_forces): the next step's
+  // Programmatic dependent launch (the gated evaluations, list_forces): the next step's
   // force kernel may be scheduled once every block of this one has started, and waits below for
   // this one to complete, so that its blocks take the multiprocessors this one's last wave leaves
   // idle instead of waiting for the launch after it. Without the launch attribute both are no-ops.
   // The list's lengths and group chunks come from the build, which completed before the gated
   // evaluations began: read before the wait in the source (nvcc issues them after it; issuing them
-  // before it, change 92, gained nothing measurable); everything the last kernel wrote (positions,
-  // the gate) after it.
+  // before it gains nothing measurable); everything the last kernel wrote (positions, the gate)
+  // after it.
   pdl_launch_dependents();
   // The particle, its list's length and its group's first chunk are loaded before the gate's
-  // barrier (a shut gate discards them), so that their round trip overlaps the gate's (change 33).
+  // barrier (a shut gate discards them), so that their round trip overlaps the gate's.
   Particle P{};
   uint32_t len = 0;
   unsigned long long group_chunk0 = 0;
@@ -287,11 +287,10 @@ __global__ void __launch_bounds__(B)
     // Every entry of this thread's share of the list, in list order: on_pair(q, d, fr, e). With
     // observables only the pairs within rc; without, every entry, fr = 0 beyond rc and past the
     // list (the select in `batch`).
-    // The next batch's entries are loaded before this batch's pairs (change 34): the list comes
-    // from DRAM, and a batch that loads its own entries first waits the whole round trip before
-    // its gathers can start (a third of the kernel's stall samples at 1M were on that load). The
-    // whole batches come first, with no test of the list's end per entry (change 38), then the
-    // last one if the list ends inside it.
+    // The next batch's entries are loaded before this batch's pairs: the list comes from DRAM, and
+    // a batch that loads its own entries first waits the whole round trip before its gathers can
+    // start. The whole batches come first, with no test of the list's end per entry, then the last
+    // one if the list ends inside it.
     auto walk = [&](auto&& on_pair) {
       uint32_t k0 = S == 1 ? 0u : part;
       uint32_t next[kChunk] = {0u, 0u, 0u, 0u};
@@ -337,7 +336,7 @@ __global__ void __launch_bounds__(B)
     return;
   }
   if (p < n && part == 0) {
-    const std::size_t i = by_rank ? p : order[p];  // rank order: a gated evaluation's (change 51)
+    const std::size_t i = by_rank ? p : order[p];  // rank order: a gated evaluation's
     for (int c = 0; c < D; ++c) args.forces[i * D + c] = double(f[c]);
     if (args.energies) {
       double e = double(ea);
@@ -364,7 +363,7 @@ __global__ void __launch_bounds__(B)
   }
 }
 
-// The fused force kernel's block size (list_build.h fused_block_size), from the
+// The fused force kernel's block size (search/list_build.h fused_block_size), from the
 // occupancy calculator's resident blocks of the kernel's two forms, asked once per kernel, and the
 // build's multiprocessor count.
 int fused_block(PairList& list, const void* narrow, const void* wide, std::size_t threads) {
@@ -432,7 +431,7 @@ void list_forces(const Switches& sw, const ListArgs<Real, Accum>& given, PairLis
           auto launch = [&](auto folded) {
             auto with = [&](auto drift) {
               // Gated evaluations follow each other: each may be scheduled while the last one
-              // runs (programmatic dependent launch, change 75; the kernel waits for it).
+              // runs (programmatic dependent launch; the kernel waits for it).
               cudaLaunchAttribute overlap{};
               overlap.id = cudaLaunchAttributeProgrammaticStreamSerialization;
               overlap.val.programmaticStreamSerializationAllowed = 1;
@@ -459,7 +458,7 @@ void list_forces(const Switches& sw, const ListArgs<Real, Accum>& given, PairLis
                                               Accum>;
               if constexpr (decltype(drift)::value) {
                 // The next step's kick-drift: blocks of 2 kBlock where they fill the last wave
-                // better (fused_block, change 76).
+                // better (fused_block).
                 auto wide = list_force_kernel<T, Split::value, Fold::value, true, Particle, Real, Accum, 2 * kBlock>;
                 list.fused_block = fused_block(list, reinterpret_cast<const void*>(kernel),
                                                reinterpret_cast<const void*>(wide), threads);

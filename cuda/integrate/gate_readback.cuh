@@ -1,11 +1,11 @@
-// How the host reads a gated chunk's outcome (step_gate.h), change 77: the gate's copy at the
-// chunk's end, or, where the gate closed, the notice the first shut kernel posts into mapped host
-// memory while the chunk's tail still runs (GateNotice). The host takes whichever comes first: a
-// closed gate's notice lets it queue the rebuild behind the chunk's tail (at 256,000 particles ~25
-// us of shut steps, the state's write-back and the copy) instead of after it.
-// Change 81: the copy is a one-thread kernel's (post_gate_kernel) into mapped host memory, which
-// then resets the gate for the next chunk: the device turned around ~7 us before a copy engine's
-// copy and ~7 us again from a chunk's closed step to the next chunk's two memsets of the gate.
+// How the host reads a gated chunk's outcome (search/step_gate.h): the gate's copy at the chunk's
+// end, or, where the gate closed, the notice the first shut kernel posts into mapped host memory
+// while the chunk's tail still runs (GateNotice). The host takes whichever comes first: a closed
+// gate's notice lets it queue the rebuild behind the chunk's tail (its shut steps, the state's
+// write-back and the copy) instead of after it.
+// The copy is a one-thread kernel's (post_gate_kernel) into mapped host memory, which then resets
+// the gate for the next chunk: no copy engine's copy and no memsets of the gate, each of which
+// would cost the device a turnaround between chunks.
 #pragma once
 
 #include <cuda_runtime.h>

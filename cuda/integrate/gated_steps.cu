@@ -42,8 +42,9 @@ __device__ __forceinline__ bool step_gate_closed(const GateView& gate) {
 
 // Raises the block's largest squared displacement into the gate's slot for this step: `sq`, one
 // coordinate's term per thread (dim threads a particle, kGateParticles particles a block), summed
-// over axes as cuda/reuse.cu sums it (rounded squares, in axis order: the same bits as the host's
-// check). A particle whose displacement is not a number closes the gate (step_gate.cuh).
+// over axes as search/reuse.cu sums it (rounded squares, in axis order: the same bits as the
+// host's check). A particle whose displacement is not a number closes the gate
+// (search/step_gate.cuh).
 __device__ __forceinline__ void raise_displacement(double sq, int dim, std::size_t n, const GateView& gate) {
   __shared__ double square[kGateParticles * kMaxDim];
   square[threadIdx.x] = sq;
@@ -106,14 +107,13 @@ struct StateArrays {
   }
 };
 
-// What a gated step's last drift kernel places in the list's rank order (change 49): the thread
-// for slot `own` of the block (threads below kGateParticles) loads its rank, caller's index and
-// type with the other loads (before the gate, but for change 52's GateFirst); after
-// raise_displacement's barriers it reads the particle's new coordinates from `moved` (coordinate
-// thread c's at moved[c]) and writes its entry of the gathered array as the evaluation's gather
-// would (place_ranked), so the evaluation has no gather kernel (a launch and a read of the
-// positions a step: 22 us at 1M particles on an H100). In rank order (change 58) the slot is the
-// rank: the entries are written coalesced.
+// What a gated step's last drift kernel places in the list's rank order: the thread for slot `own`
+// of the block (threads below kGateParticles) loads its rank, caller's index and type with the
+// other loads (before the gate, but for GateFirst); after raise_displacement's barriers it reads
+// the particle's new coordinates from `moved` (coordinate thread c's at moved[c]) and writes its
+// entry of the gathered array as the evaluation's gather would (place_ranked), so the evaluation
+// has no gather kernel (which would cost a launch and a read of the positions a step). In rank
+// order the slot is the rank: the entries are written coalesced.
 template <StateOrder O>
 struct Placing {
   std::size_t own = 0, particle = 0;
@@ -140,20 +140,20 @@ struct Placing {
 };
 
 // The gated kernels of a step load every coordinate they read before the gate's barrier, in one
-// batch, and template the dimension (a constant divisor): the kick-drift's thread waited on four
-// dependent round trips in a row (the gate, then mass, velocity and force, then the position, which
-// nvcc loaded after the velocity's store, then the build's position after the position's store),
-// 74 us at 1M particles on an H100 with DRAM 58% busy (performance.md, change 28). A shut gate
-// discards what was loaded.
+// batch, and template the dimension (a constant divisor), so that the kick-drift's thread waits on
+// one round trip, not on four dependent ones in a row (the gate, then mass, velocity and force, then
+// the position, which nvcc would load after the velocity's store, then the build's position after
+// the position's store; performance.md records the measurement). A shut gate discards what was
+// loaded.
 
-// The kick-drift of a Verlet step behind the step gate (step_gate.h): the gate (step_gate_shut: the
+// The kick-drift of a Verlet step behind the step gate (search/step_gate.h): the gate (step_gate_shut: the
 // kernel returns with the state as it was), then the kick-drift, then each particle's squared
 // displacement from the build's positions into the gate, and its new position into the list's
 // rank order (Placing). The state: StateOrder (kGather also copies the mass and the build's
 // position into rank order).
-// GateFirst (change 52: a step queued past the expected rebuild, which the gate most likely shuts):
-// the gate is read before the loads, so that a shut step costs its read, not the state's (~50 us
-// at 1M particles); the other steps load first (change 28).
+// GateFirst (a step queued past the expected rebuild, which the gate most likely shuts): the gate
+// is read before the loads, so that a shut step costs its read, not the state's; the other steps
+// load first (above).
 template <int D, bool GateFirst, StateOrder O>
 __global__ void __launch_bounds__(kGateParticles * 3)
     gated_kick_drift_kernel(GatedState s, double h, int kicks, double dt, DriftBox box, std::size_t n,

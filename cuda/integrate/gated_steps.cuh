@@ -18,7 +18,7 @@
 
 namespace cellforce::cuda {
 
-// Where a gated chunk's kernels find the MD state (change 58). kCaller: the caller's order, as
+// Where a gated chunk's kernels find the MD state. kCaller: the caller's order, as
 // set_state() holds it (lean memory mode, whose gated evaluations leave the forces in that order
 // too). With the forces in rank order (fast mode) the chunk runs on a copy of the state in the
 // list's rank order: its first kernel (kGather) reads the caller's order at order[p] and writes
@@ -28,8 +28,8 @@ namespace cellforce::cuda {
 enum class StateOrder { kCaller, kGather, kRank };
 
 // The state's arrays: the caller's order, and the chunk's rank-order copy (null in lean mode).
-// Change 60: with every mass the same, the masses are `mass_value` and both mass arrays null (no
-// load per coordinate); `built_is_x`: the chunk starts at the positions the structure was just
+// With every mass the same, the masses are `mass_value` and both mass arrays null (no load per
+// coordinate); `built_is_x`: the chunk starts at the positions the structure was just
 // built from, so kGather copies them as the build's positions instead of reading those too.
 struct GatedState {
   double* x;

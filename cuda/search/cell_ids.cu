@@ -2,7 +2,7 @@
 // up to 2^d - 1 P cells of each particle's box, through the same bin_particle_in<D>() as the CPU (its
 // geometry is immune to FMA contraction, so both bin every particle identically), and the count
 // of valid entries, left in device memory for the later stages: counted by the cell-ID kernel
-// itself (the engine's builds, change 80) or by a CUB reduction over the keys (count_valid).
+// itself (the engine's builds) or by a CUB reduction over the keys (count_valid).
 #include <cub/device/device_reduce.cuh>
 #include <thrust/iterator/transform_iterator.h>
 

@@ -1,6 +1,6 @@
 // Stage 3, collision cells (GPU Gems 3 ch. 32, section 32.2.5): the sorted keys are scanned for
 // transitions in parallel: (1-2) compact the positions of the entries that start a cell (CUB
-// select with the test as its predicate: change 80; a kernel flagged them into an array before),
+// select with the test as its predicate, so that no kernel flags them into an array first),
 // (3) describe each run, finding where its H entries end (they sort
 // first), and compact those that are collision cells (H >= 1, H + P >= 2) (CUB select on the
 // descriptions). The list comes out in cell order, identical to the CPU stage's. Every count stays

@@ -27,7 +27,7 @@ struct IsHome {
   __device__ bool operator()(uint32_t e) const { return !key_is_phantom(keys[e], slab_bits); }
 };
 
-// Also zeroes the two sizes sum_slot_counts adds to later in the build (change 80: no memset).
+// Also zeroes the two sizes sum_slot_counts adds to later in the build (so the build needs no memset).
 __global__ void invert_order(const uint32_t* __restrict__ order, std::size_t n, uint32_t* __restrict__ rank,
                              unsigned long long* __restrict__ sizes) {
   const std::size_t p = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
@@ -39,7 +39,7 @@ __global__ void invert_order(const uint32_t* __restrict__ order, std::size_t n, 
 // double (separation: each coordinate wrapped exactly, then the minimum image): the build's
 // decision for pairs within the staged coordinates' rounding of the list cutoff, the same number
 // distance2 forms from gathered RankedParticles but for the order of the rounded sum. Inlined:
-// __noinline__ measured 2.5% slower passes (change 18c).
+// the passes run slower with it __noinline__.
 template <int D>
 __device__ __forceinline__ double distance2(const Grid& g, const double* __restrict__ positions, uint32_t i,
                                             uint32_t j) {
@@ -54,11 +54,10 @@ __device__ __forceinline__ double distance2(const Grid& g, const double* __restr
 
 // A walk's entries of one rank's list, from entry `first` on (the partners found before this walk),
 // one after the other: each chunk the walk fills whole is one 16-byte store, and the chunks it
-// shares with the walks before and after it (its first and last) are written entry by entry. The
-// list's 4-byte stores, each lane at its own row's place (each its own L2 transaction), held the
-// fill to ~25% of its issue rate at 1M particles (Nsight Compute: L2 69% busy, 4.4 useful bytes
-// per stored sector). The walked fill (units without masks) uses it; the fill from masks writes a
-// warp's entries 32 at a time, neighbouring lanes at neighbouring places of a row (change 66).
+// shares with the walks before and after it (its first and last) are written entry by entry:
+// 4-byte stores, each lane at its own row's place, would each be its own L2 transaction and hold
+// the fill far below its issue rate. The walked fill (units without masks) uses it; the fill from
+// masks writes a warp's entries 32 at a time, neighbouring lanes at neighbouring places of a row.
 class ChunkWriter {
  public:
   // chunk0: the rank's chunk 0 (chunk c at chunk0 + c * kGroup: list_entry's layout), or null for a
@@ -107,7 +106,7 @@ __device__ __forceinline__ uint32_t warp_exclusive_sum(uint32_t value, int lane,
   return sum - value;
 }
 
-// Where a row's entries go in the fill from masks (change 66): its list's chunk 0 (an index into the
+// Where a row's entries go in the fill from masks: its list's chunk 0 (an index into the
 // list, so that the store is a global one), and its next entry's place less the row's first place
 // in the warp's queue, so that queue entry q goes to place base + q.
 struct alignas(16) FillRow {
@@ -130,7 +129,7 @@ __device__ __forceinline__ uint32_t transpose_bits(uint32_t x, int lane) {
 
 // The build's passes over the work units (list_rows): count (every unit but the P tiles whose
 // masks are kept, which their H rows write), mirrored (with several column splits: those P tiles'
-// counts, from their masks; with one, the count pass adds them itself: change 62), fill.
+// counts, from their masks; with one, the count pass adds them itself: list_rows), fill.
 enum class ListPass { kCount, kMirrored, kFill };
 
 // The mask words of each work unit (BuildMasks): a word per column tile of its range and lane; 0
@@ -152,12 +151,11 @@ __global__ void unit_mask_words(const TraversalArgs<Real, Accum> args, uint32_t 
   words[unit] = n;
 }
 
-// Whether the count pass walks a unit (change 41): a row tile of the range, but not a P tile whose
-// masks are kept (its H rows write them, and count it: change 62). The units are partitioned by
+// Whether the count pass walks a unit: a row tile of the range, but not a P tile whose masks are
+// kept (its H rows write them, and count it: list_rows's mirror). The units are partitioned by
 // this before the count pass so that its warps are those that walk, side by side: in launch order
-// each cell's few H tiles came with its many P tiles (~70% of the units at 1M), which return at
-// once but held their block's room until its H tiles were done (26% of the warps active against
-// 44% possible, the pass latency-bound).
+// each cell's few H tiles come with its many P tiles (most of the units), which return at once but
+// would hold their block's room until its H tiles were done, leaving the pass latency-bound.
 template <class Real, class Accum>
 struct CountWalks {
   TraversalArgs<Real, Accum> args;
@@ -175,18 +173,18 @@ struct CountWalks {
 // One warp per work unit: a row tile of a collision cell (the tile form's work units and candidate
 // rule) and one of `splits` contiguous ranges of its columns (build_splits): lane l holds row
 // occupant a, and every lane walks the same columns (from its own column tile on for an H row tile
-// with change 62's mirror, below). The occupants come from the staged array (fast memory, and a
-// lean build's count pass where the last list's array holds them, change 70), or, without one,
+// with the mirror, below). The occupants come from the staged array (fast memory, and a lean
+// build's count pass where the last list's array holds them), or, without one,
 // are staged as they are loaded (detail::stage_entry, the values stage_kernel would write).
 // Count: the partners of each row within the list cutoff, into slot_counts[rank * 2^d + cell
-// type] (a store with one split and no masks, an integer atomic add with masks, change 62; with
+// type] (a store with one split and no masks, an integer atomic add with masks: the mirror; with
 // several splits, each range's count is added there, an integer sum, and kept per unit and lane
 // in split_counts). Fill: the same walk writes them, after the partners the row's particle found
 // in cells of lower type and in the ranges before this one (so the list does not depend on the
 // splits). With masks (BuildMasks: every unit's in fast memory mode, a prefix of the units' in
 // lean mode), the count pass keeps each decision as a bit, writes the bits of the P-only tiles
 // that keep masks from their H rows' side (those tiles are not walked; with one column split, the
-// later H row tiles' bits for the earlier ones' columns too, and their counts: change 62, below;
+// later H row tiles' bits for the earlier ones' columns too, and their counts: the mirror, below;
 // with several, the mirrored pass counts the P tiles), and the fill of a unit that keeps masks
 // writes the list from its bits. Per tile of 32 columns, the
 // distance test of every column comes first, as a bit mask, then the rule for those within. With
@@ -218,7 +216,7 @@ __global__ void __launch_bounds__(kBlock)
   Column* column = columns[warp];
   uint32_t* column_ranks = column_rank[warp];
   const uint32_t first_cell = args.cell_range[0], end_cell = args.cell_range[1];
-  // A fill queued before the host knew the list's size (change 65): nothing, where the list needs
+  // A fill queued before the host knew the list's size: nothing, where the list needs
   // more chunks than its array holds (the host then makes room and fills again).
   if constexpr (Fill)
     if (fill_chunks && *fill_chunks > fill_room) return;  // the whole warp
@@ -271,13 +269,13 @@ __global__ void __launch_bounds__(kBlock)
   }
   ChunkWriter out(chunk0, written);
   // The unit's masks (BuildMasks), when it keeps them: the count pass writes them (a tile of P rows
-  // only gets them from the H rows it pairs with, and with change 62 an H row tile gets those for
+  // only gets them from the H rows it pairs with, and with mirror_h an H row tile gets those for
   // the column tiles of the cell's earlier H row tiles from them: mirrored), the fill reads them.
   const bool kept = masks.base && masks.kept(unit);
   const uint32_t* my_words = kept ? masks.words + masks.base[unit] : nullptr;
   const bool p_tile = row >= h;  // P rows only (a multiple of 32: no H row in it)
   uint32_t count = 0;
-  // Change 62: with one column range per row tile (splits = 1) and masks, a row tile that holds H
+  // The mirror: with one column range per row tile (splits = 1) and masks, a row tile that holds H
   // rows tests only the column tiles from its own on; the cell's earlier H row tiles test it (their
   // columns) and write its words for their column tiles, transposed, as they do for the P tiles;
   // and the count pass adds the counts of those words to the rows they belong to itself (integer
@@ -321,7 +319,7 @@ __global__ void __launch_bounds__(kBlock)
           keep[b] = tile < c1 && row_ok ? my_words[(tile - c0) + uint32_t(lane)] : 0u;
           id[b] = own < c1 ? ids[own] : ~0u;
         }
-        // Only the columns some row keeps load their rank (change 53): the rank is a dependent
+        // Only the columns some row keeps load their rank: the rank is a dependent
         // gather by particle index, and a cell's far column tiles pair with none of a row tile.
         uint32_t wanted[kFillBatch], any = 0;
 #pragma unroll
@@ -333,16 +331,15 @@ __global__ void __launch_bounds__(kBlock)
 #pragma unroll
         for (uint32_t b = 0; b < kFillBatch; ++b)
           if (id[b] != ~0u && (wanted[b] >> lane & 1u)) ranks[32u * b + uint32_t(lane)] = rank[id[b]];
-        // Change 66: the batch's entries are written by the whole warp, 32 at a time. Each lane
-        // queues its row's entries (lane << 7 | the column in the batch, in list order) after the
-        // rows before it; in each round lane l writes the next queue entry 32 j + l to its row's
-        // list, at the row's next place plus the entry's place among the row's entries. A lane
-        // that put its own row's entries ran as many rounds as the fullest row, ~25 instructions
-        // a round, each waiting on its rank's shared load (Nsight Compute at 1M: 479M warp
-        // instructions for a list of ~110M entries). Neighbouring lanes write neighbouring entries
-        // of a row, so the 4-byte stores of a round mostly fill the rows' 16-byte chunks whole, as
-        // the chunk stores did, and never touch an entry of another walk. A batch whose entries
-        // overflow the queue takes its tiles one at a time (each at most 32 x 32 entries).
+        // The batch's entries are written by the whole warp, 32 at a time. Each lane queues its
+        // row's entries (lane << 7 | the column in the batch, in list order) after the rows before
+        // it; in each round lane l writes the next queue entry 32 j + l to its row's list, at the
+        // row's next place plus the entry's place among the row's entries. A lane that put its own
+        // row's entries would run as many rounds as the fullest row, each round waiting on its
+        // rank's shared load. Neighbouring lanes write neighbouring entries of a row, so the 4-byte
+        // stores of a round mostly fill the rows' 16-byte chunks whole, as ChunkWriter's stores do,
+        // and never touch an entry of another walk. A batch whose entries overflow the queue takes
+        // its tiles one at a time (each at most 32 x 32 entries).
         uint32_t found = 0;
 #pragma unroll
         for (uint32_t b = 0; b < kFillBatch; ++b) found += __popc(keep[b]);
@@ -377,7 +374,7 @@ __global__ void __launch_bounds__(kBlock)
       return;
     }
   }
-  // A row tile's mirror: for a column tile of P-only tiles (past p_end), or with change 62's mirror
+  // A row tile's mirror: for a column tile of P-only tiles (past p_end), or with mirror_h
   // any later column tile, the words of that tile's rows for this tile's columns (its rows), in
   // that tile's unit for the range that holds them.
   const uint32_t p_end = (h + 31u) & ~31u;  // the first row of the cell's P-only tiles
@@ -429,14 +426,13 @@ __global__ void __launch_bounds__(kBlock)
     } else {
       for (uint32_t k = 0; k < cnt; ++k) near |= uint32_t(within(k)) << k;
     }
-    // Then the columns that passed, decided by the whole warp (change 63): the candidate rule, and
-    // the double decision for the few within the staged coordinates' rounding of the cutoff.
-    // Each lane queues its survivors (row lane << 5 | column k, ~3 a lane at 1M), and the warp
-    // takes the queue 32 at a time; a lane that decides a pair sets the column's bit in its row's
-    // word. A lane walking its own survivors ran as many rounds as the fullest lane (~10, with ~10
-    // lanes active: half the count pass's instructions, which is issue-bound). `keep`: the
-    // partners. Rows beyond the cell, columns past the row's (row_cols) and the row itself are
-    // dropped before the queue.
+    // Then the columns that passed, decided by the whole warp: the candidate rule, and the double
+    // decision for the few within the staged coordinates' rounding of the cutoff. Each lane queues
+    // its survivors (row lane << 5 | column k, a few a lane), and the warp takes the queue 32 at a
+    // time; a lane that decides a pair sets the column's bit in its row's word. A lane walking its
+    // own survivors would run as many rounds as the fullest lane, with most lanes idle, and the
+    // count pass is issue-bound. `keep`: the partners. Rows beyond the cell, columns past the row's
+    // (row_cols) and the row itself are dropped before the queue.
     if (row_cols <= col) near = 0;  // rows beyond the cell too (row_cols 0)
     else if (row_cols - col < 32u) near &= (1u << (row_cols - col)) - 1u;
     if (a >= col && a - col < 32u) near &= ~(1u << (a - col));
@@ -500,12 +496,12 @@ __global__ void __launch_bounds__(kBlock)
 // Each rank's list length (its counts over the cell types summed), and each group's length in
 // whole chunks (its longest list), into group_chunks[g] for the scan that makes them the groups'
 // first chunks; group_chunks[groups] = 0, so that the scan ends with the total. A group is a warp's
-// ranks (blocks of kBlock ranks start on a group): one warp-wide max, where a scan over groups that
-// read its 32 lengths per item took ~48 us a build at 256k and at 1M alike (latency-bound).
+// ranks (blocks of kBlock ranks start on a group): one warp-wide max, not a scan over groups that
+// reads its 32 lengths per item (latency-bound at every size).
 // Launched over n + kGroup threads, so that a warp exists for group_chunks[groups]. Also the
 // longest list into sizes[0] and the sum of the lengths into sizes[1] (zeroed before: one atomic
-// of each per block; integers, so the order does not matter): change 57, in place of two CUB
-// reductions over the lengths, whose host-side dispatch held the device idle at small sizes.
+// of each per block; integers, so the order does not matter), not two CUB reductions over the
+// lengths, whose host-side dispatch would hold the device idle at small sizes.
 template <int D>
 __global__ void sum_slot_counts(const uint32_t* __restrict__ slot_counts, std::size_t n, std::size_t groups,
                                 uint32_t* __restrict__ length, unsigned long long* __restrict__ group_chunks,
@@ -513,7 +509,7 @@ __global__ void sum_slot_counts(const uint32_t* __restrict__ slot_counts, std::s
                                 uint32_t* __restrict__ force_blocks_out) {
   static_assert(kGroup == 32 && kBlock % kGroup == 0, "a group of ranks is one warp's");  // __reduce_max_sync: sm_80+
   const std::size_t p = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
-  if (p == 0) *force_blocks_out = force_blocks;  // for sum_cells (change 80: no copy from the host)
+  if (p == 0) *force_blocks_out = force_blocks;  // for sum_cells (written here: no copy from the host)
   uint32_t s = 0;
   if (p < n) {
     for (int t = 0; t < (1 << D); ++t) s += slot_counts[p * (1u << D) + t];
@@ -541,10 +537,10 @@ __global__ void sum_slot_counts(const uint32_t* __restrict__ slot_counts, std::s
   }
 }
 
-// The four sizes the host reads, posted into its mapped memory (SizesReadback; change 80: one launch
-// where two device copies were, change 82: no copy to the host after it): the longest list and the
-// sum of the lengths (sum_slot_counts), the words every unit's masks take (masks_end null: none,
-// 0) and the list's chunks; a system-wide fence, then the build's tag.
+// The four sizes the host reads, posted into its mapped memory (SizesReadback: one launch, no
+// device copy and no copy to the host): the longest list and the sum of the lengths
+// (sum_slot_counts), the words every unit's masks take (masks_end null: none, 0) and the list's
+// chunks; a system-wide fence, then the build's tag.
 __global__ void gather_sizes(const unsigned long long* __restrict__ sizes,
                              const unsigned long long* __restrict__ masks_end,
                              const unsigned long long* __restrict__ chunks_end, PostedSizes* out,
@@ -611,7 +607,7 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
                      std::size_t entries, double list_cutoff, const ListArgs<Real, Accum>& args, PairList& list,
                      cudaStream_t stream, const StagedEntry<Real>* count_staged, const ListBuildHead& head) {
   const std::size_t n = args.n;
-  const bool queue = head.queue;  // false: the build's graph queued the head's operations (build_graph.cuh)
+  const bool queue = head.queue;  // false: the build's graph queued the head (backend/build_graph.cuh)
   const int dim = args.grid.dim;
   const std::size_t slots = std::size_t(1) << dim;
   list.order.reserve(std::max<std::size_t>(n, 1));
@@ -649,7 +645,7 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
   if (list.splits > 1) list.split_counts.reserve(std::size_t(row_blocks) * kBlock);  // a word per warp lane
   // The count pass's masks for the fill, in the room the previous builds asked for (none at the
   // first: it walks twice); in lean memory mode (cells without staged occupants) that room may hold
-  // a prefix of the units only (grow_masks, change 71).
+  // a prefix of the units only (grow_masks).
   const bool lean = cells.staged == nullptr;
   const uint32_t launched_units = row_blocks * (kBlock / 32);
   BuildMasks masks;
@@ -669,7 +665,7 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
       CF_CUDA_CHECK(cub::DeviceScan::ExclusiveSum(list.scratch.data(), base_bytes, list.mask_base.data(),
                                                   list.mask_base.data(), int(launched_units + 1), stream));
     masks = BuildMasks{list.masks.data(), list.masks.capacity(), list.mask_base.data()};
-    if (list.count_masked_units) {  // never in a graph (engine.cu)
+    if (list.count_masked_units) {  // never in a graph (backend/structure_build.cu)
       list.filled.reserve(1);
       CF_CUDA_CHECK(cudaMemsetAsync(list.filled.data(), 0, sizeof(unsigned long long), stream));
       masks.filled = list.filled.data();
@@ -678,9 +674,9 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
     give_up_masks(list);
     list.mask_base.release();
   }
-  // The count pass's units first (CountWalks), the rest after them (change 41), where a row tile's
-  // columns are one unit (splits = 1, from ~67,000 particles): with splits (small systems) the
-  // partition cost more than it saved (H100, 32,000: the count pass 88.6 -> 85.2 us, steps/s -1.7%).
+  // The count pass's units first (CountWalks), the rest after them, where a row tile's columns are
+  // one unit (splits = 1: the larger systems, build_splits): with splits (small systems) the
+  // partition costs more than it saves.
   // Only with masks in use: without (a build before the room for them, or with none) the count pass
   // walks every unit of the range, and those come first in launch order already, so walk_order is
   // not kept.
@@ -705,8 +701,8 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
   const ListStaging staging{sorted_keys, args.positions, args.types, args.num_types, control};
   // The rows' walk, counting or filling, in the geometry's instantiation (2D/3D, wrap in a cell).
   // fill_chunks, fill_room: a fill's guard (list_rows), or none.
-  // The count pass reads count_staged where the cells have no staged occupants (lean memory, change
-  // 70): they lie in the list's array, which the fill then writes, so only the count pass reads them.
+  // The count pass reads count_staged where the cells have no staged occupants (lean memory): they
+  // lie in the list's array, which the fill then writes, so only the count pass reads them.
   // `cells` keeps staged null: the list's headroom and the masks' room below take a null
   // cells.staged for lean mode.
   TraversalArgs<Real, Accum> count_cells = cells;
@@ -736,7 +732,7 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
   };
   if (head.done) head.done();  // the build's fixed part ends here
   if (row_blocks) walk_rows(std::integral_constant<ListPass, ListPass::kCount>{});
-  // With one column split the count pass added the mirrored counts itself (change 62).
+  // With one column split the count pass added the mirrored counts itself (list_rows's mirror).
   if (masks.words && list.splits > 1) walk_rows(std::integral_constant<ListPass, ListPass::kMirrored>{});
   // Each group of kGroup ranks is as long as its longest list, in whole chunks: the groups' lengths,
   // then (the scan below) their first chunks.
@@ -762,9 +758,8 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
   list.scratch.reserve(std::max<std::size_t>(scan_bytes, 1));
   CF_CUDA_CHECK(cub::DeviceScan::ExclusiveSum(list.scratch.data(), scan_bytes, list.group_chunks.data(),
                                               list.group_chunks.data(), int(groups + 1), stream));
-  // The host reads the four sizes with one wait (three waits in a row cost ~25 us a build): the
-  // longest list, the pairs, the words every unit's masks would take and the list's chunks, posted
-  // into its mapped memory (change 82).
+  // The host reads the four sizes with one wait, not three in a row: the longest list, the pairs,
+  // the words every unit's masks would take and the list's chunks, posted into its mapped memory.
   unsigned long long tag = 0;
   PostedSizes* post = list.readback.begin(tag);
   gather_sizes<<<1, 32, 0, stream>>>(list.sizes.data(), masks.base ? masks.base + launched_units : nullptr,
@@ -774,7 +769,7 @@ bool build_pair_list(const TraversalArgs<Real, Accum>& cells, const uint32_t* so
   // reads them, so that the device fills while the host waits, decides and queues what follows,
   // instead of waiting for the host's launch. It
   // writes nothing where the list needs more chunks than the array holds (its guard reads the
-  // total); the host then fills again after making room, as before. A list the host then drops
+  // total); the host then fills again after making room. A list the host then drops
   // (the cells serve) was written in vain, and its array is freed in stream order.
   const unsigned long long chunks_held = list.neighbors.capacity() / (std::size_t(kGroup) * kChunk);
   const bool early = row_blocks && chunks_held > 0;

@@ -1,4 +1,4 @@
-// The pair-list build's arithmetic that needs no device (cuda/pair_list.cu): the column range of a
+// The pair-list build's arithmetic that needs no device (search/list_build.cu): the column range of a
 // row tile's split walk, the rule for the number of splits, the force kernel's block size with the
 // next step's kick-drift, the hi-part prefilter's bound, and the fixed-point coordinates the force
 // kernel gathers (FixedParticle) with the rule for when it does.
@@ -61,7 +61,7 @@ inline int list_threads_per_particle(std::size_t n, int multiprocessors) {
 // multiprocessor. The kernel's blocks all take about as long, and a last wave that leaves
 // multiprocessors part idle costs nearly a whole one; with fewer resident threads every wave runs
 // faster (the gathers share the L1/TEX pipe with fewer warps). Below one wave, larger blocks would
-// leave multiprocessors idle; at 8 threads a particle (32,000 in.lj) blocks of 256 measured 2.2%
+// leave multiprocessors idle, and at 8 threads a particle (small systems) blocks of 256 run
 // slower. On an H100 the in.lj kernel holds 9 blocks of 128 or 4 of 256 (56 registers): a wave is
 // 152,064 particles or 135,168, so 256 serves 152,065-270,336, 304,129-405,504, ... and nothing
 // above 1,081,344 (1,048,576: 7 waves against 8). A rule of the system and the device.

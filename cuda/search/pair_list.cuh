@@ -14,7 +14,7 @@
 // longest list (not the longest of all: ~20% less memory in a liquid) in whole chunks of kChunk
 // entries (16 bytes), chunk-major within the group (list_entry): a warp's threads read consecutive
 // chunks, one 16-byte load each, and the build's fill writes a chunk it fills whole with one store
-// (cuda/pair_list.cu ChunkWriter). Every pair is in both partners' lists: each thread sums the
+// (search/list_build.cu ChunkWriter). Every pair is in both partners' lists: each thread sums the
 // whole force on its own particle, in its list's fixed order, with no atomics (bitwise
 // reproducible).
 //
@@ -58,7 +58,7 @@ CF_HD std::size_t list_entry(unsigned long long group_chunk0, std::size_t p, uin
 // partner of the lane's row, so that the fill writes the list from the words without testing a
 // pair again. In the room the builds before asked for (grow_masks): every unit's words in fast
 // memory mode, in lean mode as many as the device's free memory holds, while the list's array is
-// lent and where that is at least 1/16 of them (change 71). Unit u's words are [base[u],
+// lent and where that is at least 1/16 of them. Unit u's words are [base[u],
 // base[u + 1]) (an exclusive sum over the units, the same in every run); a unit keeps them when
 // they end within the buffer (a prefix of the units), and one that does not walks its columns again
 // in the fill, so the list is the same whatever the buffer holds. base[units], the words all units
@@ -66,7 +66,7 @@ CF_HD std::size_t list_entry(unsigned long long group_chunk0, std::size_t p, uin
 // words are kept is not tested at all: the H rows that pair with it write its words, since a pair's
 // decision is the same from either side (and with one column split per row tile, an H row tile's
 // words for the columns of the cell's earlier H row tiles: those tiles write them;
-// cuda/pair_list.cu list_rows, change 62).
+// search/list_build.cu list_rows).
 struct BuildMasks {
   uint32_t* words = nullptr;                  // capacity words, or null: no room (every unit walks again)
   unsigned long long capacity = 0;
@@ -76,9 +76,9 @@ struct BuildMasks {
 };
 
 // The build's four sizes as the kernel that gathers them posts them into mapped host memory, then
-// the build's tag (change 65: the host waits for the sizes, not for the stream, so the device can
-// fill meanwhile; change 82: posted by that kernel, where a copy engine's copy and an event were,
-// ~10 us of the device's turnaround a build).
+// the build's tag: the host waits for the sizes, not for the stream, so the device can fill
+// meanwhile, and the kernel's post spares the device the turnaround a copy engine's copy and an
+// event would cost a build.
 struct PostedSizes {
   unsigned long long value[4];
   unsigned long long tag;  // the host's build number (never 0); 0 before any build
@@ -131,7 +131,7 @@ struct PairList {
                                        // drift (double pairs, an open axis)
   DeviceBuffer<FixedParticle> fixed;   // n: the same (float pairs, all periodic)
   DeviceBuffer<RankedParticle> ranked_next;  // n: where a force kernel that runs the next step's
-  DeviceBuffer<FixedParticle> fixed_next;    // kick-drift (change 59) places it; swapped with the
+  DeviceBuffer<FixedParticle> fixed_next;    // kick-drift places it; swapped with the
                                              // array it read after its launch
   DeviceBuffer<double> ranked_forces;  // n x dim: the gated evaluations' forces in rank order (RankOrder)
   DeviceBuffer<unsigned long long> sizes;  // 2: the longest list and the sum of the lengths (posted
@@ -152,8 +152,8 @@ struct PairList {
   DeviceBuffer<std::byte> block_sums;  // kCellSums per block of the force kernel
   DeviceBuffer<std::byte> scratch;     // CUB
   // CUB's scratch size for each of the build's CUB calls, asked again only when the call's item
-  // count changes (change 57: each query runs CUB's dispatch on the host, where at small sizes the
-  // device waits through the build; steps/s did not move, performance.md).
+  // count changes (each query runs CUB's dispatch on the host, where at small sizes the device
+  // waits through the build).
   struct CubBytes {
     long long items = -1;
     std::size_t bytes = 0;
@@ -167,7 +167,7 @@ struct PairList {
   int forced_threads = 0;              // tests only: this many threads per particle (1, 2, 4 or 8)
   int forced_block = 0;                // tests only: this many threads a block (kBlock or 2 kBlock) for
                                        // the force kernels that run the next step's kick-drift
-  int fused_block = 0;                 // the last such launch's threads a block (pair_list.cu fused_block;
+  int fused_block = 0;                 // the last such launch's threads a block (forces/list_forces.cu fused_block;
                                        // reset to 0 as a gated chunk begins: GpuEngine's list_block)
   struct BlockShape {                  // its kernel's resident blocks a multiprocessor, kBlock and
     const void* kernel = nullptr;      // 2 kBlock threads a block (asked once per kernel)
@@ -178,7 +178,7 @@ struct PairList {
   bool dependent_launch = false;       // the device schedules a kernel before the last one ends
                                        // (programmatic dependent launch: compute capability 9.0 on)
   bool use_masks = true;               // false: every fill walks the columns again (tests; lean builds
-                                       // whose list array is not kept, engine.cu)
+                                       // whose list array is not kept, backend/evaluation.cu)
   std::size_t mask_limit = 0;          // tests only (nonzero): the masks' room holds at most this many words
   std::size_t later_bytes = 0;         // lean: what the engine may still take after the build (the
                                        // gathered positions, the energies), left free by grow_masks
@@ -189,7 +189,7 @@ struct PairList {
   std::size_t mask_words_held = 0;     // those its room held (0: no masks read; the units whose
                                        // words end within it read them, the rest walked again)
   std::size_t partly_masked_fills = 0; // builds whose masks' room held less than every unit's words
-                                       // (lean memory, change 71: the room the device has left)
+                                       // (lean memory: the room the device has left)
   std::size_t staged_counts = 0;       // builds whose count pass alone read staged occupants (count_staged)
   std::size_t masks_refused = 0;       // the smallest mask demand the device had no (full) room for (0: none)
   bool masks_settled = false;          // lean: the room was sized to the memory left (in part): not
@@ -208,7 +208,7 @@ struct PairList {
     f("list: block sums", block_sums), f("list: CUB scratch", scratch);
   }
   // Calls f on every buffer the head of a build (build_pair_list up to its count pass) names: what
-  // a graph of the build's fixed part holds (cuda/build_graph.cuh, engine.cu's key).
+  // a graph of the build's fixed part holds (backend/build_graph.cuh, backend/engine_state.cuh's key).
   template <class F>
   void for_each_head_buffer(F&& f) {
     f(order), f(rank), f(slot_counts), f(length), f(sizes), f(selected), f(scratch);
@@ -217,7 +217,8 @@ struct PairList {
 };
 
 // The masks' room given up (freed in stream order), to be asked for again after the next build:
-// where the memory it holds may be wanted (a growing list, a new system, engine.cu's lean rules).
+// where the memory it holds may be wanted (a growing list, a new system, backend/memory_plan.cpp's
+// lean rules).
 inline void give_up_masks(PairList& list) {
   list.masks.release();
   list.masks_refused = 0;
@@ -250,7 +251,7 @@ struct ListStaging {
 };
 
 
-// The head of a list build, up to its count pass, ends the build's fixed part (cuda/build_graph.cuh):
+// The head of a list build, up to its count pass, ends the build's fixed part (backend/build_graph.cuh):
 // whether its operations are queued (false: a graph replays them), and what to call where the
 // part ends (before the count pass; null: nothing).
 struct ListBuildHead {

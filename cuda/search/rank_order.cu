@@ -74,9 +74,9 @@ RankOrder rank_order(const ListArgs<Real, Accum>& args, PairList& list, bool for
 
 
 namespace {
-// A thread per coordinate of the caller's order (change 87): the stores coalesced, the loads
-// gathered by rank. With the scattered stores of a thread per rank the kernel ran 31.6 us at 1M
-// particles in lattice order and 99.8 shuffled (Nsight Compute, 7e818de).
+// A thread per coordinate of the caller's order: the stores coalesced, the loads gathered by rank.
+// A thread per rank would scatter its stores, which costs most where the caller's numbering is
+// far from the rank order (a shuffled one).
 template <int D>
 __global__ void unrank_kernel(const uint32_t* __restrict__ rank, const double* __restrict__ ranked, std::size_t n,
                               double* __restrict__ out) {

@@ -1,8 +1,8 @@
-// Where a gated MD step's last drift puts each particle for its evaluation's list kernels (change
-// 49): the pair list's rank order, written as the evaluation's gather would write it (the same
-// values: cuda/pair_list.cuh place_ranked), so that the gated evaluation needs no gather kernel;
-// and where those evaluations leave the forces (change 51).
-// Plain C++: engine.h includes it.
+// Where a gated MD step's last drift puts each particle for its evaluation's list kernels: the
+// pair list's rank order, written as the evaluation's gather would write it (the same values:
+// search/rank_order.cuh place_ranked), so that the gated evaluation needs no gather kernel; and
+// where those evaluations leave the forces.
+// Plain C++: backend/engine.h includes it.
 #pragma once
 
 #include <cstdint>
@@ -22,10 +22,10 @@ struct RankOrder {
   const uint32_t* types = nullptr;  // n or null (all type 0)
   uint32_t num_types = 1;
   DeviceFlags* flags = nullptr;     // a coordinate that is not finite is flagged here
-  // n x dim or null: where the gated evaluations leave the forces, rank p's at p * dim (change 51:
-  // the force kernel's stores coalesced whatever the caller's numbering; the next step's kick, on
-  // the chunk's rank-order copy of the state, reads rank p's, change 58; a Verlet chunk's fused
-  // evaluations store none, change 59). Null (lean memory): they go to the user-order forces.
+  // n x dim or null: where the gated evaluations leave the forces, rank p's at p * dim (the force
+  // kernel's stores coalesced whatever the caller's numbering; the next step's kick, on the chunk's
+  // rank-order copy of the state, reads rank p's; a Verlet chunk's fused evaluations store none).
+  // Null (lean memory): they go to the user-order forces.
   const double* forces = nullptr;
 };
 

@@ -1,6 +1,6 @@
-// The stages of the CUDA pipeline (issue 3), with the same names and array layouts as src/cpu:
-// so far stage 1 (cell IDs and the count of valid entries), stage 2 (the sort, with CUB or the
-// chapter's own radix sort) and stage 3 (the collision-cell list).
+// The search stages of the CUDA pipeline, with the same names and array layouts as src/cpu:
+// stage 1 (cell IDs and the count of valid entries), stage 2 (the sort, with CUB or the chapter's
+// own radix sort) and stage 3 (the collision-cell list); stages 4 and 5 are forces/traversal.cuh's.
 // All work is enqueued on `stream`; pointers are device pointers.
 #pragma once
 
@@ -37,7 +37,7 @@ PipelineCounts read_counts(const PipelineCounts* counts, cudaStream_t stream);
 // first (stage 3 then needs no zeroing of its own: find_collision_cells' `zeroed`) and the valid
 // entries are counted into counts->valid by the kernel itself (an integer atomic add per block: the
 // same count as count_valid, without a second pass over the keys). With `copy` (n x grid.dim), the
-// positions as read are stored there too (the build's positions of a reused structure). Change 80.
+// positions as read are stored there too (the build's positions of a reused structure).
 void build_cell_ids(const Grid& grid, const double* positions, std::size_t n, uint32_t* keys,
                     uint32_t* object_ids, Control* control, cudaStream_t stream, PipelineCounts* counts = nullptr,
                     double* copy = nullptr);

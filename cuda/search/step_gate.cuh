@@ -71,7 +71,7 @@ __device__ __forceinline__ void raise_block_displacement(double worst, const Gat
 }
 
 // The gate at the first kernel of a gated step (the MD engine's kick-drift, or the previous step's
-// force kernel where it runs this step's kick-drift, change 59), read by one thread per block and
+// force kernel where it runs this step's kick-drift), read by one thread per block and
 // shared: shut at an earlier step, or the previous step's displacement past the limit (its
 // evaluation did not run: the gate closes there, at step - 1). Open, block 0 zeroes the next
 // step's slot. Every thread of the block must call it (a barrier).
