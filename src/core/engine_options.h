@@ -29,9 +29,9 @@ enum class TraversalForm : uint8_t {
 };
 
 // kAuto's choice: a block per row tile while the collision cells (bounded by min(n, grid cells))
-// are at most this many per multiprocessor, else warp per cell. Measured on the H100 (132 SMs),
-// in.lj, cellforce run, mixed: tile/warp steps/s 3.19 at 216 cells, 1.92 at 512, 1.44 at 1000,
-// 1.07 at 1728, 0.91 at 2744 (validation/reports/performance.md). A rule of the system and the
+// are at most this many per multiprocessor, else warp per cell: the tile form's lead over warp per
+// cell shrinks as the cells per multiprocessor grow and is gone at about this many
+// (validation/reports/performance.md records the measurement). A rule of the system and the
 // device, not a timing: the choice, and so the bits, are the same on every run.
 inline constexpr int kTileCellsPerMultiprocessor = 16;
 inline TraversalForm resolve_traversal(TraversalForm form, std::size_t cell_bound, int multiprocessors) {
@@ -55,14 +55,12 @@ enum class ListMemory : uint8_t { kAuto, kFast, kLean };
 
 // The memory mode the lists run in for `n` particles on a device of `device_bytes` (0: unknown, or
 // no device): as asked, or (auto) lean where the fast layout, about kFastListBytesPerParticle with
-// a 0.6 skin and the MD state (1,291-1,304 measured on the H100 from 256k up since change 85, which
-// put the sort's unsorted arrays and scratch in the masks' room: a staged array, the sorted arrays,
-// the list, the masks, the gated evaluations' forces, a second rank-ordered array and the MD
-// engine's rank-order copy of the state side by side; 1,290 and 1,295 at 56.0M and 58.8M, which ran
-// in fast memory at 30.2 and 28.8 steps/s against lean memory's 25.8 at 56.0M; 1,440 before change
-// 85), would not fit in 90% of the device. A rule
-// of the system and the device: cuda/engine.cu applies it at every build, and the automatic skin
-// follows it (resolve_reuse). The mode itself changes no result; the skin it leads to changes when
+// a 0.6 skin and the MD state (a staged array, the sorted arrays, the list, the masks, the gated
+// evaluations' forces, a second rank-ordered array and the MD engine's rank-order copy of the state
+// side by side, the sort's unsorted arrays and scratch in the masks' room; performance.md records
+// the measured bytes per particle), would not fit in 90% of the device. A rule of the system and the
+// device: cuda/backend/memory_plan.cpp applies it at every build, and the automatic skin follows
+// it (resolve_reuse). The mode itself changes no result; the skin it leads to changes when
 // the builds come and the order of the sums (so the bits), not which pairs are summed.
 inline constexpr double kFastListBytesPerParticle = 1320.0;
 inline ListMemory lists_memory(ListMemory asked, std::size_t n, std::size_t device_bytes) {
@@ -72,7 +70,7 @@ inline ListMemory lists_memory(ListMemory asked, std::size_t n, std::size_t devi
 }
 
 // Counts and stage times (seconds) of the last evaluation. Both backends fold the valid count into
-// t_cell_ids (the GPU's cell-ID kernel counts them, change 80: its t_count is ~0) and the GPU
+// t_cell_ids (the GPU's cell-ID kernel counts them: its t_count is ~0) and the GPU
 // includes staging the occupants (the relative-coordinate gather) in t_traversal. t_transfer:
 // host <-> device copies (GPU only).
 struct PipelineStats {
@@ -92,7 +90,7 @@ struct PipelineStats {
   // pairs (within rc + skin, once from each side) and the entries their layout holds, padding
   // included (each group of 32 lists as long as its longest, in whole chunks); 0 without lists.
   std::size_t list_pairs = 0, list_slots = 0;
-  // The build's masks (CUDA lists, cuda/pair_list.cuh BuildMasks): the words every work unit's
+  // The build's masks (CUDA lists, cuda/search/pair_list.cuh BuildMasks): the words every work unit's
   // count-pass decisions take, and those the room held (the units within it read theirs, the rest
   // tested their pairs again); 0 without lists or masks.
   std::size_t list_mask_words = 0, list_mask_words_held = 0;
@@ -117,11 +115,11 @@ struct PipelineStats {
          t_accumulate = 0, t_transfer = 0;
   double t_total = 0;
   // CUDA pair lists: this evaluation's build ran its fixed part (cell IDs to the list's count pass)
-  // as a replayed CUDA graph (cuda/build_graph.cuh).
+  // as a replayed CUDA graph (cuda/backend/build_graph.cuh).
   bool graph_build = false;
   // CUDA pair lists: threads a block of the force kernels that ran the next step's kick-drift in the
   // last chunk of steps served behind the step gate (128, or 256 where those fill its last wave
-  // better: cuda/list_build.h fused_block_size); 0 where it ran none (lean memory, Langevin).
+  // better: cuda/search/list_build.h fused_block_size); 0 where it ran none (lean memory, Langevin).
   int list_block = 0;
 };
 

@@ -52,7 +52,7 @@ void finish(Grid& g, bool slabs) {
   // key_bits is 2^key_bits - 1, which stays above every valid key (whatever its slab) so that
   // invalid entries sort last. The slab takes the bits left free in the sort's last 8-bit digit
   // (CUB's radix sort takes 8 bits a pass), up to kMaxSlabBits; where fewer than 2 are free it takes
-  // 2 and the sort one more pass (measured in performance.md, change 86), within the key's 32 bits
+  // 2 and the sort one more pass (performance.md records what that costs), within the key's 32 bits
   // (1 above 2^29 cells, 0 at 2^30).
   const int cell_bits = int(std::bit_width(uint64_t(2) * cells));
   const int free_bits = (8 - cell_bits % 8) % 8;

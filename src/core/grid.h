@@ -37,7 +37,7 @@ struct GridOptions {
   // the binning of a particle cannot drop a pair at distance just under rc (the narrow phase's
   // strict r < rc test decides what interacts, so a wider box only adds candidates).
   double half_width_factor = 0.70710678118654752440 * (1.0 + 1e-6);
-  // The sort key carries each particle's slab (sort_key(), change 86): where pair lists are built
+  // The sort key carries each particle's slab (sort_key()): where pair lists are built
   // from the structure (the CUDA engine sets it), whose force kernel gathers partners by rank. A
   // structure traversed by its cells has no use for the order, and its sort (every step without a
   // skin) no bits to spare for it.
@@ -147,11 +147,11 @@ struct StagedCoordinate<float> {
 // entries (the design note's stage 2), and each group runs by slab: the particle's place inside its
 // own H cell along the grid's last axis, in 2^slab_bits layers (2-3 bits; fewer only where the cell
 // part leaves less than 2 of the key's 32, above 2^28 cells). Ties keep stage 1's order, the
-// particles' own. Without the slab a cell's entries ran in the caller's numbering; a numbering that
-// is not in space (any after a long run: diffusion mixes a cell's particles within a few thousand
-// steps of in.lj) scattered the partners that a warp of consecutive ranks gathers (performance.md,
-// change 86). The slab depends on the particle alone, so the P entries that one H cell sends to a
-// neighbour keep their H order there.
+// particles' own. Without the slab a cell's entries would run in the caller's numbering; a
+// numbering that is not in space (any after a long run: diffusion mixes a cell's particles within
+// a few thousand steps of in.lj) scatters the partners that a warp of consecutive ranks gathers
+// (performance.md records the measurement). The slab depends on the particle alone, so the P
+// entries that one H cell sends to a neighbour keep their H order there.
 CF_HD uint32_t sort_key(const Grid& g, uint32_t cell, bool phantom, uint32_t slab) {
   return ((cell << 1) | uint32_t(phantom)) << g.slab_bits | slab;
 }
@@ -164,8 +164,7 @@ CF_HD bool key_is_phantom(uint32_t key, int slab_bits) { return (key >> slab_bit
 // particle's slab in its H cell (sort_key()). Returns the control bits. D is the
 // grid's dimension (g.dim): with it known at compile time every loop unrolls and every array and
 // Grid field is indexed by a constant, so a kernel keeps them in registers (with a run-time
-// dimension the CUDA cell-ID kernel copied the Grid and the arrays to local memory: performance.md,
-// change 27).
+// dimension the CUDA cell-ID kernel would copy the Grid and the arrays to local memory).
 template <int D>
 CF_HD Control bin_particle_in(const Grid& g, const double x[kMaxDim], uint32_t ids[kMaxCellTypes],
                               uint32_t* slab = nullptr) {

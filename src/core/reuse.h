@@ -38,7 +38,7 @@ struct ReuseOptions {
   bool audit = false;   // on every reused evaluation, count missed and repeated pairs against a
                         // fresh host search (slow: diagnostics and tests only)
   bool list = false;    // CUDA, with a skin and Jacobi accumulation: each build records every
-                        // particle's partners within rc + skin (cuda/pair_list.cuh) and the
+                        // particle's partners within rc + skin (cuda/search/pair_list.cuh) and the
                         // evaluations it serves walk those lists instead of the cells' candidates
 };
 
@@ -56,21 +56,18 @@ bool pair_lists_serve(const ReuseOptions& resolved, Accumulation accumulation, c
 // same device makes the same choice and the same bits (a system near a device's capacity may get
 // another skin on a device with less memory).
 // - An MD engine (md: its steps, minimisation) on CUDA with Jacobi accumulation, where rc + skin
-//   fits in half of every periodic edge: pair lists with a skin of kAutoSkinPerCutoff x rc. Measured on the H100 (in.lj, rc 2.5, mixed, lists,
-//   validation/reports/performance.md): skin 0.4 / 0.6 / 0.8 gave 7,861 / 8,280 / 7,855 steps/s at
-//   32,000 particles and 823 / 825 / 774 at 1,048,576; cells every step 3,976 and 380.
+//   fits in half of every periodic edge: pair lists with a skin of kAutoSkinPerCutoff x rc (0.6 at
+//   in.lj's rc 2.5: of the skins validation/reports/performance.md compares, the one that serves
+//   in.lj fastest from 32,000 to 1,048,576 particles, and far faster than the cells every step).
 //   Where the lists run in lean memory (`memory`, from lists_memory: the device too small for the
 //   fast layout), kAutoLeanSkinPerCutoff x rc: a lean build keeps its count pass's masks only in
-//   the memory left, and a shorter list leaves more (performance.md, change 73; H100, lean, in.lj,
-//   mixed: skin 0.4 / 0.45 / 0.5 / 0.55 / 0.6 gave 19.0 / 19.9 / 19.4 / 17.5 / 17.0 steps/s at
-//   99.6M particles, every mask held from 0.45 down; 117.0 / 120.8 / 115.1 at 16.7M, every mask
-//   held at each).
+//   the memory left, and a shorter list leaves more (performance.md: at ~100M particles of in.lj
+//   every mask is held from a skin of 0.45 down, and 0.45 serves fastest).
 // - Force calls (md false: compute, compute_device): no skin. Each call's positions are the
 //   caller's, and the displacement check would make compute_device wait for the host.
 // - Otherwise no skin: without lists the skin's larger cells cost the traversal about what the
-//   skipped builds save (H100: 4,189 against 3,976 steps/s at 32k, 356 against 380 at 1M), and on
-//   the CPU the build is a few percent of an evaluation (validation/reports/stability.md, table 11;
-//   performance.md, the CPU backend).
+//   skipped builds save (performance.md), and on the CPU the build is a few percent of an
+//   evaluation (validation/reports/stability.md, table 11; performance.md, the CPU backend).
 // `backend` is the one the engine runs on (cpu or cuda, not auto). check, every and audit are the
 // caller's; with automatic false the options come back as they are.
 inline constexpr double kAutoSkinPerCutoff = 0.24;
@@ -191,7 +188,7 @@ ReuseAudit audit_reuse(const Grid& grid, const uint32_t* build_keys, const Contr
                        const SystemView& system, double cutoff,
                        const std::vector<std::pair<uint32_t, uint32_t>>& pairs);
 
-// The audit of pair lists (CUDA's, cuda/pair_list.cuh): partners[i] holds the particles in i's
+// The audit of pair lists (CUDA's, cuda/search/pair_list.cuh): partners[i] holds the particles in i's
 // list (user indices, any order). A pair of `pairs` (closer than rc now) is missed when either
 // particle's list lacks the other (its force is not summed on that side), repeated when either
 // list holds the other more than once.

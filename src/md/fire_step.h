@@ -1,8 +1,8 @@
 // One FIRE step's arithmetic per particle (md/minimize.h describes the algorithm), written once for
-// minimize_fire on host arrays and for the CUDA engine's FIRE kernels (cuda/md_engine.cu): given
-// the same forces and the same scalars (dt, alpha, the sums v^2 and F^2), both move every particle
-// by the same bits. A product that an add follows goes through mul_rn, so that nvcc does not fuse
-// it into an FMA that the host does not compute.
+// minimize_fire on host arrays and for the CUDA engine's FIRE kernels
+// (cuda/integrate/fire_kernels.cu): given the same forces and the same scalars (dt, alpha, the sums
+// v^2 and F^2), both move every particle by the same bits. A product that an add follows goes
+// through mul_rn, so that nvcc does not fuse it into an FMA that the host does not compute.
 #pragma once
 
 #include <cmath>
