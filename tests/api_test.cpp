@@ -23,7 +23,7 @@
 #ifdef CELLFORCE_HAVE_CUDA
 #include <cuda_runtime.h>
 
-#include "backend/engine.h"  // cuda/engine.h: GpuEngine::unavailable
+#include "backend/engine.h"  // cuda/backend/engine.h: GpuEngine::unavailable
 #endif
 
 #include "cli/forces.h"

@@ -1,7 +1,7 @@
 #include "backends.h"
 
 #ifdef CELLFORCE_HAVE_CUDA
-#include "backend/engine.h"  // cuda/engine.h
+#include "backend/engine.h"  // cuda/backend/engine.h
 #endif
 
 namespace cftest {

@@ -254,7 +254,7 @@ struct AxisSpec {
 };
 
 // A grid built by hand the way core/grid.h documents its fields (this binary does not link the
-// library's plan_grid), with the most slab bits (change 86).
+// library's plan_grid), with the most slab bits.
 Grid make_grid(int dim, const AxisSpec (&axes)[3], double cutoff) {
   Grid g;
   g.dim = dim;

@@ -12,7 +12,7 @@
 #include <tuple>
 
 #include "cpu/engine.h"
-#include "backend/engine.h"  // cuda/engine.h
+#include "backend/engine.h"  // cuda/backend/engine.h
 #include "oracle.h"
 #include "reference/brute_force.h"
 #include "scene/lattice.h"

@@ -53,7 +53,7 @@ void expect_stages_equal(const Configuration& c, double cutoff) {
   EXPECT_EQ(download(d_keys, entries), host.keys) << "cell-ID array";
   EXPECT_EQ(download(d_ids, entries), host.object_ids) << "object-ID array";
   EXPECT_EQ(download(d_control, sys.n), host.control) << "control bits";
-  // The engine's form (change 80): the kernel zeroes every count (they held another value before),
+  // The engine's form: the kernel zeroes every count (they held another value before),
   // counts the valid entries itself and keeps the positions it read; the same arrays.
   {
     CF_CUDA_CHECK(cudaMemset(d_counts.data(), 0x5a, sizeof(cuda::PipelineCounts)));

@@ -19,7 +19,7 @@
 #include <vector>
 
 #ifdef CELLFORCE_HAVE_CUDA
-#include "backend/engine.h"  // cuda/engine.h: GpuEngine::unavailable
+#include "backend/engine.h"  // cuda/backend/engine.h: GpuEngine::unavailable
 #endif
 #include "core/box.h"
 #include "core/engine_options.h"
@@ -277,7 +277,7 @@ TEST_P(MdApi, OpenBoxFollowsTheCpuRun) {
   }
 }
 
-// The step gate (cuda/step_gate.h): with pair lists a step() call queues its steps in chunks and
+// The step gate (cuda/search/step_gate.h): with pair lists a step() call queues its steps in chunks and
 // the device decides the rebuilds. One call of 300 steps against 300 calls of one step (the last
 // step of a call is never gated, so those decide every rebuild on the host): the same builds and,
 // bit for bit, the same positions, velocities and forces; and the gate served most steps. Verlet
@@ -331,7 +331,7 @@ TEST_P(MdApi, GatedStepsEqualStepByStep) {
     EXPECT_GT(gated.gated_steps, 200) << "the gate served few steps";
     EXPECT_LE(gated.gated_steps, 299);
     EXPECT_EQ(gated.largest_served_displacement, stepwise.largest_served_displacement);
-    // Both runs' builds but the first few of the system replayed the build's graph (change 74).
+    // Both runs' builds but the first few of the system replayed the build's graph.
     EXPECT_GE(gated.graph_builds, gated.builds - 4);
     EXPECT_GE(stepwise.graph_builds, stepwise.builds - 4);
     EXPECT_LE(gated.graph_builds, gated.builds);

@@ -1,9 +1,9 @@
-// Starting from overlaps and hot dense states (issue 6, item 13): FIRE relaxes a pair to the
-// minimum of the potential and a cluster to a configuration the brute force finds force-free; an
-// overlapping random start is refused by the dynamics, brought below 100 epsilon/sigma by FIRE,
-// and then conserves energy under NVE; hot dense fcc starts (T = 2 at density 1.0, T = 5 at 1.2)
-// integrate stably; [minimize] in scene files; `cellforce run` refuses an unstable start, fresh
-// or restarted, before writing anything.
+// Starting from overlaps and hot dense states (case 13 of validation/reports/stability.md): FIRE
+// relaxes a pair to the minimum of the potential and a cluster to a configuration the brute force
+// finds force-free; an overlapping random start is refused by the dynamics, brought below 100
+// epsilon/sigma by FIRE, and then conserves energy under NVE; hot dense fcc starts (T = 2 at
+// density 1.0, T = 5 at 1.2) integrate stably; [minimize] in scene files; `cellforce run` refuses
+// an unstable start, fresh or restarted, before writing anything.
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 

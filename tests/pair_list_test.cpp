@@ -1,4 +1,4 @@
-// Pair lists (ReuseOptions::list, cuda/pair_list.cuh): a build records every particle's partners
+// Pair lists (ReuseOptions::list, cuda/search/pair_list.cuh): a build records every particle's partners
 // within rc + skin; the evaluations the structure serves walk those lists. Checked against the
 // double-precision brute force at positions moved after the build, against the brute force's
 // own pair count, through an MD run, for bitwise repeatability, and for the error that names a
@@ -19,9 +19,9 @@
 
 #include "backends/md_engine.h"
 #include "core/error.h"
-#include "backend/engine.h"        // cuda/engine.h
-#include "backend/force_engine.h"  // cuda/force_engine.h
-#include "search/list_build.h"  // cuda/list_build.h
+#include "backend/engine.h"        // cuda/backend/engine.h
+#include "backend/force_engine.h"  // cuda/backend/force_engine.h
+#include "search/list_build.h"  // cuda/search/list_build.h
 #include "md/md.h"
 #include "oracle.h"
 #include "reference/brute_force.h"
@@ -265,15 +265,15 @@ TEST(PairListRepeat, TwoEnginesAreBitwiseEqual) {
 // step, in every precision and cutoff mode. An MD run observes only its output steps and a restart
 // recomputes the forces with observables, so a bitwise restart needs this. Single-type cubes and
 // squares (the in.lj case, where the fixed-point scale is the same on every axis and the force
-// kernels fold it into the pair's constants, change 40) and a multi-type box. Change 39 (the fold
-// in the kernels without observables only) broke this and was reverted. The full request's energy
-// and virial, which the folded kernels scale back by 1 + eps, are checked against the double brute
-// force as the list tests check them: not on the perfect lattice, whose forces are ~0, and on the
-// jittered square lattice with float bounds of its own (2e-6 median relative force error, virial
-// 2e-5): its spacing (1.118) sits at the LJ minimum (2^(1/6) = 1.122), where each pair's force
-// cancels to a small remainder, so float's median error there is ~1.0-1.3e-6 and force shift's
-// virial 1.0e-5 (measured on the H100, 2026-11-26; a host emulation of the float pair gives 1.1e-6
-// in either form of the force), above the 1e-6 and 1e-5 that well-conditioned scenes meet.
+// kernels fold it into the pair's constants) and a multi-type box: a fold in the kernels without
+// observables only would break this. The full request's energy and virial, which the folded kernels
+// scale back by 1 + eps, are checked against the double brute force as the list tests check them:
+// not on the perfect lattice, whose forces are ~0, and on the jittered square lattice with float
+// bounds of its own (2e-6 median relative force error, virial 2e-5): its spacing (1.118) sits at
+// the LJ minimum (2^(1/6) = 1.122), where each pair's force cancels to a small remainder, so
+// float's median error there is ~1.0-1.3e-6 and force shift's virial 1.0e-5 (measured on the GPU; a
+// host emulation of the float pair gives 1.1e-6 in either form of the force), above the 1e-6 and
+// 1e-5 that well-conditioned scenes meet.
 TEST(PairListRequests, ForcesDoNotDependOnTheObservablesAsked) {
   CF_SKIP_WITHOUT_DEVICE();
   using cellforce::CutoffMode;
@@ -332,13 +332,13 @@ TEST(PairListLean, LeanBuildIsBitwiseTheStagedOne) {
     GpuEngine x(lean), y(fast);
     for (const auto& [c, scene] : sequence) expect_same_lists(x, y, *c, *scene);
     // The rebuild of a after b: b's list array holds a's staged occupants, which its count pass
-    // reads (change 70); the fast engine's cells have their own.
+    // reads; the fast engine's cells have their own.
     EXPECT_GE(x.list_staged_counts(), 1u);
     EXPECT_EQ(y.list_staged_counts(), 0u);
   }
 }
 
-// ---- the build's arithmetic (cuda/list_build.h), on the host ----------------------------------------
+// ---- the build's arithmetic (cuda/search/list_build.h), on the host ---------------------------------
 
 // A row tile's column ranges: in order, contiguous, covering [0, ncols), each starting on a whole
 // 32-column tile; one range is the whole walk.
@@ -368,9 +368,9 @@ TEST(PairListRules, SplitRule) {
   EXPECT_EQ(build_splits(8217, 0), 1);      // no multiprocessor count: no splits wanted
 }
 
-// The block size of the force kernel with the next step's kick-drift (change 76), with the H100's
-// in.lj numbers: 9 blocks of 128 or 4 of 256 a multiprocessor, 132 multiprocessors (waves of 152,064
-// and 135,168 threads).
+// The block size of the force kernel with the next step's kick-drift, with the H100's in.lj
+// numbers: 9 blocks of 128 or 4 of 256 a multiprocessor, 132 multiprocessors (waves of 152,064 and
+// 135,168 threads).
 TEST(PairListRules, FusedBlockRule) {
   using cellforce::cuda::fused_block_size;
   const int h100[2] = {9, 4};
@@ -561,17 +561,17 @@ TEST(PairListMasks, FillFromMasksIsTheWalkedFill) {
     }
 }
 
-// Lean memory keeps the count pass's masks in the room the device has left (change 71). Three lean
-// engines on one sequence: `full` has room for every mask, `part` a room capped below each scene's
-// demand (list_mask_words, as a nearly full device leaves: 2,048 and 8,192 words; 32,768 held a's
-// and b's whole, H100), `none` no room (its fills test every pair again). The lists and results are
-// bitwise the same; the capped room's rebuilds wrote some units from masks, fewer than the full
-// room's at the same rebuild (list_masked_units, counted on the device). A lean engine gives the
-// room up when the system changes size and asks for it again at the end of a build that kept masks
-// (engine.cu), so it reads masks from the second build of a system on (from the third of its first
-// system, whose first build has no list array to lend the sort and keeps none); so each scene is
-// rebuilt at its own size (moves past skin / 2) as well as reused (a move below it): `full` reads
-// masks at the third build of a, at bf, uf and the last af.
+// Lean memory keeps the count pass's masks in the room the device has left. Three lean engines on
+// one sequence: `full` has room for every mask, `part` a room capped below each scene's demand
+// (list_mask_words, as a nearly full device leaves: 2,048 and 8,192 words; 32,768 held a's and b's
+// whole, H100), `none` no room (its fills test every pair again). The lists and results are bitwise
+// the same; the capped room's rebuilds wrote some units from masks, fewer than the full room's at
+// the same rebuild (list_masked_units, counted on the device). A lean engine gives the room up when
+// the system changes size and asks for it again at the end of a build that kept masks
+// (cuda/backend/memory_plan.cpp), so it reads masks from the second build of a system on (from the
+// third of its first system, whose first build has no list array to lend the sort and keeps none);
+// so each scene is rebuilt at its own size (moves past skin / 2) as well as reused (a move below
+// it): `full` reads masks at the third build of a, at bf, uf and the last af.
 TEST(PairListMasks, LeanFillFromMasksIsTheWalkedFill) {
   CF_SKIP_WITHOUT_DEVICE();
   const Scene a = make_scene("multitype3d_lb"), b = make_scene("random3d_periodic"),
@@ -626,7 +626,7 @@ TEST(PairListMasks, LeanFillFromMasksIsTheWalkedFill) {
 // The same for a dense cluster: 200 particles in a cube of edge 2 in one cell, nearly every pair
 // within rc + skin (2.8; the cube's diagonal is 3.5), so a row tile keeps ~32 x 100 entries in a
 // batch of 4 column tiles, more than the fill's queue holds (1,024): the fill from masks takes
-// those batches a tile at a time (change 66). A build, and two rebuilds (moves past skin / 2) that
+// those batches a tile at a time. A build, and two rebuilds (moves past skin / 2) that
 // read the masks.
 TEST(PairListMasks, FillFromMasksIsTheWalkedFillInADenseCluster) {
   CF_SKIP_WITHOUT_DEVICE();
@@ -814,19 +814,19 @@ TEST(PairListErrors, CoincidentPairOnAReusedStepIsNamed) {
 }
 
 // A gated MD run (many steps in one call: the step gate, its drifts placing the positions in rank
-// order and its evaluations leaving the forces in rank order, changes 49 and 51; the chunk on a
-// rank-order copy of the state, Verlet's next kick-drift in the force kernel, 58 and 59) ends bitwise where
-// the step-by-step run ends (one step a call: never gated), and so does the gated run of a lean
-// engine, whose gated evaluations store the forces in the caller's order instead; Verlet and
-// Langevin, 2,048 particles of the in.lj fluid, 300 steps with ~20 rebuilds; in mixed precision
-// (fixed-point gathers) with 8 threads a particle (the rule's choice at this size) and 1 (the large
-// systems' force kernel), and in double precision (double gathers) with 2; all masses 1 (passed
-// as one number), and in mixed precision also with masses that differ, in 2D and with two types.
-// The 2D form: systems/lj_2d.toml's liquid (1,152 particles); the two-type form: the Kob-Andersen
-// mixture of systems/kob_andersen.toml (2,048 particles, 80:20). The fused force kernel in blocks
-// of 256 (change 76; the rule gives 128 at these sizes) is forced in mixed precision with 1 thread
-// a particle, in single with 2 and varied masses, in 2D (its last block part full) and in double;
-// the runs report the blocks they ran (MdCounters::list_block: 0 where none ran the kick-drift).
+// order and its evaluations leaving the forces in rank order; the chunk on a rank-order copy of the
+// state, Verlet's next kick-drift in the force kernel) ends bitwise where the step-by-step run ends
+// (one step a call: never gated), and so does the gated run of a lean engine, whose gated
+// evaluations store the forces in the caller's order instead; Verlet and Langevin, 2,048 particles
+// of the in.lj fluid, 300 steps with ~20 rebuilds; in mixed precision (fixed-point gathers) with 8
+// threads a particle (the rule's choice at this size) and 1 (the large systems' force kernel), and
+// in double precision (double gathers) with 2; all masses 1 (passed as one number), and in mixed
+// precision also with masses that differ, in 2D and with two types. The 2D form:
+// systems/lj_2d.toml's liquid (1,152 particles); the two-type form: the Kob-Andersen mixture of
+// systems/kob_andersen.toml (2,048 particles, 80:20). The fused force kernel in blocks of 256 (the
+// rule gives 128 at these sizes) is forced in mixed precision with 1 thread a particle, in single
+// with 2 and varied masses, in 2D (its last block part full) and in double; the runs report the
+// blocks they ran (MdCounters::list_block: 0 where none ran the kick-drift).
 constexpr const char* kGated2d = R"(
 [system]
 dimension = 2
@@ -922,9 +922,9 @@ TEST(PairListMd, GatedRunsEqualTheStepwiseRunLeanOrNot) {
     Precision precision;
     std::optional<int> threads;
     const char* name;
-    bool varied_masses = false;    // 1, 1.5 and 2 in turn (one mass for all: a number, change 60)
+    bool varied_masses = false;    // 1, 1.5 and 2 in turn (one mass for all: a number)
     const char* scene = nullptr;  // a scene file's text instead of the in.lj fluid
-    std::optional<int> block;      // the fused force kernel's threads a block (change 76) instead of the rule
+    std::optional<int> block;      // the fused force kernel's threads a block instead of the rule
   };
   for (const Form form : {Form{Precision::kMixed, std::nullopt, "mixed, the rule's threads"},
                           Form{Precision::kMixed, 1, "mixed, 1 thread a particle"},
@@ -973,7 +973,7 @@ TEST(PairListMd, GatedRunsEqualTheStepwiseRunLeanOrNot) {
       EXPECT_EQ(stepwise.gated_steps, 0);
       EXPECT_GT(fast.gated_steps, 200) << "the gate served few steps";
       EXPECT_GT(lean.gated_steps, 200);
-      // The fused force kernel's blocks (change 76): the form's, or the rule's 128 at this size;
+      // The fused force kernel's blocks: the form's, or the rule's 128 at this size;
       // none where no kernel runs the next step's kick-drift (Langevin, lean memory, step by step).
       EXPECT_EQ(fast.list_block, langevin ? 0 : form.block.value_or(128));
       EXPECT_EQ(lean.list_block, 0);
@@ -982,7 +982,7 @@ TEST(PairListMd, GatedRunsEqualTheStepwiseRunLeanOrNot) {
   }
 }
 
-// The gate's notice (change 77, cuda/gate_readback.cuh): the first kernel of a gated chunk that finds
+// The gate's notice (cuda/integrate/gate_readback.cuh): the first kernel of a gated chunk that finds
 // the gate shut posts the closed step and the gate's values into mapped host memory, and the host
 // queues the rebuild as soon as it sees them, before the chunk's end. Runs of the in.lj fluid
 // (mixed precision; fast and lean memory, Verlet and Langevin) whose host reads the notice first
@@ -1027,12 +1027,12 @@ TEST(PairListMd, GateNoticeIsTheGatesOwnCopy) {
     }
   }
   // Whether the host sees a notice before the chunk's end is a matter of timing (the chunk's tail
-  // after the closing: its shut steps, the write-back, the copy, tens of us); on the H100 it saw
-  // every one. Fewer than a quarter means the notices come late or not at all.
+  // after the closing: its shut steps, the write-back, the copy). Fewer than a quarter means the
+  // notices come late or not at all.
   EXPECT_GT(early, closings / 4) << "the host read few closings from the notice";
 }
 
-// The build's fixed part replayed as a CUDA graph (change 74, cuda/build_graph.cuh) is the part
+// The build's fixed part replayed as a CUDA graph (cuda/backend/build_graph.cuh) is the part
 // queued operation by operation: two engines, x with graphs and y without, on a sequence of
 // rebuilds (every other configuration moved by up to 0.2 > skin / 2) of one system, the same
 // particles in a box 5% larger, the same with a 5% shorter cutoff (the same n, another grid: the
@@ -1131,7 +1131,7 @@ TEST(PairListGraph, ReplayedRunIsTheQueuedRun) {
   }
 }
 
-// Change 83: a resident evaluation with time_stages false records no stage event, so its build's
+// A resident evaluation with time_stages false records no stage event, so its build's
 // graph holds none; its graph key is not a timed build's, so a timed build never replays it (a
 // replay of an eventless graph would leave the stage events of an earlier evaluation: stage times
 // out of order). One periodic system rebuilt at every evaluation (positions moved by up to 0.2 >
@@ -1214,7 +1214,7 @@ TEST(PairListGraph, UntimedBuildsLeaveTheirEventsOut) {
       engines[k]->collect_timing();
       const cellforce::PipelineStats& st = engines[k]->stats();
       EXPECT_GT(st.t_cell_ids, 0.0);
-      EXPECT_GE(st.t_count, 0.0);  // counted with the cell IDs (change 80): two events back to back
+      EXPECT_GE(st.t_count, 0.0);  // counted with the cell IDs: two events back to back
       EXPECT_GT(st.t_sort, 0.0);
       EXPECT_GT(st.t_collision_cells, 0.0);
       EXPECT_GT(st.t_traversal, 0.0);
@@ -1226,7 +1226,7 @@ TEST(PairListGraph, UntimedBuildsLeaveTheirEventsOut) {
   EXPECT_EQ(y.build_captures() + y.build_replays(), 0u);
 }
 
-// Change 85: in fast memory the builds after a system's first put the unsorted keys and IDs and the
+// In fast memory the builds after a system's first put the unsorted keys and IDs and the
 // sort's scratch in the count pass's masks' room (dead from the fill to the next count pass). An
 // engine that does (x) and one that keeps them in arrays of their own (y) list the same pairs and
 // give bitwise the same results over a sequence of rebuilds (positions moved by up to 0.2 > skin /
@@ -1258,7 +1258,7 @@ TEST(PairListMasks, FastBuildsLendTheMasksRoomToTheSort) {
   }
 }
 
-// A gated chunk runs on a copy of the state in the list's rank order (change 58): a particle whose
+// A gated chunk runs on a copy of the state in the list's rank order: a particle whose
 // drift diverges there is named by the caller's index, not its rank. Particle 1234 of 2,048 (its
 // rank is another number: the lattice's numbering is not the cells') moves twice the box edge along
 // y in every step (once the edge in each of Langevin's half drifts, without friction: the speed

@@ -1,4 +1,5 @@
-// The reliability probes of issue 13, one test (or group) per item: each failed before its fix.
+// The reliability probes (validation/reports/reliability.md), one test (or group) per item, each
+// a regression test: it fails without its item's fix.
 //   1  a full disk (or a file-size limit) while an HDF5 file is written or closed: an error that
 //      names the reason, no partial file, an earlier file of that name untouched, no crash
 //   2  outputs that collide with each other or with an input (symlinks included) are refused

@@ -144,7 +144,7 @@ TEST(ReuseOptions, ListsMemoryIsARuleOfTheSystemAndTheDevice) {
   using cellforce::lists_memory;
   const std::size_t h100 = 85'017'493'504;  // an H100 80GB's total as cudaMemGetInfo gives it
   const std::size_t limit = std::size_t(0.9 * double(h100) / 1320.0);  // the largest fast system (57.97M)
-  EXPECT_GT(limit, 56'000'000u);  // 55,990,084 particles ran fast at 1,290 B/particle (performance.md, change 85)
+  EXPECT_GT(limit, 56'000'000u);  // performance.md's largest fast run: 55,990,084 particles at 1,290 B/particle
   EXPECT_EQ(lists_memory(ListMemory::kAuto, 16'777'216, h100), ListMemory::kFast);
   EXPECT_EQ(lists_memory(ListMemory::kAuto, limit, h100), ListMemory::kFast);
   EXPECT_EQ(lists_memory(ListMemory::kAuto, limit + 1, h100), ListMemory::kLean);

@@ -152,7 +152,7 @@ TEST(CollisionCells, SplitByTypeIsAStablePartition) {
 
 }  // namespace
 
-// The slab bits (change 86, where GridOptions::slabs asks for them: none otherwise): the sort key's
+// The slab bits (where GridOptions::slabs asks for them: none otherwise): the sort key's
 // cell part keeps its width, the slab takes 2-3 bits (fewer only where the cell part leaves less of
 // the 32), and it adds no 8-bit sort pass where the last digit has 2 or more bits free; every valid
 // key, whatever its slab, stays below an invalid entry masked to the key's width.

@@ -1,8 +1,8 @@
-// Issue 6: stiff and extreme cases, each on every backend (backends.h) in every precision. Each
-// check compares the number a case gave with the number it should give (analytic values, the
-// double-precision brute force, or the error it must raise) under a tolerance stated per
-// precision below. With CELLFORCE_STABILITY_LOG=FILE set, every check is also appended to FILE
-// as one JSON line (case, backend, precision, item, expected, got, pass):
+// Stiff and extreme cases, each on every backend (backends.h) in every precision, numbered as in
+// validation/reports/stability.md. Each check compares the number a case gave with the number it
+// should give (analytic values, the double-precision brute force, or the error it must raise)
+// under a tolerance stated per precision below. With CELLFORCE_STABILITY_LOG=FILE set, every check
+// is also appended to FILE as one JSON line (case, backend, precision, item, expected, got, pass):
 // validation/stability_report.py renders those lines as validation/reports/stability.md.
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
@@ -58,7 +58,7 @@ constexpr Tolerance kDoubleTol{1e-12, 1e-12, 1e-11, 1e-12, 1e-12};
 constexpr Tolerance kFloatTol{4e-6, 1e-5, 1e-4, 1e-5, 2e-6};
 
 struct Case {
-  int number;          // the item of issue 6
+  int number;          // the case's number in validation/reports/stability.md
   const char* title;
 };
 constexpr Case kAnalytic{1, "Analytic pairs"};

@@ -21,7 +21,7 @@
 #include "core/error.h"
 
 #ifdef CELLFORCE_HAVE_CUDA
-#include "backend/engine.h"  // cuda/engine.h
+#include "backend/engine.h"  // cuda/backend/engine.h
 #endif
 
 namespace cftest {
