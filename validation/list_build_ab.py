@@ -11,7 +11,7 @@ Until 2026-11-26 the passes' launches, the first build's included, shared one me
 
   python3 validation/list_build_ab.py --base old/cellforce --new build-gpu-bin/cellforce \
       --sizes 32000 256000 1048576 --repeats 2 --ncu --out $OUT
-  (--bench-args=--langevin: the same A/B of Langevin steps, the step gate's change 16)
+  (--bench-args=--langevin: the same A/B of Langevin steps)
 
 Writes TAG.md (the table) and TAG.json (every run; --tag, list_build_ab by default) to --out.
 --skin 0 runs both with the cells traversed every step instead of pair lists. Exits 1 when a

@@ -4,14 +4,14 @@ the kernel it follows has ended (griddepcontrol.wait in PTX, ACQBULK in SASS) to
 before that wait only through the parameters the kernels before it cannot be writing, and never
 reads through the non-coherent path (ld.global.nc, ldu) what those kernels write.
 
-Why (performance.md, change 91): the gated force kernels are launched as programmatic dependents of
-each other, so kernel k + 1 runs its blocks' first instructions while kernel k still writes the
-positions (`ranked`), the rank-order state (`then`) and the step gate (`gate`). nvcc reads a
-`const __restrict__` pointer through the non-coherent path, which it takes as unchanging while the
-kernel runs, and ptxas then moved such a read of `ranked` before griddepcontrol.wait: the fused
-Verlet runs diverged. ea60bce's kernel already read `ranked` non-coherently, after the wait only by
-luck of the schedule. The checks, over every instantiation of every kernel that waits (the code of
-one architecture, --arch):
+Why (performance.md records the case): the gated force kernels are launched as programmatic
+dependents of each other, so kernel k + 1 runs its blocks' first instructions while kernel k still
+writes the positions (`ranked`), the rank-order state (`then`) and the step gate (`gate`). nvcc
+reads a `const __restrict__` pointer through the non-coherent path, which it takes as unchanging
+while the kernel runs, and ptxas may then move such a read of `ranked` before griddepcontrol.wait:
+the fused Verlet runs diverge. A non-coherent read that the schedule happens to leave after the wait
+is as wrong, hence the PTX check below. The checks, over every instantiation of every kernel that
+waits (the code of one architecture, --arch):
 
   order (PTX): global loads, stores, atomics and asynchronous copies before griddepcontrol.wait go
       through the rule's `before_wait` parameters only (the source's intent);
@@ -31,9 +31,11 @@ within a function: a false alarm rather than a miss). "Before the wait" is befor
 which the branch rule above makes the same as before it in time.
 
   python3 validation/pdl_check.py build/cellforce        (any binary or object with CUDA code)
-  python3 validation/pdl_check.py --self-test            (saved code that must fail and pass: change
-                                                         90's SASS, ea60bce's PTX, change 91's PTX
-                                                         and two mutations of it)
+  python3 validation/pdl_check.py --self-test            (saved code of the fused force kernel that
+                                                         must fail and pass: SASS that reads
+                                                         `ranked` before the wait, PTX that reads it
+                                                         non-coherently, the PTX of `ranked` without
+                                                         __restrict__ and two mutations of it)
 
 Tools: cuobjdump and nvdisasm from --tool-dir (ctest passes the build's CUDA toolkit), PATH, the
 CUDA toolkit, or the PyPI wheels nvidia-cuda-cuobjdump and nvidia-cuda-nvdisasm (validation/
@@ -542,8 +544,9 @@ def self_test() -> int:
     rule = RULES["list_force_kernel"]
     names = parameter_names(ROOT / rule.source, "list_force_kernel")
     ok = True
-    # SASS heads of the fused kernel (data/ab-2026-11-27k/c91-sass-fused-kernel-head.txt): ea60bce,
-    # change 91, and change 90 before change 91, which read ranked (c[0x0][0x318]) before ACQBULK.
+    # SASS heads of the fused kernel (data/ab-2026-11-27k/c91-sass-fused-kernel-head.txt): head_k
+    # (`ranked` const __restrict__, read after ACQBULK by the schedule) and fix_k (`ranked` without
+    # __restrict__) pass; c90_k reads ranked (c[0x0][0x318]) before ACQBULK.
     slots = (0x210, [(0, 0, 0x100), (1, 0x100, 8), (2, 0x108, 8), (3, 0x110, 8), (4, 0x118, 8), (5, 0x120, 8)])
     sections: dict[str, Sass] = {}
     for line in (here / "fused-kernel-sass-heads.txt").read_text().splitlines():
@@ -558,11 +561,11 @@ def self_test() -> int:
         ok &= good
         print(f"{'ok  ' if good else 'FAIL'} SASS {case}: {len(problems)} findings"
               + "".join(f"\n       {p}" for p in problems[:3]))
-    # PTX of the fused kernel, whole: ea60bce's (ranked read through ld.global.nc) and change 91's.
+    # PTX of the fused kernel, whole: ea60bce (ranked read through ld.global.nc) and c91 (without).
     c91 = (here / "fused-kernel-ptx-c91.ptx").read_text()
     cases = [("ea60bce", (here / "fused-kernel-ptx-ea60bce.ptx").read_text(), ("non-coherent", "ranked")),
              ("c91", c91, None)]
-    # Change 91's PTX with one mutation each, which the check must find: a coherent read of the fused
+    # c91's PTX with one mutation each, which the check must find: a coherent read of the fused
     # kick-drift's state (`then`, a struct parameter read through its address) made non-coherent, and
     # the wait moved below the first read of `ranked`.
     fn = ptx_functions(c91)[0]

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-r"""The SASS of one kernel, without a GPU: compiles a `cuda/*.cu` file to a cubin with the flags of
+r"""The SASS of one kernel, without a GPU: compiles a .cu file of cuda/ to a cubin with the flags of
 a CMake build's compile_commands.json (sm_90 by default) and disassembles it with nvdisasm (the
 toolkit here ships no cuobjdump or nvdisasm; the `nvidia-cuda-nvdisasm` wheel from PyPI has it).
 Prints the kernel's instructions and a count of the ones that matter for a hot loop (local memory,
@@ -10,8 +10,8 @@ calls to slow paths, global loads and stores, barriers).
   (--kernel: a substring of the mangled name; the bench's list force kernel is the one above:
    3D, one type, truncated, no observables, one thread per particle, fixed-point, mixed)
 
-Used for changes 25, 27 and 28 (performance.md): the instructions per list entry, the local
-memory of the cell-ID kernel, the order of the kick-drift's loads.
+performance.md uses it for the instructions per list entry, the local memory of the cell-ID
+kernel and the order of the kick-drift's loads.
 """
 from __future__ import annotations
 

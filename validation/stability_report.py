@@ -1,4 +1,4 @@
-"""validation/reports/stability.md: issue 6's stiff and extreme cases, and the NVE drift table.
+"""validation/reports/stability.md: the stiff and extreme cases, and the NVE drift table.
 
 The cases are GoogleTests (tests/stability_test.cpp) run on every backend and precision; with
 CELLFORCE_STABILITY_LOG=FILE each check is appended to FILE as a JSON line (case, title, backend,

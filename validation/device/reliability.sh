@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Run on the GPU machine from the repository root with the carried binaries (build-gpu-bin: the
-# cellforce binary, the two test binaries and cellforce-bench-gpu-forces): issue 13's checks there.
+# cellforce binary, the two test binaries and cellforce-bench-gpu-forces): the checks of
+# validation/reports/reliability.md there.
 #   - the GPU tests and the whole GoogleTest suite (the GPU backends run instead of skipping; the
 #     reliability tests of tests/reliability_test.cpp take every backend and precision);
 #   - compute-sanitizer memcheck on the reliability tests of the GPU backends (huge boxes, far-out
