@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
-# Run on the GPU machine from the repository root with the carried binaries (README, "GPU
-# machine"): the material of issue 6's items 11-13 for validation/reports/stability.md, in two
-# calls that each fit one device command (10 minutes):
+# Run on the GPU machine from the repository root with the carried binaries (docs/validation.md,
+# "On a GPU machine"): the material of issue 6's items 11-13 for validation/reports/stability.md,
+# in two calls that each fit one device command (10 minutes):
 #   bash validation/device/reuse.sh tests [build-dir] [label]
 #     the whole GoogleTest suite with the stability checks logged, memcheck on the GPU reuse
 #     cases, and (in the background) the CUDA force-shift NVE drift rows at dt 0.002 and 0.01;
