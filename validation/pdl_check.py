@@ -544,7 +544,8 @@ def self_test() -> int:
     rule = RULES["list_force_kernel"]
     names = parameter_names(ROOT / rule.source, "list_force_kernel")
     ok = True
-    # SASS heads of the fused kernel (data/ab-2026-11-27k/c91-sass-fused-kernel-head.txt): head_k
+    # SASS heads of the fused kernel (validation/reports/data/ab-2026-11-27.tar.xz,
+    # file ab-2026-11-27k/c91-sass-fused-kernel-head.txt): head_k
     # (`ranked` const __restrict__, read after ACQBULK by the schedule) and fix_k (`ranked` without
     # __restrict__) pass; c90_k reads ranked (c[0x0][0x318]) before ACQBULK.
     slots = (0x210, [(0, 0, 0x100), (1, 0x100, 8), (2, 0x108, 8), (3, 0x110, 8), (4, 0x118, 8), (5, 0x120, 8)])

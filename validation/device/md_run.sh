@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Run on the GPU machine from the repository root (binaries carried as build-gpu-bin, the OpenMM
-# wheels as .whl; see README). The checks of the device-resident engine and public API
+# wheels as .whl; see docs/validation.md). The checks of the device-resident engine and public API
 # (validation/reports/md-run.md):
 #   bash validation/device/md_run.sh quick [build]  the API, MD and run tests, the GPU core tests,
 #                                                   and `cellforce run` of in.lj at 32k and 1M

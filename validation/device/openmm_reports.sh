@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Run on the GPU machine from the repository root (build carried as build-gpu-bin, the OpenMM
-# wheels as .whl; see README): the OpenMM parity check on every case for the CPU and CUDA
-# backends, and the error-against-time data with OpenMM's Reference, CPU and CUDA platforms.
+# wheels as .whl; see docs/validation.md): the OpenMM parity check on every case for the CPU and
+# CUDA backends, and the error-against-time data with OpenMM's Reference, CPU and CUDA platforms.
 # Writes parity.md, parity.json, error-vs-time-<device>.json and logs to $OUT.
 #   bash validation/device/openmm_reports.sh [build-dir] [device-label]
 set -uo pipefail

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# Run on the GPU machine from the repository root with the carried binaries (README, "GPU
-# machine"): the material of cases 11-13 of validation/reports/stability.md, in two
+# Run on the GPU machine from the repository root with the carried binaries (docs/validation.md,
+# "On a GPU machine"): the material of cases 11-13 of validation/reports/stability.md, in two
 # calls that each fit one device command (10 minutes):
 #   bash validation/device/reuse.sh tests [build-dir] [label]
 #     the whole GoogleTest suite with the stability checks logged, memcheck on the GPU reuse

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# Run on the GPU machine from the repository root with the carried binaries (README, "GPU
-# machine"): the material for validation/reports/stability.md. In one go:
+# Run on the GPU machine from the repository root with the carried binaries (docs/validation.md,
+# "On a GPU machine"): the material for validation/reports/stability.md. In one go:
 #   - the NVE drift runs (validation/nve_drift.py, CPU and CUDA, 500 particles, dt 0.002 / 0.005 /
 #     0.01 over 100 time units, truncate and force shift, every precision), in the background;
 #   - the whole GoogleTest suite, with the stability checks logged as JSON lines;
