@@ -14,7 +14,7 @@
 
 #include "check.cuh"
 #include "cli/options.h"
-#include "engine.h"
+#include "backend/engine.h"
 #include "scene/lattice.h"
 
 using namespace cellforce;

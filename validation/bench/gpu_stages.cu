@@ -14,7 +14,7 @@
 #include "check.cuh"
 #include "cli/options.h"
 #include "scene/lattice.h"
-#include "stages.cuh"
+#include "search/stages.cuh"
 
 using namespace cellforce;
 
