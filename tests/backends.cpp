@@ -13,7 +13,7 @@ cellforce::EngineChoice choice_from(const EngineSpec& spec, cellforce::Backend b
   c.backend = backend;
   c.precision = spec.precision;
   c.accumulation = spec.accumulation;
-  c.grid_override = spec.grid_override;
+  c.test.grid_override = spec.grid_override;
   c.reuse = spec.reuse;
   return c;
 }

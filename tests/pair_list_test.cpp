@@ -519,8 +519,8 @@ TEST(PairListSplits, SplitWalksListWhatOneWalkLists) {
     for (const int splits : {2, 4, 8}) {
       SCOPED_TRACE(std::to_string(splits) + " splits" + (lean ? ", lean" : ""));
       GpuOptions one = list_options(Precision::kMixed), many = list_options(Precision::kMixed);
-      one.list_splits = 1;
-      many.list_splits = splits;
+      one.test.list_splits = 1;
+      many.test.list_splits = splits;
       one.memory = many.memory = lean ? ListMemory::kLean : ListMemory::kFast;
       GpuEngine x(one), y(many);
       for (const auto& [c, scene] : sequence) expect_same_lists(x, y, *c, *scene);
@@ -538,8 +538,8 @@ TEST(PairListSplits, SplitWalksListWhatOneWalkLists) {
 std::pair<GpuOptions, GpuOptions> masked_and_walked(Precision p, int splits) {
   GpuOptions masked = list_options(p), walked = list_options(p);
   masked.memory = walked.memory = ListMemory::kFast;
-  masked.list_splits = walked.list_splits = splits;
-  walked.list_masks = false;
+  masked.test.list_splits = walked.test.list_splits = splits;
+  walked.test.list_masks = false;
   return {masked, walked};
 }
 
@@ -588,9 +588,9 @@ TEST(PairListMasks, LeanFillFromMasksIsTheWalkedFill) {
                      std::to_string(room));
         auto [masked, walked] = masked_and_walked(p, splits);
         masked.memory = walked.memory = ListMemory::kLean;
-        masked.list_count_masked = true;
+        masked.test.list_count_masked = true;
         GpuOptions capped = masked;
-        capped.list_mask_words = room;
+        capped.test.list_mask_words = room;
         GpuEngine full(masked), part(capped), none(walked);
         std::size_t part_reads = 0;
         for (const auto& [c, scene] : sequence) {
@@ -672,7 +672,7 @@ TEST(PairListThreads, EveryThreadCountMatchesTheBruteForce) {
     for (const int threads : {1, 2, 4, 8}) {
       SCOPED_TRACE(cellforce::to_string(p) + std::string(", ") + std::to_string(threads) + " threads");
       GpuOptions o = list_options(p);
-      o.list_threads = threads;
+      o.test.list_threads = threads;
       GpuEngine e(o);
       for (const Configuration* c : {&s.config, &m}) {
         ForceResult got, ref;
@@ -704,12 +704,12 @@ void expect_refused(const char* option, std::initializer_list<int> values, Set&&
 
 // A thread count the force kernel has no form for is refused.
 TEST(PairListThreads, AThreadCountWithNoKernelIsRefused) {
-  expect_refused("list_threads", {0, 3, 16}, [](GpuOptions& o, int v) { o.list_threads = v; });
+  expect_refused("list_threads", {0, 3, 16}, [](GpuOptions& o, int v) { o.test.list_threads = v; });
 }
 
 // A block size the force kernel that runs the next step's kick-drift has no form for is refused.
 TEST(PairListThreads, ABlockSizeWithNoKernelIsRefused) {
-  expect_refused("list_block", {0, 64, 192, 512}, [](GpuOptions& o, int v) { o.list_block = v; });
+  expect_refused("list_block", {0, 64, 192, 512}, [](GpuOptions& o, int v) { o.test.list_block = v; });
 }
 
 // The audit of a structure the lists serve audits the lists: with the check off, after moves below
@@ -950,9 +950,9 @@ TEST(PairListMd, GatedRunsEqualTheStepwiseRunLeanOrNot) {
       const cellforce::IntegratorSettings settings = md_settings(langevin);
       auto run = [&](bool lean, bool one_call, cellforce::MdCounters* counters) {
         cellforce::EngineChoice choice = list_choice(form.precision, lean ? ListMemory::kLean : ListMemory::kFast);
-        choice.list_threads = form.threads;
-        choice.list_block = form.block;
-        auto md = cellforce::make_cuda_md_engine(std::make_unique<cellforce::CudaForceEngine>(choice));
+        choice.test.list_threads = form.threads;
+        choice.test.list_block = form.block;
+        auto md = cellforce::make_cuda_md_engine(choice);
         md->set_state(start, masses, scene.force_field);
         if (one_call) {
           md->advance(300, settings, false);
@@ -1001,9 +1001,9 @@ TEST(PairListMd, GateNoticeIsTheGatesOwnCopy) {
       SCOPED_TRACE(std::string(memory == ListMemory::kLean ? "lean, " : "fast, ") + (langevin ? "Langevin" : "Verlet"));
       auto run = [&](std::optional<bool> notice, std::optional<bool> check, cellforce::MdCounters* counters) {
         cellforce::EngineChoice choice = list_choice(Precision::kMixed, memory);
-        choice.gate_notice = notice;
-        choice.gate_notice_check = check;
-        auto md = cellforce::make_cuda_md_engine(std::make_unique<cellforce::CudaForceEngine>(choice));
+        choice.test.gate_notice = notice;
+        choice.test.gate_notice_check = check;
+        auto md = cellforce::make_cuda_md_engine(choice);
         md->set_state(start, masses, fluid.force_field);
         md->advance(300, md_settings(langevin), false);
         *counters = md->counters();
@@ -1070,9 +1070,9 @@ TEST(PairListGraph, ReplayedBuildsAreTheQueuedOnes) {
       SCOPED_TRACE(cellforce::to_string(p) + std::string(splits ? ", one split" : ", the rule's splits"));
       GpuOptions graphed = list_options(p), queued = list_options(p);
       graphed.memory = queued.memory = ListMemory::kFast;
-      graphed.list_splits = queued.list_splits = splits;
-      graphed.build_graph_audit = true;
-      queued.build_graph = false;
+      graphed.test.list_splits = queued.test.list_splits = splits;
+      graphed.test.build_graph_audit = true;
+      queued.test.build_graph = false;
       GpuEngine x(graphed), y(queued);
       std::size_t replayed = 0;
       for (const Build& build : sequence) {
@@ -1108,11 +1108,10 @@ TEST(PairListGraph, ReplayedRunIsTheQueuedRun) {
     const cellforce::IntegratorSettings settings = md_settings(langevin);
     auto run = [&](bool graph, std::size_t* replays, int64_t* builds) {
       cellforce::EngineChoice choice = list_choice(Precision::kMixed, ListMemory::kFast);
-      choice.build_graph = graph;
-      choice.build_graph_audit = graph;  // a replayed build queues nothing of its graph's part
-      auto forces = std::make_unique<cellforce::CudaForceEngine>(choice);
-      const GpuEngine& gpu = forces->gpu();
-      auto md = cellforce::make_cuda_md_engine(std::move(forces));
+      choice.test.build_graph = graph;
+      choice.test.build_graph_audit = graph;  // a replayed build queues nothing of its graph's part
+      auto md = cellforce::make_cuda_md_engine(choice);
+      const GpuEngine& gpu = dynamic_cast<cellforce::CudaForceEngine&>(md->forces()).engine();
       md->set_state(start, masses, scene.force_field);
       md->advance(300, settings, false);
       *replays = gpu.build_replays();
@@ -1171,8 +1170,8 @@ TEST(PairListGraph, UntimedBuildsLeaveTheirEventsOut) {
   const uint32_t* t = types.empty() ? nullptr : d.types;
   GpuOptions graphed = list_options(Precision::kMixed), queued = list_options(Precision::kMixed);
   graphed.memory = queued.memory = ListMemory::kFast;
-  graphed.build_graph_audit = true;
-  queued.build_graph = false;
+  graphed.test.build_graph_audit = true;
+  queued.test.build_graph = false;
   GpuEngine x(graphed), y(queued);
   auto stage_times = [](const cellforce::PipelineStats& st) {
     return std::vector<double>{st.t_transfer, st.t_check, st.t_cell_ids, st.t_count, st.t_sort,
@@ -1243,7 +1242,7 @@ TEST(PairListMasks, FastBuildsLendTheMasksRoomToTheSort) {
     SCOPED_TRACE(cellforce::to_string(p));
     GpuOptions lending = list_options(p), own = list_options(p);
     lending.memory = own.memory = ListMemory::kFast;
-    own.list_lend_masks = false;
+    own.test.list_lend_masks = false;
     GpuEngine x(lending), y(own);
     for (std::size_t b = 0; b < std::size(sequence); ++b) {
       SCOPED_TRACE("build " + std::to_string(b));
@@ -1286,7 +1285,7 @@ TEST(PairListMd, AGatedDivergenceNamesTheCallersParticle) {
       choice.reuse.skin = 0.3;
       choice.reuse.list = true;
       choice.memory = lean ? cellforce::ListMemory::kLean : cellforce::ListMemory::kFast;
-      auto md = cellforce::make_cuda_md_engine(std::make_unique<cellforce::CudaForceEngine>(choice));
+      auto md = cellforce::make_cuda_md_engine(choice);
       md->set_state(start, masses, scene.force_field);
       settings.langevin = langevin;
       try {

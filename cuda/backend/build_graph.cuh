@@ -1,10 +1,10 @@
-// The build's fixed part as a CUDA graph (change 74): at a build, the host launches ~20
-// operations, ten of them CUB dispatches, before the count pass of the pair list; at 256,000
-// particles each is shorter on the device than on the host, so the device waits for the host
-// between them (~90 us a build, plus ~40 us of gaps between queued operations: performance.md,
-// change 66's timeline). A graph of them is launched in one call and run back to back.
+// The build's fixed part as a CUDA graph: at a build, the host launches ~20 operations, ten of them
+// CUB dispatches, before the count pass of the pair list; at a few hundred thousand particles each
+// is shorter on the device than on the host, so the device would wait for the host between them
+// (performance.md has the timeline). A graph of them is launched in one call and run back to back.
 //
-// The part (engine.cu Impl::build from the cell IDs to build_pair_list's partition) is queued by
+// The part (backend/structure_build.cu Impl::build from the cell IDs to build_pair_list's
+// partition) is queued by
 // the ordinary code, captured from the stream, and replayed while nothing it depends on changes.
 // What it depends on is its key: the system's size, the grid, the options, the device arrays it
 // reads and writes (every buffer's address and capacity) and the host's choices. The rule:

@@ -58,9 +58,9 @@ void check_capacity(const SystemView& system, const ForceField& ff) {
 GpuEngine::GpuEngine(GpuOptions options)
     : options_(std::move(options)), reuse_(options_.reuse), impl_(std::make_unique<Impl>()) {
   validate_reuse(options_.reuse);
-  if (const std::optional<int> t = options_.list_threads; t && *t != 1 && *t != 2 && *t != 4 && *t != 8)
+  if (const std::optional<int> t = options_.test.list_threads; t && *t != 1 && *t != 2 && *t != 4 && *t != 8)
     throw Error("CUDA engine: list_threads must be 1, 2, 4 or 8 threads per particle, not " + std::to_string(*t));
-  if (const std::optional<int> b = options_.list_block; b && *b != 128 && *b != 256)
+  if (const std::optional<int> b = options_.test.list_block; b && *b != 128 && *b != 256)
     throw Error("CUDA engine: list_block must be 128 or 256 threads a block, not " + std::to_string(*b));
   const std::string why = unavailable();
   if (!why.empty()) throw DeviceError("CUDA engine: " + why);
@@ -70,7 +70,12 @@ GpuEngine::GpuEngine(GpuOptions options)
     throw DeviceError("CUDA engine: device " + std::to_string(options_.device) + " does not exist (" +
                 std::to_string(count) + " device(s))");
   const DeviceScope scope(options_.device);
-  CF_CUDA_CHECK(cudaStreamCreateWithFlags(&impl_->stream, cudaStreamNonBlocking));
+  if (options_.stream) {  // the caller's: every evaluation is queued on it, and it outlives the engine
+    impl_->stream = static_cast<cudaStream_t>(options_.stream);
+    impl_->owns_stream = false;
+  } else {
+    CF_CUDA_CHECK(cudaStreamCreateWithFlags(&impl_->stream, cudaStreamNonBlocking));
+  }
   CF_CUDA_CHECK(cudaDeviceGetAttribute(&impl_->multiprocessors, cudaDevAttrMultiProcessorCount,
                                        options_.device));
   int major = 0;

@@ -1,7 +1,9 @@
-// The CUDA force engine: the spatial-subdivision pipeline of GPU Gems 3 ch. 32 on the device
-// (cell IDs -> count -> sort -> collision cells -> traversal -> accumulate, one file each under
-// cuda/), with the traversal evaluating Lennard-Jones directly. Plain C++: host code and tests
-// include it without the CUDA headers.
+// The CUDA force engine: the spatial-subdivision pipeline of GPU Gems 3 ch. 32 on the device (cell
+// IDs -> sort -> collision cells in cuda/search/, traversal -> accumulation in cuda/forces/), with
+// the traversal evaluating Lennard-Jones directly, and pair lists built from the structure for the
+// evaluations it serves. Three ways in: host arrays (evaluate), the caller's device arrays on the
+// caller's stream (evaluate_device), and the MD engine's state on the engine's stream
+// (cuda::ResidentForces). Plain C++: host code and tests include it without the CUDA headers.
 #pragma once
 
 #include <cstdint>
@@ -18,6 +20,8 @@
 #include "core/system.h"
 #include "search/rank_order.h"
 #include "search/step_gate.h"
+#include "backends/test_hooks.h"
+#include "backend/resident_forces.h"
 #include "forces/fused_step.h"
 
 namespace cellforce {
@@ -29,39 +33,17 @@ struct GpuOptions {
   SortMethod sort = SortMethod::kCub;
   GridOptions grid;
   ReuseOptions reuse;  // skin > 0: stages 1-3 reused while no particle moved more than skin / 2
-  std::optional<Grid> grid_override;  // tests only: this grid, unchecked
   ListMemory memory = ListMemory::kAuto;  // the pair lists' memory mode (EngineChoice::memory)
-  std::optional<int> list_splits;     // tests only: the list build's column splits per row tile
-                                      // (cuda/pair_list.cuh build_splits) instead of the rule
-  std::optional<int> list_threads;    // tests only: the list force kernel's threads per particle (1, 2,
-                                      // 4 or 8) instead of the rule (1 from ~135,000 particles on an H100)
-  std::optional<int> list_block;      // tests only: threads a block (128 or 256) of the list force kernel
-                                      // that runs the next step's kick-drift, instead of the rule (pair_list.cu
-                                      // fused_block)
-  std::optional<bool> list_masks;     // tests only (false): the list build's fill tests every pair
-                                      // again instead of reading the count pass's masks (BuildMasks)
-  std::optional<bool> list_lend_masks;  // tests only (false): fast memory's unsorted keys, IDs and sort
-                                        // scratch keep arrays of their own, never the masks' room (change 85)
-  std::optional<std::size_t> list_mask_words;  // tests only: the masks' room holds at most this many
-                                               // words (as lean memory's room on a full device)
-  std::optional<bool> list_count_masked;  // tests only (true): count the units each fill writes from
-                                          // masks (list_masked_units; a wait for the fill)
-  std::optional<bool> build_graph;  // tests only (false): the build's fixed part is always queued
-                                    // operation by operation, never as a CUDA graph (cuda/build_graph.cuh)
-  std::optional<bool> build_graph_audit;  // tests only (true): a replayed build's bookkeeping runs under
-                                          // a stream capture that must record nothing (BuildGraph)
-  std::optional<bool> gate_notice;        // tests only (false): a gated chunk's host waits for the gate's
-                                          // copy at its end, not for a shut kernel's notice (gate_readback.cuh)
-  std::optional<bool> gate_notice_check;  // tests only (true): it waits for the copy, and the notice must be
-                                          // there exactly where the gate closed, with the copy's values
+  void* stream = nullptr;             // the caller's cudaStream_t to run on; null: the engine's own
+  EngineTestHooks test;               // tests only (backends/test_hooks.h)
   int device = 0;                     // CUDA device ordinal
 };
 
-class GpuEngine {
+class GpuEngine final : public cuda::ResidentForces {
  public:
   // Throws cellforce::Error when the device cannot be used.
   explicit GpuEngine(GpuOptions options = {});
-  ~GpuEngine();
+  ~GpuEngine() override;
   GpuEngine(const GpuEngine&) = delete;
   GpuEngine& operator=(const GpuEngine&) = delete;
 
@@ -94,73 +76,26 @@ class GpuEngine {
   // calls since the last synchronize() are then not to be used).
   void synchronize(const ForceField& ff);
 
-  // Resident evaluation, for an MD loop whose state stays on the device (cuda/md_engine.cu):
-  // positions (n x dim, wrapped on periodic axes) and types (n, or null) are the caller's device
-  // arrays, validated by the caller before its run. The work is queued on the engine's stream()
-  // and the host does not wait, except with an open axis when the structure is built (the
-  // particles' bounds, 2 x dim numbers), with a skin and the displacement check (the largest
-  // displacement; evaluate_gated() has none; with the check off, once per build retired by `every`)
-  // and with pair lists when the structure is built (the list's size). Forces stay on the
-  // device (device_forces(), n x dim); with `request`, so do the energy and virial totals
-  // (device_totals(): energy, then w_xx, w_yy, w_zz, w_xy, w_xz, w_yz). The kernels' flags are
-  // not read: they accumulate until check_flags() (or synchronize()). Stage times are not read either
-  // (collect_timing() reads the last timed evaluation's). The reuse audit does not run here.
-  // `known_d2`: where the step gate closed at these positions, the largest squared displacement
-  // its kick-drift measured (the bits max_displacement2 would reduce to, but that a non-finite
-  // displacement reads +inf: a rebuild, where the reduction's NaN would not; the divergence is
-  // flagged either way): the reuse check takes it instead of reducing it again on the device and
-  // waiting for it (~60-100 us a build, the device idle).
-  // `time_stages` false: the evaluation records none of its stage events, so collect_timing() and
-  // stats()' stage times are not for it (change 83: each event held the device ~1-6 us, a build's
-  // graph then holds none). For an evaluation whose stage times nothing reads: the MD engine's run
-  // samples its last evaluation's and leaves them out of every other.
+  // ---- the MD engine's evaluations (cuda::ResidentForces, backend/resident_forces.h) ----
+  int device() const override { return options_.device; }
+  void* stream() const override;  // the engine's cudaStream_t (GpuOptions::stream, or its own)
   void evaluate_resident(const Box& box, std::size_t n, const double* positions, const uint32_t* types,
                          const ForceField& ff, const Request& request, std::optional<double> known_d2 = {},
-                         bool time_stages = true);
-  // Reads the flags raised since the last check (synchronises the stream) and clears them; throws
-  // cellforce::Error naming both particles of a pair whose force was not finite (the positions
-  // come to the host only then, for the message).
-  void check_flags(const Box& box, std::size_t n, const double* positions, const ForceField& ff);
-  // The step gate (step_gate.h), for a resident MD run: how many of the next evaluations may be
-  // queued behind the gate (0: none may). Positive only while the structure in use has its pair
-  // list, the displacement check is on, the audit is off, flags accumulate (resident evaluations)
-  // and nothing but the displacement could ask for a rebuild before then (same box, count and
-  // cutoff; `every` bounds the count).
-  int64_t gate_steps(const Box& box, std::size_t n, const ForceField& ff) const;
-  // What the run's kick-drift kernels need: the bits of (skin / 2)^2 and the positions the
-  // structure in use was built from (n x dim, device).
-  unsigned long long gate_limit() const;
-  const double* device_build_positions() const;
-  // Where the gated steps' last drift kernels place the positions in the list's rank order
-  // (rank_order.h: the gather's values), for gated evaluations that then leave their gather out.
-  // Valid until the structure is rebuilt (the gate's chunk); `particles` is the array the chunk's
-  // first evaluation reads (a fused evaluation swaps it with the second one). With `fused` (a Verlet chunk in fast
-  // mode), the list's second rank-ordered array is reserved too, for gated evaluations that run the
-  // next step's kick-drift (evaluate_gated's `then`).
+                         bool time_stages = true) override;
+  void check_flags(const Box& box, std::size_t n, const double* positions, const ForceField& ff) override;
+  const double* device_forces() const override;
+  const double* device_totals() const override;
+  void collect_timing() override;
+  int64_t gate_steps(const Box& box, std::size_t n, const ForceField& ff) const override;
+  unsigned long long gate_limit() const override;
+  const double* device_build_positions() const override;
   cuda::RankOrder rank_order(const Box& box, std::size_t n, const double* positions, const uint32_t* types,
-                             const ForceField& ff, bool fused = false);
-  // After a chunk whose last gated evaluation ran: its forces, left in rank order (the RankOrder's
-  // `forces`, when not null), into device_forces() in the caller's order.
-  void unrank_forces(std::size_t n);
-  // One gated evaluation (forces only, from the pair list), queued; the host does not wait and
-  // nothing is counted until settle_gate(). The step's drift placed the positions (rank_order()),
-  // so the evaluation does not gather them, and it leaves the forces where the RankOrder says (in
-  // rank order, or in device_forces() when the build is lean).
-  // With `then` (fast mode, rank_order()'s `fused`), the evaluation runs the next gated step's
-  // Verlet kick-drift on the chunk's rank-order state instead of storing its forces (change 59,
-  // cuda/pair_list.cuh list_forces); the gate's test is then the next step's.
+                             const ForceField& ff, bool fused = false) override;
+  void unrank_forces(std::size_t n) override;
   void evaluate_gated(const Box& box, std::size_t n, const double* positions, const uint32_t* types,
-                      const ForceField& ff, const cuda::GateView& gate, const cuda::NextKickDrift* then = nullptr);
-  // After the host read the gate: `served` gated evaluations ran (the structure served them, the
-  // largest squared displacement among them `served_d2`). stats() then reads as after a reused
-  // evaluation.
-  void settle_gate(int64_t served, double served_d2);
-  const double* device_forces() const;
-  const double* device_totals() const;
-  void* stream() const;   // the engine's cudaStream_t
-  // stats() gets the counts of the last evaluation and the stage times of the last timed one (zeros
-  // where none was timed); synchronises (the timed one's last event, else the stream).
-  void collect_timing();
+                      const ForceField& ff, const cuda::GateView& gate,
+                      const cuda::NextKickDrift* then = nullptr) override;
+  void settle_gate(int64_t served, double served_d2) override;
 
   // Every pair the traversal finds with r < rc, once per evaluation (a pair found twice appears
   // twice), as (min index, max index), in no particular order. Also sets the candidate and
@@ -182,25 +117,25 @@ class GpuEngine {
   // one stage's start to the next. Pair counts come from count_pairs() or visited_pairs(); each
   // call zeroes what it does not compute. The valid entries and collision cells are read from the
   // device after evaluate(), synchronize(), collect_timing() and the pair recorder.
-  const PipelineStats& stats() const { return stats_; }
+  const PipelineStats& stats() const override { return stats_; }
   // The device bytes each stage buffer holds now (those that hold any), by name; their sum is what
   // stats().buffer_bytes held after the last timed evaluation.
   std::vector<std::pair<const char*, std::size_t>> buffers() const;
   // Pair lists (ReuseOptions::list): the entries of the lists built from the structure in use (every
   // pair within rc + skin, once from each side); 0 when its evaluations traverse the cells.
   std::size_t listed_pairs() const;
-  // Builds whose list fill read the count pass's decisions for every pair (cuda/pair_list.cuh
+  // Builds whose list fill read the count pass's decisions for every pair (search/pair_list.cuh
   // BuildMasks: once the room they ask for is there), and builds whose room held only some units'
-  // decisions (lean memory on a device without room for them all, change 71).
+  // decisions (lean memory on a device without room for them all).
   std::size_t list_masked_fills() const;
   std::size_t list_partly_masked_fills() const;
-  // With GpuOptions::list_count_masked: the work units whose list the last build's fill wrote from
+  // With the test hook list_count_masked: the work units whose list the last build's fill wrote from
   // the count pass's masks (0 where it walked them all again).
   std::size_t list_masked_units() const;
-  // Lean builds whose count pass read occupants staged in the last list's array (change 70).
+  // Lean builds whose count pass read occupants staged in the last list's array.
   std::size_t list_staged_counts() const;
   // Builds whose fixed part (cell IDs to the list's partition) a CUDA graph replayed, and the
-  // graphs captured for it (cuda/build_graph.cuh).
+  // graphs captured for it (backend/build_graph.cuh).
   std::size_t build_replays() const;
   std::size_t build_captures() const;
   const GpuOptions& options() const { return options_; }
@@ -216,7 +151,7 @@ class GpuEngine {
   // mode weighs: lists_memory); 0 where it cannot be used or does not exist.
   static std::size_t memory_bytes(int device);
 
-  struct Impl;  // device buffers, stream and events, reused across evaluations
+  struct Impl;  // device buffers, stream and events, reused across evaluations (backend/engine_state.cuh)
 
  private:
   std::vector<std::pair<uint32_t, uint32_t>> record(const SystemView& system, const ForceField& ff,

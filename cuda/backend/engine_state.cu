@@ -43,8 +43,8 @@ cuda::BuildGraph::Key GpuEngine::Impl::build_key(const GpuOptions& o, const Grid
   for (const auto v : {n, entries, max_cells, std::size_t(timing), std::size_t(form), std::size_t(multiprocessors), std::size_t(g.dim),
                        std::size_t(g.num_cells), std::size_t(g.key_bits), std::size_t(accumulate_flags),
                        std::size_t(o.precision), std::size_t(ff.num_types()), std::size_t(ff.mode),
-                       std::size_t(o.list_splits.value_or(0)), std::size_t(o.list_masks.value_or(true)),
-                       o.list_mask_words.value_or(0), std::size_t(o.list_threads.value_or(0))})
+                       std::size_t(o.test.list_splits.value_or(0)), std::size_t(o.test.list_masks.value_or(true)),
+                       o.test.list_mask_words.value_or(0), std::size_t(o.test.list_threads.value_or(0))})
     add_to_key(k, v);
   for (const double v : {g.half_width, ff.cutoff, o.reuse.skin}) add_to_key(k, v);
   for (int a = 0; a < kMaxDim; ++a) {
@@ -77,7 +77,7 @@ GpuEngine::Impl::~Impl() {
   if (finished) cudaEventDestroy(finished);
   if (table_copied) cudaEventDestroy(table_copied);
   if (pinned_table) cudaFreeHost(pinned_table);
-  if (stream) cudaStreamDestroy(stream);
+  if (stream && owns_stream) cudaStreamDestroy(stream);
 }
 
 void GpuEngine::Impl::record(Event e) {

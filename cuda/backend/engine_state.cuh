@@ -17,6 +17,7 @@
 #include <vector>
 
 #include "backend/build_graph.cuh"
+#include "backend/memory_plan.h"
 #include "backend/engine.h"
 #include "check.cuh"
 #include "device_buffer.cuh"
@@ -62,6 +63,7 @@ struct GpuEngine::Impl {
   };
 
   cudaStream_t stream = nullptr;
+  bool owns_stream = true;  // the engine made `stream` (GpuOptions::stream null), so it destroys it
   cudaEvent_t events[kNumEvents] = {};
   DeviceBuffer<double> positions;
   DeviceBuffer<uint32_t> types;
@@ -88,12 +90,12 @@ struct GpuEngine::Impl {
   // Pair lists (ReuseOptions::list): the list of the build numbered list_built_for, when it could
   // be built (list_usable); builds counts the structures built.
   cuda::PairList list;
-  cuda::BuildGraph graph;  // the build's fixed part as a CUDA graph (cuda/build_graph.cuh)
+  cuda::BuildGraph graph;  // the build's fixed part as a CUDA graph (backend/build_graph.cuh)
   std::size_t builds = 0, list_built_for = ~std::size_t(0);
   bool list_usable = false;
   // Lean memory (pair lists on a system whose buffers would not fit beside each other): the build
   // keeps no staged occupants (it stages them as it loads them), keeps masks only for the units the
-  // device's free memory holds and only while the list's array is lent (change 71), puts the
+  // device's free memory holds and only while the list's array is lent, puts the
   // unsorted keys and IDs and the sort's scratch in the dead list's array where they fit (lend; else
   // it frees the last list first, and them after the sort); the same list, bit for bit.
   bool lean = false, lend = false;
@@ -136,23 +138,22 @@ struct GpuEngine::Impl {
     list.for_each_head_buffer(f);
   }
 
-  // The key of the build's fixed part (cuda/build_graph.cuh): the address and capacity of every
+  // The key of the build's fixed part (backend/build_graph.cuh): the address and capacity of every
   // buffer it names, and what else shapes its operations and their arguments: the system's size
   // and grid, the positions and types it reads, whether it resets the flags, whether it records its
   // stage events (`timing`: a timed build must not replay an untimed graph), the options and the device.
   cuda::BuildGraph::Key build_key(const GpuOptions& o, const Grid& g, const ForceField& ff, std::size_t n);
 
   // A stage event of the build's fixed part: a node of its graph while it is captured (recorded at
-  // every replay), else recorded; nothing in an untimed evaluation (`timing`, change 83).
+  // every replay), else recorded; nothing in an untimed evaluation (`timing`).
   void stage_record(Event e);
 
   ~Impl();
 
   void record(Event e);
-  // Whether this evaluation records its stage events (evaluate_resident's time_stages, change 83).
-  // Each held the device between its two operations: at 256,000 particles ~3-6 us around each of
-  // the build graph's four event nodes (against ~0.1 us between two kernels of the graph) and ~7-8
-  // us in all around an MD chunk's closing evaluation (change 82's CUPTI timeline).
+  // Whether this evaluation records its stage events (evaluate_resident's time_stages): each event
+  // holds the device for a few microseconds between its two operations, so only the evaluations
+  // whose stage times something reads record them.
   bool timing = true;
   // Whether a timed evaluation has recorded its events to the last (kDownloaded): stage times are
   // read only then (an engine whose evaluations were all untimed has events never recorded).
@@ -213,7 +214,7 @@ struct GpuEngine::Impl {
   cudaEvent_t joined = nullptr, finished = nullptr;  // the caller's stream <-> the engine's
   std::size_t device_bytes = 0;  // the device's memory (cudaMemGetInfo's total), once asked
   // CUB's scratch bytes for the sort of `sort_entries` keys of `sort_bits` bits (a host query of
-  // CUB's dispatch: asked again only when either changes, as pair_list.cu's CubBytes).
+  // CUB's dispatch: asked again only when either changes, as search/pair_list.cuh's CubBytes).
   std::size_t sort_entries = 0, sort_scratch = 0;
   int sort_bits = -1;
   std::size_t sort_scratch_bytes(std::size_t n_entries, int bits);
@@ -221,7 +222,13 @@ struct GpuEngine::Impl {
   // Stages 1-3 on the uploaded positions: cell IDs, count, sort, collision cells (split by type
   // for Gauss-Seidel). With a skin, keeps the build's positions (and, for the audit, its keys).
   void build(const GpuOptions& o, PipelineStats& st, const SystemView& sys, const ForceField& ff);
-
+  // The build's steps: the grid (planned and checked, or the test's), where the build's arrays go
+  // (backend/memory_plan.h; it applies the lean mode's releases), and stage 1 and 2's queueing.
+  void plan_build_grid(const GpuOptions& o, PipelineStats& st, const SystemView& sys, const ForceField& ff);
+  cuda::BuildMemoryPlan plan_build_memory(const GpuOptions& o, bool listed, std::size_t n, std::size_t last_entries,
+                                          const Grid& g);
+  void queue_ids_and_sort(const GpuOptions& o, const Grid& g, std::size_t n, uint32_t* unsorted_keys,
+                          uint32_t* unsorted_ids, const cuda::ScratchLoan& loan);
 
   // Whether evaluations walk pair lists (core/reuse.h states the condition).
   static bool lists(const GpuOptions& o, const Box& box, double cutoff) {

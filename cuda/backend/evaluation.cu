@@ -41,7 +41,7 @@ void GpuEngine::Impl::build_list(const GpuOptions& o, const Grid& g, const Syste
   const cuda::TraversalArgs<Real, Accum> cell_args =
       lean ? traversal_args<Real, Accum>(g, sys, ff, ff.mode) : prepare<Real, Accum>(g, sys, ff, ff.mode);
   // Lean, with the last list's array kept (build): its room holds the occupants staged for the
-  // count pass, which the fill then writes over (change 70; the fill stages as it loads).
+  // count pass, which the fill then writes over (the fill stages as it loads).
   const cuda::StagedEntry<Real>* count_staged = nullptr;
   if (lean && list.neighbors.capacity() * sizeof(uint32_t) >= entries * sizeof(cuda::StagedEntry<Real>)) {
     auto* into = reinterpret_cast<cuda::StagedEntry<Real>*>(list.neighbors.data());
@@ -49,12 +49,12 @@ void GpuEngine::Impl::build_list(const GpuOptions& o, const Grid& g, const Syste
                                 uint32_t(ff.num_types()), control.data(), into, stream);
     count_staged = into;
   }
-  list.forced_splits = o.list_splits.value_or(0);
+  list.forced_splits = o.test.list_splits.value_or(0);
   // Lean builds keep masks only while the list's array is kept (lend): otherwise it is freed and
   // taken again at every build, and the masks would give way to it every time.
-  list.use_masks = o.list_masks.value_or(true) && !(lean && !lend);
-  list.mask_limit = o.list_mask_words.value_or(0);
-  list.count_masked_units = o.list_count_masked.value_or(false);
+  list.use_masks = o.test.list_masks.value_or(true) && !(lean && !lend);
+  list.mask_limit = o.test.list_mask_words.value_or(0);
+  list.count_masked_units = o.test.list_count_masked.value_or(false);
   // What this engine may still take after a lean build, which the masks' room leaves free: the
   // positions the evaluations gather (up to 32 bytes a particle) and the energies, until it has them.
   const std::size_t n = sys.n;
@@ -62,9 +62,9 @@ void GpuEngine::Impl::build_list(const GpuOptions& o, const Grid& g, const Syste
   list.later_bytes =
       lean ? (gathered ? 0 : n * sizeof(cuda::RankedParticle)) + (energies.capacity() >= n ? 0 : n * sizeof(double))
            : 0;
-  list.forced_threads = o.list_threads.value_or(0);
-  list.forced_block = o.list_block.value_or(0);
-  // The build's fixed part ends before the count pass (cuda/build_graph.cuh).
+  list.forced_threads = o.test.list_threads.value_or(0);
+  list.forced_block = o.test.list_block.value_or(0);
+  // The build's fixed part ends before the count pass (backend/build_graph.cuh).
   const cuda::ListBuildHead head{graph.queuing(), [&] {
                                    if (graph.open()) graph.end(build_key(o, g, ff, n), stream);
                                  }};

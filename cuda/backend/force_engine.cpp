@@ -1,5 +1,5 @@
-// The CUDA backend's force job: GpuEngine (cuda/engine.h) behind the ForceEngine interface.
-#include "backend/force_engine.h"  // cuda/force_engine.h
+// The CUDA backend's force job: GpuEngine (backend/engine.h) behind the ForceEngine interface.
+#include "backend/force_engine.h"
 
 namespace cellforce {
 namespace {
@@ -13,14 +13,9 @@ GpuOptions options(const EngineChoice& choice) {
   o.sort = choice.sort;
   o.reuse = choice.reuse;
   o.device = choice.device;
-  o.grid_override = choice.grid_override;
   o.memory = choice.memory;
-  o.list_threads = choice.list_threads;
-  o.list_block = choice.list_block;
-  o.build_graph = choice.build_graph;
-  o.build_graph_audit = choice.build_graph_audit;
-  o.gate_notice = choice.gate_notice;
-  o.gate_notice_check = choice.gate_notice_check;
+  o.stream = choice.stream;
+  o.test = choice.test;
   return o;
 }
 

@@ -1,13 +1,14 @@
-// The CUDA backend's force job (cuda/force_engine.cpp): GpuEngine behind the ForceEngine
-// interface, declared here so that the CUDA MD engine (cuda/md_engine.cu) can reach the engine's
-// resident evaluations. Plain C++.
+// The CUDA backend's force job (backend/force_engine.cpp): GpuEngine behind the backends'
+// ForceEngine interface, and its resident evaluations (cuda::ResidentForces) for the CUDA MD engine
+// that owns it (backend/md_engine.cu). Plain C++.
 #pragma once
 
 #include <memory>
 #include <string>
 
 #include "backends/force_engine.h"
-#include "backend/engine.h"  // cuda/engine.h
+#include "backend/engine.h"
+#include "backend/resident_forces.h"
 
 namespace cellforce {
 
@@ -33,7 +34,10 @@ class CudaForceEngine final : public ForceEngine {
   std::string traversal() const override;
   std::string sort() const override;
 
-  GpuEngine& gpu() { return engine_; }
+  // What an MD engine whose state stays on the device asks of the force side.
+  cuda::ResidentForces& resident() { return engine_; }
+  // The engine itself, for tests and diagnostics (its build counters, options).
+  const GpuEngine& engine() const { return engine_; }
 
  private:
   GpuEngine engine_;

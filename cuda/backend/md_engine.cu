@@ -77,10 +77,13 @@ class OnDevice {
 
 class CudaMdEngine final : public MdEngine {
  public:
-  explicit CudaMdEngine(std::unique_ptr<ForceEngine> forces)
-      : owner_(std::move(forces)), forces_(dynamic_cast<CudaForceEngine&>(*owner_)), gpu_(forces_.gpu()) {
-    const OnDevice on(gpu_.options().device);
-    stream_ = static_cast<cudaStream_t>(gpu_.stream());
+  // The force engine of `choice` (CUDA), made here: the MD engine reaches it only through
+  // cuda::ResidentForces, and queues its step kernels on the force engine's stream (the choice's
+  // stream, or the one the force engine made).
+  explicit CudaMdEngine(const EngineChoice& choice)
+      : owner_(std::make_unique<CudaForceEngine>(choice)), resident_(owner_->resident()), hooks_(choice.test) {
+    const OnDevice on(resident_.device());
+    stream_ = static_cast<cudaStream_t>(resident_.stream());
     try {
       CF_CUDA_CHECK(cudaEventCreate(&chunk_start_));
       CF_CUDA_CHECK(cudaEventCreate(&chunk_end_));
@@ -91,7 +94,7 @@ class CudaMdEngine final : public MdEngine {
   }
   ~CudaMdEngine() override {
     try {
-      const OnDevice on(gpu_.options().device);  // the buffers are freed on their own device
+      const OnDevice on(resident_.device());  // the buffers are freed on their own device
       // Queued kernels may still post into the gate's mapped memory (a run left by an exception
       // before its synchronisation): wait for them before it goes (errors ignored).
       if (stream_) cudaStreamSynchronize(stream_);
@@ -102,7 +105,7 @@ class CudaMdEngine final : public MdEngine {
   }
 
   void set_state(const MdState& state, const std::vector<double>& masses, const ForceField& ff) override {
-    const OnDevice on(gpu_.options().device);
+    const OnDevice on(resident_.device());
     validate_system(state.config.view(), ff);
     validate_masses(masses, state.config.size());
     if (ff.num_types() > 1 && state.config.types.size() != state.config.size())
@@ -133,7 +136,7 @@ class CudaMdEngine final : public MdEngine {
   }
 
   void advance(int64_t steps, const IntegratorSettings& settings, bool observe) override {
-    const OnDevice on(gpu_.options().device);
+    const OnDevice on(resident_.device());
     const auto t0 = Clock::now();
     // At most kRun steps are queued between two reads of the flags (and of the timing events).
     for (int64_t done = 0; done < steps;) {
@@ -143,18 +146,18 @@ class CudaMdEngine final : public MdEngine {
       done += k;
     }
     counters_.host_wait_seconds += std::chrono::duration<double>(Clock::now() - t0).count();
-    gpu_.collect_timing();  // the stage times of the call's last evaluation
-    add_stage_sample(counters_, gpu_.stats());
+    resident_.collect_timing();  // the stage times of the call's last evaluation
+    add_stage_sample(counters_, resident_.stats());
   }
 
   void get_state(MdState& state) override {
-    const OnDevice on(gpu_.options().device);
+    const OnDevice on(resident_.device());
     const std::size_t nd = n_ * std::size_t(box_.dim);
     state.config.box = box_;
     state.config.types = host_types_;
     download(state.config.positions, positions_.data(), nd, stream_);
     download(state.velocities, velocities_.data(), nd, stream_);
-    download(state.forces, gpu_.device_forces(), nd, stream_);
+    download(state.forces, resident_.device_forces(), nd, stream_);
     CF_CUDA_CHECK(cudaStreamSynchronize(stream_));
     counters_.bytes_to_host += 3 * nd * sizeof(double);
     state.step = step_;
@@ -177,7 +180,7 @@ class CudaMdEngine final : public MdEngine {
   }
 
   Observables observables() override {
-    const OnDevice on(gpu_.options().device);
+    const OnDevice on(resident_.device());
     if (!observed_) {
       evaluate(true);
       check(step_, step_);
@@ -186,7 +189,7 @@ class CudaMdEngine final : public MdEngine {
     scratch_result_.reserve(1 + cuda::kCellSums);
     double* result = scratch_result_.data();
     cuda::sum_kinetic_energy(velocities_.data(), masses_.data(), n_, box_.dim, result, reduce_scratch_, stream_);
-    CF_CUDA_CHECK(cudaMemcpyAsync(result + 1, gpu_.device_totals(), cuda::kCellSums * sizeof(double),
+    CF_CUDA_CHECK(cudaMemcpyAsync(result + 1, resident_.device_totals(), cuda::kCellSums * sizeof(double),
                                   cudaMemcpyDeviceToDevice, stream_));
     double host[1 + cuda::kCellSums] = {};
     CF_CUDA_CHECK(cudaMemcpyAsync(host, result, sizeof(host), cudaMemcpyDeviceToHost, stream_));
@@ -204,13 +207,13 @@ class CudaMdEngine final : public MdEngine {
   }
 
   void reevaluate() override {
-    const OnDevice on(gpu_.options().device);
+    const OnDevice on(resident_.device());
     at_build_ = false;  // the structure may have been restored from other positions (restore_reuse)
     evaluate(true);
     check(step_, step_);
   }
   FireResult minimize(const FireSettings& settings) override {
-    const OnDevice on(gpu_.options().device);
+    const OnDevice on(resident_.device());
     check_fire_settings(settings);
     const std::size_t nd = n_ * std::size_t(box_.dim);
     // The state to come back to when FIRE throws: a copy on the device.
@@ -226,7 +229,7 @@ class CudaMdEngine final : public MdEngine {
     } catch (...) {
       try {
         try {
-          gpu_.check_flags(box_, n_, positions_.data(), ff_);  // clears what the failed evaluation raised
+          resident_.check_flags(box_, n_, positions_.data(), ff_);  // clears what the failed evaluation raised
         } catch (const Error&) {
         }
         at_build_ = false;  // the positions change
@@ -244,7 +247,7 @@ class CudaMdEngine final : public MdEngine {
     }
   }
 
-  ForceEngine& forces() override { return forces_; }
+  ForceEngine& forces() override { return *owner_; }
   const MdCounters& counters() const override { return counters_; }
   void reset_counters() override { counters_ = MdCounters{}; }
 
@@ -382,7 +385,7 @@ class CudaMdEngine final : public MdEngine {
     bool overshoot = false;
   };
   GateChunk gate_chunk(int64_t most) const {
-    const int64_t allowed = std::min(most, gpu_.gate_steps(box_, n_, ff_));
+    const int64_t allowed = std::min(most, resident_.gate_steps(box_, n_, ff_));
     if (allowed <= 0) return {};
     const int64_t expected = std::clamp<int64_t>(interval_ + 1 - since_build_, 2, kMaxGated);
     return {std::min(allowed, expected), expected <= allowed};
@@ -413,21 +416,20 @@ class CudaMdEngine final : public MdEngine {
     }
     gate_reset_ = false;  // until this chunk's end queues the copy that resets it
     Chunk c;
-    c.view = cuda::GateView{gate_.data(), uint64_t(step_) + 1, gpu_.gate_limit()};
+    c.view = cuda::GateView{gate_.data(), uint64_t(step_) + 1, resident_.gate_limit()};
     // The host reads the gate's notice or its copy, whichever comes first (tests may ask for the
     // copy alone, or for both, checked against each other).
-    const GpuOptions& options = gpu_.options();
-    c.check_notice = options.gate_notice_check.value_or(false);
-    c.notice_first = options.gate_notice.value_or(true) && !c.check_notice;
-    gate_read_.begin(c.view, options.gate_notice.value_or(true) || c.check_notice);
+    c.check_notice = hooks_.gate_notice_check.value_or(false);
+    c.notice_first = hooks_.gate_notice.value_or(true) && !c.check_notice;
+    gate_read_.begin(c.view, hooks_.gate_notice.value_or(true) || c.check_notice);
     c.box = drift_box(settings.langevin ? 0.5 : 1.0);  // as the ungated steps' drifts
     c.types = ff_.num_types() > 1 ? types_.data() : nullptr;
     // The drifts place the positions; a Verlet chunk's evaluations may run the next step's kick-drift.
-    c.to = gpu_.rank_order(box_, n_, positions_.data(), c.types, ff_, !settings.langevin);
+    c.to = resident_.rank_order(box_, n_, positions_.data(), c.types, ff_, !settings.langevin);
     // With the forces in rank order (fast mode), the chunk runs on a rank-order copy of the state.
     c.ranked = c.to.forces != nullptr;
-    c.state = cuda::GatedState{positions_.data(), velocities_.data(), gpu_.device_forces(),
-                               uniform_mass_ ? nullptr : masses_.data(), gpu_.device_build_positions(),
+    c.state = cuda::GatedState{positions_.data(), velocities_.data(), resident_.device_forces(),
+                               uniform_mass_ ? nullptr : masses_.data(), resident_.device_build_positions(),
                                nullptr, nullptr, nullptr, nullptr, c.to.forces, uniform_mass_.value_or(0.0), at_build_};
     at_build_ = false;  // the chunk's drifts move the positions
     if (c.ranked) {
@@ -484,9 +486,9 @@ class CudaMdEngine final : public MdEngine {
       const cuda::NextKickDrift* next = c.fused && j + 1 < count ? &c.then : nullptr;
       if (j == 0) {
         std::size_t slot = timed;  // counted by read_chunk, for every step served
-        timed_evaluation(slot, [&] { gpu_.evaluate_gated(box_, n_, positions_.data(), c.types, ff_, c.view, next); });
+        timed_evaluation(slot, [&] { resident_.evaluate_gated(box_, n_, positions_.data(), c.types, ff_, c.view, next); });
       } else {
-        gpu_.evaluate_gated(box_, n_, positions_.data(), c.types, ff_, c.view, next);
+        resident_.evaluate_gated(box_, n_, positions_.data(), c.types, ff_, c.view, next);
       }
     }
     c.view.step = first;
@@ -543,7 +545,7 @@ class CudaMdEngine final : public MdEngine {
     // its evaluation writes new ones.)
     if (served == count && c.to.forces) {
       resume();  // integration's time, as the kicks
-      gpu_.unrank_forces(n_);
+      resident_.unrank_forces(n_);
     }
     if (served == 0) {  // the timed evaluation was shut: its slot is reused below, so read it now
       // (after its end event: the host may have read the notice or the gate's mapped copy first)
@@ -554,11 +556,11 @@ class CudaMdEngine final : public MdEngine {
     }
     double served_d2 = 0;
     std::memcpy(&served_d2, &g.served, sizeof served_d2);
-    gpu_.settle_gate(served, served_d2);
+    resident_.settle_gate(served, served_d2);
     if (served > 0) {
       counters_.evaluations += served;
-      add_reuse(counters_, gpu_.stats(), served);
-      if (gpu_.stats().list_block) counters_.list_block = gpu_.stats().list_block;
+      add_reuse(counters_, resident_.stats(), served);
+      if (resident_.stats().list_block) counters_.list_block = resident_.stats().list_block;
     }
     since_build_ += served;
     counters_.gated_steps += served;
@@ -584,12 +586,12 @@ class CudaMdEngine final : public MdEngine {
   }
 
   void kick(double h, int kicks) {
-    cuda::queue_kick(velocities_.data(), gpu_.device_forces(), masses_.data(), h, kicks, n_, box_.dim, stream_);
+    cuda::queue_kick(velocities_.data(), resident_.device_forces(), masses_.data(), h, kicks, n_, box_.dim, stream_);
   }
 
   void kick_drift(double h, int kicks, double dt) {
     at_build_ = false;
-    cuda::queue_kick_drift(positions_.data(), velocities_.data(), gpu_.device_forces(), masses_.data(), h, kicks, dt,
+    cuda::queue_kick_drift(positions_.data(), velocities_.data(), resident_.device_forces(), masses_.data(), h, kicks, dt,
                            drift_box(1.0), n_, flags_.data(), stream_);
   }
 
@@ -612,13 +614,13 @@ class CudaMdEngine final : public MdEngine {
 
   // known_d2: the step gate's displacement at these positions, where it closed (the reuse check's value).
   void evaluate(bool observe, std::optional<double> known_d2 = {}, bool time_stages = true) {
-    gpu_.evaluate_resident(box_, n_, positions_.data(), ff_.num_types() > 1 ? types_.data() : nullptr, ff_,
+    resident_.evaluate_resident(box_, n_, positions_.data(), ff_.num_types() > 1 ? types_.data() : nullptr, ff_,
                            Request{observe, observe}, known_d2, time_stages);
     observed_ = observe;
-    at_build_ = gpu_.stats().rebuilt;  // the build's positions are the positions now
+    at_build_ = resident_.stats().rebuilt;  // the build's positions are the positions now
     ++counters_.evaluations;
-    add_reuse(counters_, gpu_.stats());
-    if (gpu_.stats().rebuilt) {
+    add_reuse(counters_, resident_.stats());
+    if (resident_.stats().rebuilt) {
       if (since_build_ > 0) interval_ = since_build_ + 1;
       since_build_ = 0;
     } else {
@@ -644,10 +646,10 @@ class CudaMdEngine final : public MdEngine {
     const FireResult result = run_fire(settings, fire_evaluate(), [&](bool uphill, double dt, double alpha) {
       at_build_ = false;  // the step's drift moves the positions
       // n_ > 0 here: without particles the largest force is 0, converged.
-      cuda::queue_fire_kick(positions_.data(), velocities_.data(), gpu_.device_forces(), masses_.data(), dt,
+      cuda::queue_fire_kick(positions_.data(), velocities_.data(), resident_.device_forces(), masses_.data(), dt,
                             0.5 * dt, uphill, n_, dim, stream_);
       cuda::sum_fire_speeds(velocities_.data(), n_, dim, &fire_scalars_.data()->v2, reduce_scratch_, stream_);
-      cuda::queue_fire_drift(positions_.data(), velocities_.data(), gpu_.device_forces(), fire_scalars_.data(), alpha,
+      cuda::queue_fire_drift(positions_.data(), velocities_.data(), resident_.device_forces(), fire_scalars_.data(), alpha,
                              dt, settings.max_displacement, wrap, n_, stream_);
       return fire_evaluate();
     });
@@ -671,13 +673,13 @@ class CudaMdEngine final : public MdEngine {
       throw;
     }
     const ForceSums none{0, 0, -1, 0};  // largest_force's answer without particles
-    cuda::sum_fire_forces(gpu_.device_forces(), velocities_.data(), n_, box_.dim, &d->forces, reduce_scratch_, stream_);
+    cuda::sum_fire_forces(resident_.device_forces(), velocities_.data(), n_, box_.dim, &d->forces, reduce_scratch_, stream_);
     CF_CUDA_CHECK(
-        cudaMemcpyAsync(&d->energy, gpu_.device_totals(), sizeof(double), cudaMemcpyDeviceToDevice, stream_));
+        cudaMemcpyAsync(&d->energy, resident_.device_totals(), sizeof(double), cudaMemcpyDeviceToDevice, stream_));
     FireScalars host{};
     CF_CUDA_CHECK(cudaMemcpyAsync(&host, d, sizeof host, cudaMemcpyDeviceToHost, stream_));
     try {
-      gpu_.check_flags(box_, n_, positions_.data(), ff_);  // synchronises the stream
+      resident_.check_flags(box_, n_, positions_.data(), ff_);  // synchronises the stream
     } catch (const Error&) {
       throw_if_position_not_finite();
       throw;
@@ -739,7 +741,7 @@ class CudaMdEngine final : public MdEngine {
     const std::string steps = first == last ? "step " + std::to_string(first)
                                             : "steps " + std::to_string(first) + "-" + std::to_string(last);
     try {
-      gpu_.check_flags(box_, n_, positions_.data(), ff_);  // synchronises the stream
+      resident_.check_flags(box_, n_, positions_.data(), ff_);  // synchronises the stream
     } catch (const Error& e) {
       if (f.diverged == ~0ull) rethrow_with(steps + ": ", e);
     }
@@ -761,9 +763,9 @@ class CudaMdEngine final : public MdEngine {
     }
   }
 
-  std::unique_ptr<ForceEngine> owner_;
-  CudaForceEngine& forces_;
-  GpuEngine& gpu_;
+  std::unique_ptr<CudaForceEngine> owner_;
+  cuda::ResidentForces& resident_;  // the force side: owner_'s resident evaluations
+  EngineTestHooks hooks_;      // tests only: the gate's notice
   cudaStream_t stream_ = nullptr;
   Box box_;
   std::size_t n_ = 0;
@@ -800,8 +802,8 @@ class CudaMdEngine final : public MdEngine {
 
 }  // namespace
 
-std::unique_ptr<MdEngine> make_cuda_md_engine(std::unique_ptr<ForceEngine> forces) {
-  return std::make_unique<CudaMdEngine>(std::move(forces));
+std::unique_ptr<MdEngine> make_cuda_md_engine(const EngineChoice& choice) {
+  return std::make_unique<CudaMdEngine>(choice);
 }
 
 }  // namespace cellforce

@@ -46,7 +46,7 @@ class CpuForceEngine final : public ForceEngine {
     o.accumulation = choice.accumulation;
     o.grid.rule = choice.rule;
     o.reuse = choice.reuse;
-    o.grid_override = choice.grid_override;
+    o.grid_override = choice.test.grid_override;
     return o;
   }
   CpuEngine engine_;

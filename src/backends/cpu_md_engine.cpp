@@ -157,11 +157,12 @@ std::unique_ptr<MdEngine> make_cpu_md_engine(std::unique_ptr<ForceEngine> forces
 }
 
 std::unique_ptr<MdEngine> make_md_engine(const EngineChoice& choice) {
-  std::unique_ptr<ForceEngine> forces = make_force_engine(choice);
 #ifdef CELLFORCE_HAVE_CUDA
-  if (forces->backend() == Backend::kCuda) return make_cuda_md_engine(std::move(forces));
+  if (choice.reuse.automatic)  // as make_force_engine: the caller resolves it for its system
+    throw Error("internal error: an engine was asked for with an unresolved automatic skin");
+  if (resolve_backend(choice.backend) == Backend::kCuda) return make_cuda_md_engine(choice);
 #endif
-  return make_cpu_md_engine(std::move(forces));
+  return make_cpu_md_engine(make_force_engine(choice));
 }
 
 }  // namespace cellforce

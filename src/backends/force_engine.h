@@ -1,7 +1,7 @@
 // The backends' force job: one interface, implemented by the CPU engine (src/cpu, adapted in
 // src/backends/cpu_force_engine.cpp) and the CUDA engine (cuda/, adapted in
-// cuda/force_engine.cpp). Layers above (the public API in src/api) hold a ForceEngine and never
-// name an engine class or test for CUDA themselves.
+// cuda/backend/force_engine.cpp). Layers above (the public API in src/api) hold a ForceEngine and
+// never name an engine class or test for CUDA themselves.
 #pragma once
 
 #include <cstdint>
@@ -18,6 +18,7 @@
 #include "core/grid.h"
 #include "core/reuse.h"
 #include "core/system.h"
+#include "backends/test_hooks.h"
 
 namespace cellforce {
 
@@ -32,20 +33,11 @@ struct EngineChoice {
   SortMethod sort = SortMethod::kCub;                     // CUDA only
   ReuseOptions reuse;                                     // skin (or automatic), check, every, audit, list
   int device = 0;                                         // CUDA device ordinal
-  std::optional<Grid> grid_override;                      // tests only: this grid, unchecked
   ListMemory memory = ListMemory::kAuto;                  // CUDA pair lists' memory mode (option `memory`)
-  std::optional<int> list_threads;                        // tests only (CUDA): the list force kernel's threads
-                                                          // per particle (1, 2, 4 or 8)
-  std::optional<int> list_block;                          // tests only (CUDA): threads a block (128 or 256) of
-                                                          // the force kernel that runs the next step's kick-drift
-  std::optional<bool> build_graph;                        // tests only (CUDA, false): no CUDA graph of the
-                                                          // build's fixed part (cuda/build_graph.cuh)
-  std::optional<bool> build_graph_audit;                  // tests only (CUDA, true): a replayed build must
-                                                          // queue nothing of that part (BuildGraph)
-  std::optional<bool> gate_notice;                        // tests only (CUDA, false): the MD engine reads a
-                                                          // gated chunk's gate at its end only (no notice)
-  std::optional<bool> gate_notice_check;                  // tests only (CUDA, true): and checks the notice
-                                                          // against it (cuda/gate_readback.cuh)
+  // CUDA: the stream (a cudaStream_t) the engine runs on, the caller's; null: the engine makes and
+  // owns one. Every evaluation and, for an MD engine, every step kernel is queued on it.
+  void* stream = nullptr;
+  EngineTestHooks test;                                   // tests only (backends/test_hooks.h)
 };
 
 class ForceEngine {

@@ -3,7 +3,7 @@
 // memory for CUDA, for the whole run) and advances it with the integrators of md/md.h (velocity
 // Verlet, Langevin BAOAB) and minimises it with FIRE (md/minimize.h). The state crosses to the host
 // only when asked for (get_state, observables). One implementation per backend:
-// src/backends/cpu_md_engine.cpp and cuda/md_engine.cu.
+// src/backends/cpu_md_engine.cpp and cuda/backend/md_engine.cu.
 #pragma once
 
 #include <cstdint>
@@ -44,13 +44,13 @@ struct MdCounters {
   int64_t builds = 0;
   int64_t dangerous_builds = 0;  // builds that retired a structure past skin / 2 (check = false)
   double served = 0;
-  int64_t gated_steps = 0;  // CUDA: steps the structure served behind the step gate (cuda/step_gate.h)
+  int64_t gated_steps = 0;  // CUDA: steps the structure served behind the step gate (cuda/search/step_gate.h)
   int64_t list_evaluations = 0;  // CUDA: evaluations that walked pair lists (PipelineStats::listed)
   int64_t graph_builds = 0;  // CUDA: builds whose fixed part a CUDA graph replayed (PipelineStats::graph_build)
   int list_block = 0;  // CUDA: the last nonzero PipelineStats::list_block of a gated chunk; 0: none ran
   int64_t gate_closings = 0;        // CUDA: gated chunks whose gate closed (each followed by a rebuild)
   int64_t gate_closings_early = 0;  // of those, the ones the host read from the notice before the
-                                    // chunk's end (cuda/gate_readback.cuh)
+                                    // chunk's end (cuda/integrate/gate_readback.cuh)
   std::size_t missed_pairs = 0, repeated_pairs = 0;
 };
 
@@ -113,7 +113,7 @@ class MdEngine {
 std::unique_ptr<MdEngine> make_md_engine(const EngineChoice& choice);
 std::unique_ptr<MdEngine> make_cpu_md_engine(std::unique_ptr<ForceEngine> forces);
 #ifdef CELLFORCE_HAVE_CUDA
-std::unique_ptr<MdEngine> make_cuda_md_engine(std::unique_ptr<ForceEngine> forces);
+std::unique_ptr<MdEngine> make_cuda_md_engine(const EngineChoice& choice);  // its own CudaForceEngine
 #endif
 
 // Adds one evaluation's statistics: its stage times to c.stages (one more sample), its build or
