@@ -18,12 +18,13 @@
 #include "cli/run.h"
 #include "core/error.h"
 #include "cpu/engine.h"
-#include "md/checkpoint.h"
+#include "io/checkpoint.h"
 #include "md/md.h"
 #include "md/minimize.h"
 #include "reference/brute_force.h"
 #include "scene/lattice.h"
 #include "scene/scene.h"
+#include "state/stable_start.h"
 
 #include "temp_folder.h"
 

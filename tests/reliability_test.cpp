@@ -49,6 +49,7 @@
 #include "reference/brute_force.h"
 #include "scene/lattice.h"
 #include "scene/scene.h"
+#include "state/stable_start.h"
 
 #include "backends.h"
 #include "cpu/engine.h"

@@ -31,6 +31,7 @@
 #include "scene/lattice.h"
 #include "scene/scene.h"
 #include "scenes.h"
+#include "state/stable_start.h"
 #include "temp_folder.h"
 
 namespace cftest {

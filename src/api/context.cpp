@@ -18,6 +18,7 @@
 #include "core/numbers.h"
 #include "core/system.h"
 #include "core/text.h"
+#include "state/stable_start.h"
 
 #ifndef CELLFORCE_VERSION
 #define CELLFORCE_VERSION "unknown"

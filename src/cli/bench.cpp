@@ -20,8 +20,8 @@
 #include "core/reuse.h"
 #include "io/output_paths.h"
 #include "io/text_file.h"
-#include "md/md.h"
 #include "scene/scene.h"
+#include "state/velocities.h"
 
 #ifndef CELLFORCE_VERSION
 #define CELLFORCE_VERSION "unknown"

@@ -24,9 +24,11 @@
 #include "io/h5md_writer.h"
 #include "io/output_paths.h"
 #include "io/text_file.h"
-#include "md/checkpoint.h"
+#include "io/checkpoint.h"
 #include "md/md.h"
 #include "md/minimize.h"
+#include "state/stable_start.h"
+#include "state/velocities.h"
 #include "scene/scene.h"
 
 #ifndef CELLFORCE_VERSION
@@ -490,10 +492,8 @@ int run_md(const RunArgs& args) {
     // positions it was built from, so that the force sums keep their order (bit for bit).
     const double skin = ctx.skin();
     const bool same_lists = !saved.neighbor_list || *saved.neighbor_list == ctx.neighbor_lists();
-    if (skin > 0 && saved.skin == skin && same_lists && !saved.reuse.build_positions.empty()) {
-      with_context(args.restart, [&] {
-        ctx.restore_neighbor_state(NeighborState{saved.reuse.build_positions, saved.reuse.served});
-      });
+    if (skin > 0 && saved.skin == skin && same_lists && !saved.neighbor.build_positions.empty()) {
+      with_context(args.restart, [&] { ctx.restore_neighbor_state(saved.neighbor); });
     } else if (skin > 0) {
       std::printf("note: %s holds no cell structure for skin %g%s: the restarted run builds its own at step %lld, "
                   "so it continues the run to round-off, not bit for bit\n",
@@ -546,9 +546,8 @@ int run_md(const RunArgs& args) {
     // once more: it is saved one evaluation short.
     checkpoint_info.skin = ctx.skin();
     checkpoint_info.neighbor_list = ctx.neighbor_lists();
-    const NeighborState ns = ctx.neighbor_state();
-    checkpoint_info.reuse = ReuseState{ns.build_positions, ns.served};
-    if (checkpoint_info.reuse.served > 0) checkpoint_info.reuse.served -= 1;
+    checkpoint_info.neighbor = ctx.neighbor_state();
+    if (checkpoint_info.neighbor.served > 0) checkpoint_info.neighbor.served -= 1;
     write_checkpoint(output.checkpoint, state, checkpoint_info);
     const RunStatistics after = ctx.run_statistics();
     output_bytes += after.bytes_to_host - before.bytes_to_host;

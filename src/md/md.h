@@ -1,5 +1,6 @@
-// Molecular dynamics on top of a force backend: the state, initial velocities, the integrators
-// (velocity Verlet for NVE; Langevin BAOAB for NVT) and the thermodynamic observables.
+// Molecular dynamics on top of a force backend: the integrators (velocity Verlet for NVE; Langevin
+// BAOAB for NVT) and the thermodynamic observables of the state (state/md_state.h; its initial
+// velocities and kinetic energy in state/velocities.h).
 //
 // Random numbers (initial velocities, Langevin noise) are counter-based: each value is a hash of
 // (seed, step, particle, axis), so a run is reproducible for a seed whatever the thread count,
@@ -14,36 +15,13 @@
 
 #include "core/random.h"
 #include "core/system.h"
-#include "state/configuration.h"
+#include "state/md_state.h"
+#include "state/velocities.h"
 
 namespace cellforce {
 
-struct MdState {
-  Configuration config;             // box, positions (n x dim, wrapped on periodic axes), types
-  std::vector<double> velocities;   // n x dim
-  std::vector<double> forces;       // n x dim, at the current positions
-  int64_t step = 0;
-  double time = 0.0;
-};
-
 // counter_normal(seed, stream, index) (core/random.h) draws the numbers: stream 0 the initial
 // velocities, stream step + 1 the Langevin noise of that step, index particle * dim + axis.
-
-// Degrees of freedom of the kinetic temperature: dim (n - 1) when the centre-of-mass momentum
-// is removed and conserved (NVE), dim n under a Langevin thermostat (which does not conserve
-// it); at least 1.
-double degrees_of_freedom(std::size_t n, int dim, bool com_conserved = true);
-
-// Maxwell-Boltzmann velocities at temperature kT (energy units), centre-of-mass momentum removed,
-// then scaled so that the kinetic temperature (with the degrees of freedom of com_conserved) is
-// exactly kT. masses: per particle.
-void initialize_velocities(MdState& state, const std::vector<double>& masses, double kT, uint64_t seed,
-                           bool com_conserved = true);
-
-// Removes the centre-of-mass momentum (mass-weighted).
-void remove_com_momentum(MdState& state, const std::vector<double>& masses);
-
-double kinetic_energy(const MdState& state, const std::vector<double>& masses);
 
 struct ThermoValues {
   double kinetic = 0, potential = 0, total = 0;
@@ -60,15 +38,6 @@ struct IntegratorSettings {
   double friction = 1.0;  // Langevin gamma
   uint64_t seed = 1;
 };
-
-// Refuses a time step whose arithmetic overflows for these masses: a step kicks by (dt / 2m) F and
-// moves a particle by dt v + dt^2 F / 2m, so dt^2 and, for every particle's mass m, dt / 2m and
-// dt^2 / 2m must be finite numbers. Throws cellforce::Error naming dt, or the particle, its type
-// (ff's name for types[i]) and its mass. Called where dt and the masses enter: the API's
-// set_state and set_integrator (so `cellforce run` meets it before any output), and
-// check_stable_start.
-void check_step_arithmetic(double dt, const std::vector<double>& masses, const std::vector<uint32_t>& types,
-                           const ForceField& ff);
 
 // The longest displacement one drift may make along `axis` before the integration counts as
 // diverged: `share` x the box edge on a periodic axis (beyond it the particle's image is

@@ -1,5 +1,6 @@
-// Starting from overlaps: the FIRE minimiser that removes them before the dynamics, and the check
-// that refuses dynamics whose first step would throw a particle out of its neighbourhood.
+// Starting from overlaps: the FIRE minimiser that removes them before the dynamics (the check that
+// refuses dynamics whose first step would throw a particle out of its neighbourhood is
+// state/stable_start.h's check_stable_start).
 //
 // FIRE (Bitzek, Koskinen, Gaehler, Moseler, Gumbsch, PRL 97, 170201 (2006)) with the FIRE 2.0
 // refinements of Guenole et al. (Comput. Mater. Sci. 175, 109584 (2020)): semi-implicit Euler
@@ -118,30 +119,5 @@ FireResult run_fire(const FireSettings& settings, const FireEvaluation& start, c
 // particle with the largest force and that force; state then holds the last positions and forces).
 FireResult minimize_fire(MdState& state, const std::vector<double>& masses, const FireSettings& settings,
                          const ForceEnergyFunction& compute_forces);
-
-// The first time step's displacement due to the force alone, dt^2 |F_i| / (2 m_i): velocity
-// Verlet and BAOAB both move a particle by dt v + dt^2 F / (2 m) in a step.
-struct FirstStepKick {
-  double displacement = 0;  // the largest over the particles
-  std::size_t particle = 0;
-  double force = 0;         // |F| of that particle
-};
-FirstStepKick first_step_kick(const MdState& state, const std::vector<double>& masses, double dt);
-
-// The smallest pair sigma of the force field over the pairs that interact (sigma and epsilon > 0;
-// explicit pairs included); infinity when none does.
-double smallest_sigma(const ForceField& ff);
-
-// Refuses to start dynamics from state.forces when the first step would move a particle by more
-// than 0.1 x the smallest sigma, or when the step's arithmetic overflows (check_step_arithmetic).
-// The cause it names is the factor of dt^2 |F| / 2m that is out of range: where even the force of
-// a pair at distance sigma (24 epsilon/sigma) would move the particle too far, dt and its mass
-// (with the dt that mass allows); otherwise the force, an overlap: the particle, its force, its
-// nearest neighbour (minimum image) and their distance, the displacement, and what to do (a
-// [minimize] section, or a lower dt; `remedy`, when given, replaces that advice). Lattice starts
-// (forces ~0) and random starts with a minimum distance of ~0.8 sigma (forces up to ~1e3) pass at
-// dt 0.005 (the limit there is ~8e3).
-void check_stable_start(const MdState& state, const std::vector<double>& masses, double dt,
-                        const ForceField& ff, const std::string& remedy = "");
 
 }  // namespace cellforce

@@ -1,4 +1,4 @@
-#include "md/checkpoint.h"
+#include "io/checkpoint.h"
 
 #include <cstdio>
 #include <cstdlib>
@@ -27,9 +27,9 @@ void write_checkpoint(const std::string& path, const MdState& state, const Check
     h5::write_attribute(root, "scene", info.scene, path);
     h5::write_attribute(root, "backend", info.backend, path);
     h5::write_attribute(root, "precision", info.precision, path);
-    if (!info.reuse.build_positions.empty()) {
-      h5::write_doubles(root, "neighbor_build_positions", info.reuse.build_positions, {n, hd}, path);
-      h5::write_attribute(root, "neighbor_served", int64_t(info.reuse.served), path);
+    if (!info.neighbor.build_positions.empty()) {
+      h5::write_doubles(root, "neighbor_build_positions", info.neighbor.build_positions, {n, hd}, path);
+      h5::write_attribute(root, "neighbor_served", int64_t(info.neighbor.served), path);
       char skin[40];  // as text, exactly: there is no double-attribute reader in this layer
       std::snprintf(skin, sizeof skin, "%.17g", info.skin);
       h5::write_attribute(root, "neighbor_skin", std::string(skin), path);
@@ -76,14 +76,14 @@ CheckpointInfo read_checkpoint(const std::string& path, MdState& state, const Ch
   saved.scene = h5::read_string_attribute(root, "scene", path).at(0);
   saved.backend = h5::read_string_attribute(root, "backend", path).at(0);
   saved.precision = h5::read_string_attribute(root, "precision", path).at(0);
-  saved.reuse = {};
+  saved.neighbor = {};
   saved.skin = 0;
   saved.neighbor_list.reset();
   if (h5::exists(root, "neighbor_build_positions")) {
     const h5::Array<double> built = h5::read_doubles(root, "neighbor_build_positions", path);
     if (built.shape != shape) throw Error(path + ": neighbor_build_positions has the wrong shape");
-    saved.reuse.build_positions = built.values;
-    saved.reuse.served = h5::read_int_attribute(root, "neighbor_served", path);
+    saved.neighbor.build_positions = built.values;
+    saved.neighbor.served = h5::read_int_attribute(root, "neighbor_served", path);
     saved.skin = std::strtod(h5::read_string_attribute(root, "neighbor_skin", path).at(0).c_str(), nullptr);
     if (h5::has_attribute(root, "neighbor_list")) saved.neighbor_list = h5::read_int_attribute(root, "neighbor_list", path) != 0;
   }

@@ -10,8 +10,9 @@
 #include <optional>
 #include <string>
 
-#include "core/reuse.h"
-#include "md/md.h"
+#include <cellforce/cellforce.hpp>  // NeighborState
+
+#include "state/md_state.h"
 
 namespace cellforce {
 
@@ -20,10 +21,11 @@ struct CheckpointInfo {
   uint64_t scene_fingerprint = 0;  // of the scene's physics (scene_fingerprint): a restart needs the same
   std::string scene;               // where the scene came from (for messages)
   std::string backend, precision;  // what wrote it: a restart on others continues, but not bit for bit
-  // With a skin ([neighbor]): the cell structure in use at the checkpoint, for the restart to
-  // rebuild it (read back only when the file has it and was written with the same skin).
+  // With a skin ([neighbor]): the neighbour structure in use at the checkpoint (Context::
+  // neighbor_state), for the restart to rebuild it (read back only when the file has it and was
+  // written with the same skin).
   double skin = 0;
-  ReuseState reuse;
+  NeighborState neighbor;
   // Whether that structure's evaluations walked pair lists (another summation order than the cells):
   // a restart rebuilds it only for the same choice. Absent in files written before skin auto.
   std::optional<bool> neighbor_list;
