@@ -16,6 +16,7 @@
 #include "core/force_field.h"
 #include "core/names.h"
 #include "core/numbers.h"
+#include "core/option_table.h"
 #include "core/system.h"
 #include "core/text.h"
 #include "state/stable_start.h"
@@ -70,7 +71,7 @@ struct Context::Impl {
   Box box;
   bool has_box = false, has_cutoff = false;
   ForceField ff;
-  EngineChoice choice;
+  EngineChoice choice;  // the engine options (set_option; a new context's: core/option_table.h)
   std::unique_ptr<ForceEngine> engine;
   ForceResult result;  // compute()'s staging (the engine's layout), reused across calls
   Statistics statistics;
@@ -87,9 +88,6 @@ struct Context::Impl {
     if (d != 2 && d != 3) throw Error("dimension " + std::to_string(d) + ": expected 2 or 3");
     box.dim = d;
     ff.types.clear();
-    choice.backend = Backend::kCpu;
-    choice.precision = Precision::kDouble;
-    choice.reuse.automatic = true;  // the skin: auto (resolve_reuse)
   }
 
   // What the engines are made from: the backend kAuto stands for, and an automatic skin resolved
@@ -181,7 +179,11 @@ struct Context::Impl {
   }
 };
 
-Context::Context(int dim) : impl_(std::make_unique<Impl>(dim)) {}
+// Every option as the table's default (core/option_table.h: CPU backend, double precision,
+// Lorentz-Berthelot mixing, skin auto, ...).
+Context::Context(int dim) : impl_(std::make_unique<Impl>(dim)) {
+  for (const OptionSpec& option : kOptions) set_option(option.key, option.default_value);
+}
 Context::~Context() = default;
 Context::Context(Context&&) noexcept = default;
 Context& Context::operator=(Context&&) noexcept = default;
@@ -271,60 +273,77 @@ void Context::set_skin(double skin) {
 }
 
 void Context::set_option(std::string_view key, std::string_view value) {
+  const OptionSpec* option = find_option(key);
+  if (!option) throw Error("unknown option " + quote_excerpt(std::string(key)) + "; options: " + option_keys());
   EngineChoice& c = impl_->choice;
-  if (key == "backend") {
-    set_backend(parse_option(key, value, kBackendNames), c.device);
-  } else if (key == "device") {
-    set_backend(c.backend, parse_int(key, value));
-  } else if (key == "precision") {
-    set_precision(parse_option(key, value, kPrecisionNames));
-  } else if (key == "mixing") {
-    set_mixing(parse_option(key, value, kMixingNames));
-  } else if (key == "cutoff-mode") {
-    impl_->ff.mode = parse_option(key, value, kCutoffModeNames);
-  } else if (key == "skin") {
-    if (same_name(value, "auto")) {
-      c.reuse.automatic = true;  // skin and lists from the rule; a later skin length restores the caller's
-      c.reuse.skin = 0.0;
+  switch (option->id) {
+    case OptionId::kBackend:
+      set_backend(parse_option(key, value, kBackendNames), c.device);
+      break;
+    case OptionId::kDevice:
+      set_backend(c.backend, parse_int(key, value));
+      break;
+    case OptionId::kPrecision:
+      set_precision(parse_option(key, value, kPrecisionNames));
+      break;
+    case OptionId::kMixing:
+      set_mixing(parse_option(key, value, kMixingNames));
+      break;
+    case OptionId::kCutoffMode:
+      impl_->ff.mode = parse_option(key, value, kCutoffModeNames);
+      break;
+    case OptionId::kSkin:
+      if (same_name(value, kAutoSkin)) {
+        c.reuse.automatic = true;  // skin and lists from the rule; a later skin length restores the caller's
+        c.reuse.skin = 0.0;
+        impl_->engine_changed();
+      } else {
+        set_skin(parse_number(key, value, "auto or a number"));
+      }
+      break;
+    case OptionId::kNeighborCheck:
+    case OptionId::kNeighborAudit:
+    case OptionId::kNeighborList: {
+      const std::optional<bool> v = parse_name(value, kBooleanNames);
+      if (!v)
+        throw Error("option " + std::string(key) + ": " + quote_excerpt(std::string(value)) + " is not true or false");
+      ReuseOptions reuse = c.reuse;
+      (option->id == OptionId::kNeighborCheck   ? reuse.check
+       : option->id == OptionId::kNeighborAudit ? reuse.audit
+                                                : reuse.list) = *v;
+      validate_reuse(reuse);
+      c.reuse = reuse;
       impl_->engine_changed();
-    } else {
-      set_skin(parse_number(key, value, "auto or a number"));
+      break;
     }
-  } else if (key == "neighbor-check" || key == "neighbor-audit" || key == "neighbor-list") {
-    bool v = false;
-    if (same_name(value, "true")) v = true;
-    else if (!same_name(value, "false"))
-      throw Error("option " + std::string(key) + ": " + quote_excerpt(std::string(value)) + " is not true or false");
-    ReuseOptions reuse = c.reuse;
-    (key == "neighbor-check" ? reuse.check : key == "neighbor-audit" ? reuse.audit : reuse.list) = v;
-    validate_reuse(reuse);
-    c.reuse = reuse;
-    impl_->engine_changed();
-  } else if (key == "neighbor-every") {
-    ReuseOptions reuse = c.reuse;
-    reuse.every = parse_int<int64_t>(key, value);
-    validate_reuse(reuse);
-    c.reuse = reuse;
-    impl_->engine_changed();
-  } else if (key == "accumulation") {
-    c.accumulation = parse_option(key, value, kAccumulationNames);
-    impl_->engine_changed();
-  } else if (key == "cell-rule") {
-    c.rule = parse_option(key, value, kCellRuleNames);
-    impl_->engine_changed();
-  } else if (key == "traversal") {
-    c.traversal = parse_option(key, value, kTraversalNames);
-    impl_->engine_changed();
-  } else if (key == "sort") {
-    c.sort = parse_option(key, value, kSortNames);
-    impl_->engine_changed();
-  } else if (key == "memory") {
-    c.memory = parse_option(key, value, kListMemoryNames);
-    impl_->engine_changed();
-  } else {
-    throw Error("unknown option " + quote_excerpt(std::string(key)) +
-                "; options: backend, device, precision, mixing, cutoff-mode, skin, neighbor-check, "
-                "neighbor-every, neighbor-audit, neighbor-list, accumulation, cell-rule, traversal, sort, memory");
+    case OptionId::kNeighborEvery: {
+      ReuseOptions reuse = c.reuse;
+      reuse.every = parse_int<int64_t>(key, value);
+      validate_reuse(reuse);
+      c.reuse = reuse;
+      impl_->engine_changed();
+      break;
+    }
+    case OptionId::kAccumulation:
+      c.accumulation = parse_option(key, value, kAccumulationNames);
+      impl_->engine_changed();
+      break;
+    case OptionId::kCellRule:
+      c.rule = parse_option(key, value, kCellRuleNames);
+      impl_->engine_changed();
+      break;
+    case OptionId::kTraversal:
+      c.traversal = parse_option(key, value, kTraversalNames);
+      impl_->engine_changed();
+      break;
+    case OptionId::kSort:
+      c.sort = parse_option(key, value, kSortNames);
+      impl_->engine_changed();
+      break;
+    case OptionId::kMemory:
+      c.memory = parse_option(key, value, kListMemoryNames);
+      impl_->engine_changed();
+      break;
   }
 }
 

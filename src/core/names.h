@@ -1,5 +1,6 @@
 // The names of the run-time choices as users write them (scene files, CLI options, the API's
-// set_option), one table per enumeration: every parser and every message reads these.
+// set_option), one table per enumeration: every parser and every message reads these (the options
+// that take them: core/option_table.h).
 #pragma once
 
 #include <cstddef>
@@ -38,6 +39,7 @@ inline constexpr Named<TraversalForm> kTraversalNames[] = {
 inline constexpr Named<SortMethod> kSortNames[] = {{"cub", SortMethod::kCub}, {"chapter", SortMethod::kChapter}};
 inline constexpr Named<ListMemory> kListMemoryNames[] = {
     {"auto", ListMemory::kAuto}, {"fast", ListMemory::kFast}, {"lean", ListMemory::kLean}};
+inline constexpr Named<bool> kBooleanNames[] = {{"true", true}, {"false", false}};
 
 // Whether `a` and `b` are the same name in any letter case (ASCII): every entry point (the CLI,
 // scene files, the API's set_option) reads names so, "CUDA" as "cuda".
