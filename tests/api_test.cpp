@@ -11,11 +11,13 @@
 
 #include <algorithm>
 #include <atomic>
+#include <cctype>
 #include <chrono>
 #include <cmath>
 #include <cstring>
 #include <limits>
 #include <memory>
+#include <set>
 #include <string>
 #include <thread>
 #include <vector>
@@ -28,6 +30,9 @@
 
 #include "cli/forces.h"
 #include "core/engine_options.h"
+#include "core/grid.h"
+#include "core/names.h"
+#include "core/option_table.h"
 #include "io/configuration_file.h"
 #include "io/hdf5.h"
 #include "oracle.h"
@@ -124,6 +129,58 @@ TEST(EngineOptions, AutoTraversalRule) {
   EXPECT_THROW(ctx.set_option("neighbor-list", "yes"), cf::Error);
 }
 
+// The option table (core/option_table.h) is the one list of set_option's keys: each key finds its
+// row, the unknown-key message lists them all, each default is what a new Context takes, and each
+// choice's names are accepted in any letter case while others are refused with the list.
+TEST(EngineOptions, OneTableOfOptionNames) {
+  std::set<std::string> keys;
+  for (const cf::OptionSpec& o : cf::kOptions) {
+    SCOPED_TRACE(o.key);
+    EXPECT_TRUE(keys.insert(o.key).second) << "a key given twice";
+    EXPECT_EQ(cf::find_option(o.key), &o);
+    EXPECT_EQ(&cf::option_spec(o.id), &o);
+    cf::Context ctx(3);
+    EXPECT_NO_THROW(ctx.set_option(o.key, o.default_value));
+    if (o.kind == cf::OptionKind::kChoice || o.kind == cf::OptionKind::kBoolean) {
+      ASSERT_GT(o.names.size, 1u);
+      EXPECT_NE(cf::option_name(o.id, o.default_value), nullptr) << "the default is one of the names";
+      for (const char* name : o.names) {
+        std::string upper(name);
+        for (char& c : upper) c = char(std::toupper(static_cast<unsigned char>(c)));
+        EXPECT_EQ(cf::option_name(o.id, upper), name);
+        if (o.id != cf::OptionId::kBackend) {  // (cuda: taken, but no device to make an engine on here)
+          EXPECT_NO_THROW(ctx.set_option(o.key, upper)) << name;
+        }
+      }
+      EXPECT_EQ(cf::option_name(o.id, "none-such"), nullptr);
+      EXPECT_THROW(ctx.set_option(o.key, "none-such"), cf::Error);
+    }
+  }
+  EXPECT_EQ(cf::find_option("Backend"), nullptr) << "keys are exact";
+  try {
+    cf::Context(3).set_option("colour", "blue");
+    ADD_FAILURE() << "an unknown key was taken";
+  } catch (const cf::Error& e) {
+    EXPECT_EQ(e.message(), "unknown option 'colour'; options: " + cf::option_keys());
+  }
+  EXPECT_EQ(cf::option_keys(), "backend, device, precision, mixing, cutoff-mode, skin, neighbor-check, "
+                               "neighbor-every, neighbor-audit, neighbor-list, accumulation, cell-rule, traversal, "
+                               "sort, memory");
+  // The application's list: each option once, in the order first given; a value given again
+  // replaces the first in place; an option not given reads as the table's default.
+  cf::OptionList list;
+  list.set(cf::OptionId::kSkin, "0.3");
+  list.set(cf::OptionId::kBackend, "cpu");
+  list.set(cf::OptionId::kSkin, "auto");
+  ASSERT_EQ(list.entries().size(), 2u);
+  EXPECT_STREQ(list.entries()[0].key(), "skin");
+  EXPECT_EQ(list.entries()[0].value, "auto");
+  EXPECT_STREQ(list.entries()[1].key(), "backend");
+  EXPECT_EQ(list.find(cf::OptionId::kMemory), nullptr);
+  EXPECT_EQ(list.value(cf::OptionId::kMemory), "auto");
+  EXPECT_EQ(list.value(cf::OptionId::kBackend), "cpu");
+}
+
 TEST(Api, ComputeMatchesTheBruteForceOnEveryBackendAndPrecision) {
   for (int dim : {3, 2}) {
     const Binary b = binary_liquid(dim, 900, 7 + uint64_t(dim));
@@ -139,6 +196,95 @@ TEST(Api, ComputeMatchesTheBruteForceOnEveryBackendAndPrecision) {
         EXPECT_TRUE(cftest::total_energy_matches(ref, got, tolerance(p)));
         EXPECT_TRUE(cftest::virial_matches(ref, got, tolerance(p)));
         EXPECT_EQ(ctx.backend_name(), cf::to_string(backend));
+      }
+  }
+}
+
+// compute_brute_force is the oracle itself, whatever the context's backend and precision: bitwise
+// the double brute force, with its outputs optional as compute()'s and its input checked the same.
+TEST(Api, BruteForceIsTheOracleOnEveryBackendAndPrecision) {
+  for (int dim : {3, 2}) {
+    const Binary b = binary_liquid(dim, 600, 17 + uint64_t(dim));
+    cf::ForceResult ref;
+    cf::brute_force(b.config.view(), b.ff, cf::Request{true, true}, ref);
+    for (cf::Backend backend : backends_here())
+      for (cf::Precision p : kPrecisions) {
+        SCOPED_TRACE(std::string(cf::to_string(backend)) + " " + cf::to_string(p) + " " + std::to_string(dim) + "D");
+        cf::Context ctx = context_for(b, backend, p);
+        cf::ForceResult got;
+        got.dim = dim;
+        got.forces.assign(b.config.size() * std::size_t(dim), std::nan(""));
+        got.energies.assign(b.config.size(), std::nan(""));
+        double w[9] = {};
+        ctx.compute_brute_force(b.config.size(), b.config.positions.data(), b.config.types.data(),
+                                {got.forces.data(), got.energies.data(), &got.energy, w});
+        for (int r = 0; r < dim; ++r)
+          for (int c = 0; c < dim; ++c) got.virial[r][c] = w[r * dim + c];
+        EXPECT_TRUE(cftest::bitwise_equal(ref, got));
+        std::vector<double> forces_only(b.config.size() * std::size_t(dim));
+        ctx.compute_brute_force(b.config.size(), b.config.positions.data(), b.config.types.data(),
+                                {forces_only.data()});
+        EXPECT_EQ(std::memcmp(forces_only.data(), ref.forces.data(), forces_only.size() * sizeof(double)), 0);
+      }
+  }
+  const Binary b = binary_liquid(3, 300, 3);
+  cf::Context ctx = context_for(b, cf::Backend::kCpu, cf::Precision::kDouble);
+  std::vector<double> f(900);
+  std::vector<double> bad = b.config.positions;
+  bad[3 * 7 + 1] = std::nan("");
+  const std::string msg = [&] {
+    try {
+      ctx.compute_brute_force(300, bad.data(), b.config.types.data(), {f.data()});
+    } catch (const cf::Error& e) {
+      return std::string(e.what());
+    }
+    return std::string();
+  }();
+  EXPECT_THAT(msg, HasSubstr("particle 7"));
+  cf::Context empty(3);
+  EXPECT_THROW(empty.compute_brute_force(300, b.config.positions.data(), nullptr, {f.data()}), cf::Error);
+}
+
+// count_pairs reports the search structure it counted on, and statistics() the last call's time by
+// stage: cell-ID entries n x 2^dim, every particle's home entry valid, cells at least the cell rule's
+// edge, pairs tested at least those within the cutoff (the brute force's count).
+TEST(Api, PairCountsDescribeTheSearchStructure) {
+  for (int dim : {3, 2}) {
+    const Binary b = binary_liquid(dim, 900, 27 + uint64_t(dim));
+    const std::size_t n = b.config.size();
+    const std::size_t within = cf::brute_force_pairs(b.config.view(), b.ff).size();
+    for (cf::Backend backend : backends_here())
+      for (const char* rule : {"tight", "chapter"}) {
+        SCOPED_TRACE(std::string(cf::to_string(backend)) + " " + rule + " " + std::to_string(dim) + "D");
+        cf::Context ctx = context_for(b, backend, cf::Precision::kDouble);
+        ctx.set_option("cell-rule", rule);
+        std::vector<double> f(n * std::size_t(dim));
+        ctx.compute(n, b.config.positions.data(), b.config.types.data(), {f.data()});
+        const cf::Statistics st = ctx.statistics();
+        for (double t : {st.cell_ids_seconds, st.sort_seconds, st.collision_cells_seconds, st.traversal_seconds,
+                         st.accumulate_seconds})
+          EXPECT_GE(t, 0.0);
+        const cf::PairCounts c = ctx.count_pairs(n, b.config.positions.data(), b.config.types.data());
+        EXPECT_EQ(c.within_cutoff, within);
+        EXPECT_GE(c.tested, c.within_cutoff);
+        EXPECT_EQ(c.entries, n << dim);
+        EXPECT_GE(c.valid_entries, n);
+        EXPECT_LE(c.valid_entries, c.entries);
+        EXPECT_GT(c.collision_cells, 0u);
+        EXPECT_GE(c.max_occupancy, 2u);
+        EXPECT_NEAR(c.half_width, b.ff.cutoff * std::sqrt(0.5), 1e-5 * b.ff.cutoff);
+        const cf::CellRule r = *cf::parse_name(rule, cf::kCellRuleNames);
+        for (int a = 0; a < 3; ++a) {
+          if (a >= dim) {
+            EXPECT_EQ(c.grid_cells[a], 1u);
+            continue;
+          }
+          EXPECT_GE(c.grid_cells[a], 1u);
+          EXPECT_NEAR(c.cell_edge[a] * c.grid_cells[a], b.config.box.length[a], 1e-9 * b.config.box.length[a]);
+          if (c.grid_cells[a] > 1) {
+            EXPECT_GE(c.cell_edge[a], cf::min_cell_edge(r, b.ff.cutoff, c.half_width));
+          }
+        }
       }
   }
 }

@@ -47,16 +47,29 @@ struct Outputs {
                                // r_ij = x_i - x_j by minimum image and f_ij the force on i from j
 };
 
-// Pair counts of a configuration (count_pairs()).
+// Pair counts of a configuration (count_pairs()), and the search structure they were counted on
+// (stages 1-3 of the spatial subdivision: the grid, each particle's cell-ID entries, the
+// collision cells).
 struct PairCounts {
   std::size_t tested = 0;         // candidate pairs the traversal tested
   std::size_t within_cutoff = 0;  // pairs with r < rc (each once)
+  uint32_t grid_cells[3] = {1, 1, 1};  // cells per axis (1 on axes beyond dim)
+  double cell_edge[3] = {0, 0, 0};     // a cell's edge per axis (length)
+  double half_width = 0;               // h, the half-width of each particle's box (length)
+  std::size_t entries = 0;             // cell-ID entries, n x 2^dim
+  std::size_t valid_entries = 0;       // of those, the ones in a cell (home and phantom entries)
+  std::size_t collision_cells = 0;     // cells holding a home entry and at least one other entry
+  std::size_t max_occupancy = 0;       // most entries in one collision cell
 };
 
 // Timings and sizes of the last compute call.
 struct Statistics {
   double pipeline_seconds = 0;  // the engine's stages, without host <-> device copies (device
                                 // stream time on CUDA)
+  // pipeline_seconds by stage: cell IDs (with the count of valid entries), sort, collision cells,
+  // traversal (the pairs' forces; CUDA: with staging the occupants) and accumulation.
+  double cell_ids_seconds = 0, sort_seconds = 0, collision_cells_seconds = 0, traversal_seconds = 0,
+         accumulate_seconds = 0;
   double transfer_seconds = 0;  // host <-> device copies (CUDA, compute() only)
   std::size_t builds = 0;       // neighbour structures built so far (stages 1-3)
   bool rebuilt = true;          // whether the last call built one (false: reused, skin > 0)
@@ -270,6 +283,11 @@ class CELLFORCE_API Context {
   // where pair lists serve the evaluations (a list holds the pairs within rc + skin at its build).
   PairCounts count_pairs(std::size_t n, const double* positions, const uint32_t* types);
   Statistics statistics() const;
+  // The outputs of compute() for host arrays by the brute force: every pair under the minimum
+  // image, in double precision, on the host, O(n^2) and with no grid, whatever the backend and
+  // precision: the oracle the engines are tested against, for checking their results (slow beyond
+  // some 10^4 particles). Needs the box, cutoff and types as compute() does; statistics() stays.
+  void compute_brute_force(std::size_t n, const double* positions, const uint32_t* types, const Outputs& out);
 
   // ---- molecular dynamics (the state stays where the backend computes: on the GPU with cuda) ----
   void set_integrator(const IntegratorOptions& options);

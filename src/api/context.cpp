@@ -12,6 +12,7 @@
 #include "backends/force_engine.h"
 #include "backends/md_engine.h"
 #include "md/minimize.h"
+#include "reference/brute_force.h"
 #include "core/error.h"
 #include "core/force_field.h"
 #include "core/names.h"
@@ -154,11 +155,14 @@ struct Context::Impl {
   // What compute needs before any array is read; the arrays themselves are checked by the engine
   // (validate_system: non-finite coordinates, type indices, rc against the box).
   void check_ready() const {
+    check_physics();
+    check_precision_range(ff, choice.precision);
+  }
+  void check_physics() const {
     if (!has_box) throw Error("no box: call set_box (cf_set_box) before computing");
     if (!has_cutoff) throw Error("no cutoff: call set_cutoff (cf_set_cutoff) before computing");
     if (ff.types.empty()) throw Error("no particle types: add one with add_type (cf_add_type) before computing");
     ff.validate();
-    check_precision_range(ff, choice.precision);
   }
 
   // The device's verdict on the compute_device calls since the last one (throws what it found).
@@ -172,6 +176,11 @@ struct Context::Impl {
   void record_statistics() {
     const PipelineStats s = engine->stats(SystemView{}, ff, false);
     statistics.pipeline_seconds = s.t_total - s.t_transfer;
+    statistics.cell_ids_seconds = s.t_cell_ids + s.t_count;
+    statistics.sort_seconds = s.t_sort;
+    statistics.collision_cells_seconds = s.t_collision_cells;
+    statistics.traversal_seconds = s.t_traversal;
+    statistics.accumulate_seconds = s.t_accumulate;
     statistics.transfer_seconds = s.t_transfer;
     statistics.builds = s.builds;
     statistics.rebuilt = s.rebuilt;
@@ -394,10 +403,40 @@ PairCounts Context::count_pairs(std::size_t n, const double* positions, const ui
     engine.evaluate(system, s.ff, Request{false, false}, scratch);
   }
   const PipelineStats stats = engine.stats(system, s.ff, true);
-  return PairCounts{stats.candidate_pairs, stats.interacting_pairs};
+  PairCounts counts;
+  counts.tested = stats.candidate_pairs;
+  counts.within_cutoff = stats.interacting_pairs;
+  for (int a = 0; a < kMaxDim; ++a) {
+    counts.grid_cells[a] = stats.grid.n[a];
+    counts.cell_edge[a] = a < stats.grid.dim ? stats.grid.cell[a] : 0.0;
+  }
+  counts.half_width = stats.grid.half_width;
+  counts.entries = stats.entries;
+  counts.valid_entries = stats.valid_entries;
+  counts.collision_cells = stats.collision_cells;
+  counts.max_occupancy = stats.max_occupancy;
+  return counts;
 }
 
 Statistics Context::statistics() const { return impl_->statistics; }
+
+void Context::compute_brute_force(std::size_t n, const double* positions, const uint32_t* types,
+                                  const Outputs& out) {
+  const Impl& s = *impl_;
+  s.check_physics();  // not the precision's range: the brute force is double
+  check_output(positions, "positions", n);
+  check_output(out.forces, "forces", n);
+  ForceResult r;  // brute_force validates the system as the engines do
+  brute_force(SystemView{s.box, n, positions, types}, s.ff,
+              Request{out.energies != nullptr || out.energy != nullptr, out.virial != nullptr}, r);
+  const std::size_t dim = std::size_t(s.dim);
+  if (n) std::memcpy(out.forces, r.forces.data(), n * dim * sizeof(double));
+  if (out.energies && n) std::memcpy(out.energies, r.energies.data(), n * sizeof(double));
+  if (out.energy) *out.energy = r.energy;
+  if (out.virial)
+    for (std::size_t a = 0; a < dim; ++a)
+      for (std::size_t b = 0; b < dim; ++b) out.virial[a * dim + b] = r.virial[a][b];
+}
 
 void Context::set_integrator(const IntegratorOptions& o) {
   if (o.kind != Integrator::kVerlet && o.kind != Integrator::kLangevin)

@@ -13,8 +13,11 @@
 #include <nlohmann/json.hpp>
 #include <vector>
 
+#include <cellforce/cellforce.hpp>
+
 #include "backends/force_engine.h"
 #include "cli/bench.h"
+#include "cli/engine_context.h"
 #include "cli/forces.h"
 #include "cli/option_rules.h"
 #include "cli/options.h"
@@ -25,7 +28,6 @@
 #include "core/text.h"
 #include "io/output_paths.h"
 #include "io/text_file.h"
-#include "reference/brute_force.h"
 #include "scene/lattice.h"
 
 namespace {
@@ -54,99 +56,99 @@ int evaluate(const EvaluateArgs& args) {
                        "--cells " + std::to_string(args.cells));
   Configuration config = make_lattice(args.lattice, args.cells, args.density);
   if (args.jitter > 0) jitter(config, args.jitter, args.seed);
-  const SystemView sys = config.view();
-  const int dim = sys.box.dim;
+  const Box& box = config.box;
+  const std::size_t n = config.size();
+  const int dim = box.dim;
   ForceField ff;
   ff.cutoff = args.cutoff;
   ff.mode = args.mode;
-  const std::unique_ptr<ForceEngine> engine_owner = make_force_engine(args.engine);
-  ForceEngine& engine = *engine_owner;
-  const std::string backend = to_string(engine.backend());
-  const std::string engine_name = engine.description();
-  const Request request{true, true};
-  ForceResult result;
-  auto evaluate_once = [&](bool counts) {
-    engine.evaluate(sys, ff, request, result);
-    return engine.stats(sys, ff, counts);
-  };
+  Context ctx = make_context(box, ff, args.engine);
+  const std::string backend = ctx.backend_name();
+  const std::string engine_name = ctx.description();
+  std::vector<double> forces(n * std::size_t(dim));
+  double energy = 0, virial[9] = {};
+  const Outputs outputs{forces.data(), nullptr, &energy, virial};
 
   std::printf("cellforce evaluate: %zu particles (%s lattice, %d cells per axis, density %g, jitter %g)\n",
-              sys.n, dim == 3 ? "3D" : "2D", args.cells, args.density, args.jitter);
+              n, dim == 3 ? "3D" : "2D", args.cells, args.density, args.jitter);
   std::printf("  box %.6g per edge, periodic; cutoff %g (%s); precision %s; %s; %s\n",
-              sys.box.length[0], ff.cutoff, to_string(ff.mode), to_string(args.engine.precision),
+              box.length[0], ff.cutoff, to_string(ff.mode), to_string(args.engine.precision),
               to_string(args.engine.accumulation), engine_name.c_str());
 
   std::vector<double> total, t_ids, t_sort, t_cells, t_trav, t_acc;
-  PipelineStats s;
   for (int r = 0; r < std::max(1, args.repeats); ++r) {
-    s = evaluate_once(r + 1 == std::max(1, args.repeats));
-    total.push_back(s.t_total - s.t_transfer);
-    t_ids.push_back(s.t_cell_ids + s.t_count);
-    t_sort.push_back(s.t_sort);
-    t_cells.push_back(s.t_collision_cells);
-    t_trav.push_back(s.t_traversal);
-    t_acc.push_back(s.t_accumulate);
+    ctx.compute(n, config.positions.data(), config.types.data(), outputs);
+    const Statistics s = ctx.statistics();
+    total.push_back(s.pipeline_seconds);
+    t_ids.push_back(s.cell_ids_seconds);
+    t_sort.push_back(s.sort_seconds);
+    t_cells.push_back(s.collision_cells_seconds);
+    t_trav.push_back(s.traversal_seconds);
+    t_acc.push_back(s.accumulate_seconds);
   }
-  const Grid& g = s.grid;
+  const PairCounts s = ctx.count_pairs(n, config.positions.data(), config.types.data());
   std::printf("grid: %u x %u x %u cells, edge %.6g, half-width h %.6g (rule %s: edge >= %.6g)\n",
-              g.n[0], g.n[1], g.n[2], g.cell[0], g.half_width,
+              s.grid_cells[0], s.grid_cells[1], s.grid_cells[2], s.cell_edge[0], s.half_width,
               args.engine.rule == CellRule::kTight ? "rc + h" : "3h",
-              min_cell_edge(args.engine.rule, ff.cutoff, g.half_width));
+              min_cell_edge(args.engine.rule, ff.cutoff, s.half_width));
   std::printf("entries: %zu (%zu valid), collision cells %zu, max occupancy %zu\n", s.entries,
               s.valid_entries, s.collision_cells, s.max_occupancy);
-  std::printf("pairs: %zu tested, %zu within the cutoff (%.1f%%)\n", s.candidate_pairs,
-              s.interacting_pairs, 100.0 * double(s.interacting_pairs) / double(std::max<std::size_t>(1, s.candidate_pairs)));
+  std::printf("pairs: %zu tested, %zu within the cutoff (%.1f%%)\n", s.tested,
+              s.within_cutoff, 100.0 * double(s.within_cutoff) / double(std::max<std::size_t>(1, s.tested)));
 
   double trace = 0, fmax = 0;
-  for (int a = 0; a < dim; ++a) trace += result.virial[a][a];
-  for (std::size_t i = 0; i < sys.n; ++i) {
+  for (int a = 0; a < dim; ++a) trace += virial[a * dim + a];
+  for (std::size_t i = 0; i < n; ++i) {
     double f2 = 0;
-    for (int a = 0; a < dim; ++a) f2 += result.forces[i * dim + a] * result.forces[i * dim + a];
+    for (int a = 0; a < dim; ++a) f2 += forces[i * dim + a] * forces[i * dim + a];
     fmax = std::max(fmax, std::sqrt(f2));
   }
-  std::printf("potential energy per particle %.9f\n", result.energy / double(sys.n));
-  std::printf("configurational pressure trace(W)/(d V) %.9f\n", trace / (dim * sys.box.volume()));
+  std::printf("potential energy per particle %.9f\n", energy / double(n));
+  std::printf("configurational pressure trace(W)/(d V) %.9f\n", trace / (dim * box.volume()));
   std::printf("max |F| %.6g\n", fmax);
   std::printf("time per evaluation, median of %zu: %.3f ms  [cell IDs %.3f | sort %.3f | collision cells %.3f | traversal %.3f | accumulate %.3f]%s\n",
               total.size(), 1e3 * median(total), 1e3 * median(t_ids), 1e3 * median(t_sort),
               1e3 * median(t_cells), 1e3 * median(t_trav), 1e3 * median(t_acc),
               backend == "cuda" ? " (stream time, host copies excluded)" : "");
 
-  nlohmann::json out = {{"n", sys.n},
+  nlohmann::json out = {{"n", n},
                         {"cutoff", ff.cutoff},
                         {"cutoff_mode", to_string(ff.mode)},
                         {"precision", to_string(args.engine.precision)},
                         {"accumulation", to_string(args.engine.accumulation)},
                         {"backend", backend},
                         {"engine", engine_name},
-                        {"energy_per_particle", result.energy / double(sys.n)},
+                        {"energy_per_particle", energy / double(n)},
                         {"time_median_s", median(total)}};
   if (args.brute) {
-    ForceResult ref;
+    // The oracle through the API: every pair in double on the host, whatever the context's engine.
+    std::vector<double> ref_forces(n * std::size_t(dim));
+    double ref_energy = 0, ref_virial[9] = {};
     const auto t0 = std::chrono::steady_clock::now();
-    brute_force(sys, ff, request, ref);
+    ctx.compute_brute_force(n, config.positions.data(), config.types.data(),
+                            Outputs{ref_forces.data(), nullptr, &ref_energy, ref_virial});
     const double tb = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     double rms = 0, worst = 0, worst_abs = 0;
-    for (double f : ref.forces) rms += f * f;
-    rms = std::sqrt(rms / double(sys.n));
-    for (std::size_t i = 0; i < sys.n; ++i) {
+    for (double f : ref_forces) rms += f * f;
+    rms = std::sqrt(rms / double(n));
+    for (std::size_t i = 0; i < n; ++i) {
       double d2 = 0, r2 = 0;
       for (int a = 0; a < dim; ++a) {
-        const double d = result.forces[i * dim + a] - ref.forces[i * dim + a];
+        const double d = forces[i * dim + a] - ref_forces[i * dim + a];
         d2 += d * d;
-        r2 += ref.forces[i * dim + a] * ref.forces[i * dim + a];
+        r2 += ref_forces[i * dim + a] * ref_forces[i * dim + a];
       }
       worst = std::max(worst, std::sqrt(d2) / std::max(std::sqrt(r2), rms > 0 ? rms : 1.0));
       worst_abs = std::max(worst_abs, std::sqrt(d2));
     }
     std::printf("brute force (double, all pairs): %.3f ms, %.1fx the pipeline; energy per particle %.9f\n",
-                1e3 * tb, tb / median(total), ref.energy / double(sys.n));
+                1e3 * tb, tb / median(total), ref_energy / double(n));
     // On a perfect lattice the forces cancel to rounding (F_rms ~ 1e-13): read the absolute
     // difference there, the relative one on a jittered or disordered scene.
     std::printf("  max |dF_i| = %.3g (brute-force F_rms %.3g); max |dF_i| / max(|F_i|, F_rms) = %.3g; "
                 "energy relative difference %.3g\n",
                 worst_abs, rms, worst,
-                std::abs(result.energy - ref.energy) / std::max(1e-300, std::abs(ref.energy)));
+                std::abs(energy - ref_energy) / std::max(1e-300, std::abs(ref_energy)));
     out["brute_force_time_s"] = tb;
     out["max_force_error"] = worst;
     out["max_force_error_abs"] = worst_abs;
