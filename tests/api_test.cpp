@@ -491,8 +491,8 @@ TEST_F(ApiVsForcesCommand, ApiResultsAreBitwiseTheForcesFile) {
       args.mode = b.ff.mode;
       args.types = {"A:1.0:1.0", "B:0.88:0.5"};
       args.pairs = {"A:B:0.8:1.5"};
-      args.backend.backend = backend;
-      args.backend.precision = p;
+      args.engine.set(cf::OptionId::kBackend, cf::to_string(backend));
+      args.engine.set(cf::OptionId::kPrecision, cf::to_string(p));
       args.quiet = true;
       ASSERT_EQ(cf::run_forces(args), 0);
       cf::h5::File f = cf::h5::File::open_read(args.out);

@@ -17,8 +17,8 @@ using Bench = TempFolder;
 
 cellforce::BenchArgs small_bench(const std::string& json) {
   cellforce::BenchArgs a;
-  a.engine.backend = cellforce::Backend::kCpu;
-  a.engine.precision = cellforce::Precision::kMixed;
+  a.engine.set(cellforce::OptionId::kBackend, "cpu");
+  a.engine.set(cellforce::OptionId::kPrecision, "mixed");
   a.steps = 20;
   a.warmup = 5;
   a.samples = 4;

@@ -10,6 +10,7 @@
 #include <vector>
 
 #include "cli/option_rules.h"
+#include "core/option_table.h"
 
 namespace {
 
@@ -132,7 +133,7 @@ TEST(CliNumbers, RealsReadExactly) {
 TEST(CliNames, NamesInAnyCaseAndEscapedWhenRefused) {
   CLI::App app;
   std::string backend;
-  app.add_option("--backend", backend, "")->transform(cli::name_in(cli::kBackends));
+  app.add_option("--backend", backend, "")->transform(cli::name_in(option_spec(OptionId::kBackend).names));
   EXPECT_EQ(parse(app, {"--backend", "CUDA"}), "");
   EXPECT_EQ(backend, "cuda");
   EXPECT_EQ(parse(app, {"--backend", std::string("gp\x01u")}), "--backend: 'gp\\x01u' is not one of auto, cpu, cuda");

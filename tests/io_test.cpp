@@ -14,6 +14,7 @@
 #include "cli/forces.h"
 #include "core/error.h"
 #include "core/names.h"
+#include "core/option_table.h"
 #include "io/configuration_file.h"
 #include "io/h5md_writer.h"
 #include "io/hdf5.h"
@@ -486,7 +487,7 @@ TEST_F(ForcesCommand, FileMatchesTheBruteForceInInputOrder) {
       args.types = {"A:1.0:1.0", "B:0.88:0.5"};
       args.pairs = {"A:B:0.8:1.5"};
       args.read.dim = dim;
-      args.backend.backend = *parse_name(backend, kBackendNames);
+      args.engine.set(OptionId::kBackend, backend);
       args.quiet = true;
       ASSERT_EQ(run_forces(args), 0);
 
@@ -527,7 +528,7 @@ TEST_F(ForcesCommand, SingleSpeciesNeedsNoType) {
   ForcesArgs args;
   args.input = p;
   args.out = path("o.h5");
-  args.backend.backend = Backend::kCpu;
+  args.engine.set(OptionId::kBackend, "cpu");
   args.quiet = true;
   ASSERT_EQ(run_forces(args), 0);
   // Analytic: U(1.2) with sigma = epsilon = 1, truncated at 2.5.
@@ -579,7 +580,7 @@ TEST_F(ForcesCommand, BadInputNamesTheCauseAndWritesNothing) {
     args.types = c.types;
     args.pairs = c.pairs;
     args.cutoff = c.cutoff;
-    args.backend.backend = Backend::kCpu;
+    args.engine.set(OptionId::kBackend, "cpu");
     args.quiet = true;
     const std::string msg = error_of([&] { run_forces(args); });
     for (const std::string& e : c.expected) EXPECT_THAT(msg, HasSubstr(e));
@@ -590,7 +591,7 @@ TEST_F(ForcesCommand, BadInputNamesTheCauseAndWritesNothing) {
   ForcesArgs args;
   args.input = coincident;
   args.out = path("never.h5");
-  args.backend.backend = Backend::kCpu;
+  args.engine.set(OptionId::kBackend, "cpu");
   const std::string msg = error_of([&] { run_forces(args); });
   EXPECT_TRUE(cftest::contains_number(msg, 1) && cftest::contains_number(msg, 2)) << msg;
 }
@@ -603,7 +604,7 @@ TEST_F(ForcesCommand, ExistingOutputSurvivesAndBadOutputPathsAreRefusedFirst) {
   ForcesArgs args;
   args.input = coincident;
   args.out = precious;
-  args.backend.backend = Backend::kCpu;
+  args.engine.set(OptionId::kBackend, "cpu");
   args.quiet = true;
   args.overwrite = true;
   EXPECT_THAT(error_of([&] { run_forces(args); }), HasSubstr("same position"));
@@ -629,8 +630,8 @@ TEST_F(ForcesCommand, RecordsHowTheResultsWereComputed) {
   args.input = p;
   args.out = path("o.h5");
   args.types = {"Argon_with_a_long_name:0.123456789012345678:1.5"};
-  args.backend.backend = Backend::kCpu;
-  args.backend.precision = Precision::kMixed;
+  args.engine.set(OptionId::kBackend, "cpu");
+  args.engine.set(OptionId::kPrecision, "mixed");
   args.mode = CutoffMode::kShift;
   args.repeats = 3;
   args.quiet = true;
@@ -654,7 +655,7 @@ TEST_F(ForcesCommand, UnwritableOutputIsAnErrorNamingThePath) {
   ForcesArgs args;
   args.input = p;
   args.out = path("no/such/folder/o.h5");
-  args.backend.backend = Backend::kCpu;
+  args.engine.set(OptionId::kBackend, "cpu");
   args.quiet = true;
   EXPECT_THAT(error_of([&] { run_forces(args); }), HasSubstr("no/such/folder/o.h5"));
 }

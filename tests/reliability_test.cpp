@@ -122,7 +122,7 @@ TEST_F(Folder, ForcesOutputBeyondAFileSizeLimitIsAnErrorAndKeepsTheEarlierFile) 
   ForcesArgs args;
   args.input = path("in.xyz");
   args.out = path("size.h5");
-  args.backend.backend = Backend::kCpu;
+  args.engine.set(OptionId::kBackend, "cpu");
   args.quiet = true;
   ASSERT_EQ(run_forces(args), 0);
   const auto full = fs::file_size(args.out);  // what the complete file takes
@@ -176,7 +176,7 @@ TEST_F(Folder, ForcesOnAFullTmpfsSaysTheDiskIsFull) {
   ForcesArgs args;
   args.input = path("in.xyz");
   args.out = (mount_point / "o.h5").string();
-  args.backend.backend = Backend::kCpu;
+  args.engine.set(OptionId::kBackend, "cpu");
   args.quiet = true;
   args.overwrite = true;
   // Free space of 8, 40 and 90 KB: the ~100 KB file fails at different points.
@@ -233,7 +233,7 @@ TEST_F(Folder, ForcesOutRefusesAnExistingFileUnlessOverwrite) {
   ForcesArgs args;
   args.input = "in.xyz";
   args.out = "o.h5";
-  args.backend.backend = Backend::kCpu;
+  args.engine.set(OptionId::kBackend, "cpu");
   args.quiet = true;
   const std::string msg = error_of([&] { run_forces(args); });
   EXPECT_THAT(msg, HasSubstr("o.h5: exists"));
@@ -661,7 +661,7 @@ TEST_F(Folder, MessagesQuoteShortEscapedExcerptsAndNumbersWithTheirDigits) {
   const std::string lattice = "Lattice=\"10 0 0 0 10 0 0 0 10\"";
   ForcesArgs args;
   args.out = "o.h5";
-  args.backend.backend = Backend::kCpu;
+  args.engine.set(OptionId::kBackend, "cpu");
   args.quiet = true;
 
   std::ofstream("bom.xyz") << "\xEF\xBB\xBF" "2\n" << lattice << "\nA 1 1 1\nA 2.2 1 1\n";
@@ -761,7 +761,7 @@ TEST_F(Folder, ATruncatedCheckpointOrATrajectoryInUseIsNamedAsSuch) {
 // they compute anything (they wrote after the first size, or after the evaluation).
 TEST_F(Folder, BenchAndEvaluateRefuseAMissingOutputFolderBeforeTheWork) {
   BenchArgs bench;
-  bench.engine.backend = Backend::kCpu;
+  bench.engine.set(OptionId::kBackend, "cpu");
   bench.cells = {3};
   bench.steps = 10;
   bench.warmup = 2;

@@ -8,6 +8,7 @@
 #include <map>
 
 #include "core/error.h"
+#include "core/option_table.h"
 #include "scene/scene.h"
 #include "temp_folder.h"
 
@@ -100,8 +101,8 @@ checkpoint_every = 50
   EXPECT_EQ(s.integrator.kind, IntegratorKind::kLangevin);
   EXPECT_EQ(s.integrator.friction, 2.0);
   EXPECT_EQ(s.steps, 123);
-  EXPECT_EQ(s.backend.backend, Backend::kCpu);
-  EXPECT_EQ(s.backend.precision, Precision::kSingle);
+  EXPECT_EQ(s.engine.value(OptionId::kBackend), "cpu");
+  EXPECT_EQ(s.engine.value(OptionId::kPrecision), "single");
   EXPECT_EQ(s.output.trajectory_every, 11);
   EXPECT_TRUE(s.output.velocities);
   EXPECT_EQ(s.output.checkpoint_every, 50);
@@ -178,26 +179,24 @@ TEST(Scene, MalformedScenesNameFileLineAndKey) {
 // with the file, line and key.
 TEST(Scene, NeighborSection) {
   const Scene plain = parse_scene(kMinimal, "plain.toml");
-  EXPECT_TRUE(plain.backend.reuse.automatic) << "no [neighbor]: skin auto";
-  EXPECT_EQ(plain.backend.reuse.skin, 0.0);
-  EXPECT_FALSE(plain.backend.reuse.list);
-  EXPECT_TRUE(cellforce::default_scene().backend.reuse.automatic);
+  EXPECT_EQ(plain.engine.value(OptionId::kSkin), "auto") << "no [neighbor]: skin auto (no length)";
+  EXPECT_EQ(plain.engine.value(OptionId::kNeighborList), "false");
+  EXPECT_EQ(cellforce::default_scene().engine.value(OptionId::kSkin), "auto");
   const Scene named = parse_scene(std::string(kMinimal) + "[neighbor]\nskin = \"auto\"\ncheck = false\nevery = 9\n",
                                   "auto.toml");
-  EXPECT_TRUE(named.backend.reuse.automatic);
-  EXPECT_FALSE(named.backend.reuse.check);
-  EXPECT_EQ(named.backend.reuse.every, 9);
+  EXPECT_EQ(named.engine.value(OptionId::kSkin), "auto");
+  EXPECT_EQ(named.engine.value(OptionId::kNeighborCheck), "false");
+  EXPECT_EQ(named.engine.value(OptionId::kNeighborEvery), "9");
   const Scene off = parse_scene(std::string(kMinimal) + "[neighbor]\nskin = 0\n", "off.toml");
-  EXPECT_FALSE(off.backend.reuse.automatic);
-  EXPECT_EQ(off.backend.reuse.skin, 0.0);
+  EXPECT_EQ(off.engine.value(OptionId::kSkin), "0") << "a length, not auto";
   const Scene s = parse_scene(std::string(kMinimal) +
                                   "[neighbor]\nskin = 0.3\ncheck = false\nevery = 10\naudit = true\nlist = true\n",
                               "n.toml");
-  EXPECT_TRUE(s.backend.reuse.list);
-  EXPECT_EQ(s.backend.reuse.skin, 0.3);
-  EXPECT_FALSE(s.backend.reuse.check);
-  EXPECT_EQ(s.backend.reuse.every, 10);
-  EXPECT_TRUE(s.backend.reuse.audit);
+  EXPECT_EQ(s.engine.value(OptionId::kNeighborList), "true");
+  EXPECT_EQ(s.engine.value(OptionId::kSkin), "0.3");
+  EXPECT_EQ(s.engine.value(OptionId::kNeighborCheck), "false");
+  EXPECT_EQ(s.engine.value(OptionId::kNeighborEvery), "10");
+  EXPECT_EQ(s.engine.value(OptionId::kNeighborAudit), "true");
   EXPECT_EQ(scene_fingerprint(s), scene_fingerprint(plain)) << "reuse is exact: not part of the fingerprint";
   const std::string base = std::string(kMinimal) + "[neighbor]\n";
   EXPECT_THAT(error_of(base + "skin = -0.1\n"), HasSubstr("bad.toml:4"));
@@ -367,9 +366,9 @@ TEST(Scene, NamesInAnyLetterCase) {
                               "case.toml");
   EXPECT_EQ(s.particles.lattice, Lattice::kFcc);
   EXPECT_EQ(s.force_field.mode, CutoffMode::kForceShift);
-  EXPECT_TRUE(s.backend.reuse.automatic);
-  EXPECT_EQ(s.backend.backend, Backend::kCpu);
-  EXPECT_EQ(s.backend.precision, Precision::kDouble);
+  EXPECT_EQ(s.engine.value(OptionId::kSkin), "auto");
+  EXPECT_EQ(s.engine.value(OptionId::kBackend), "cpu");
+  EXPECT_EQ(s.engine.value(OptionId::kPrecision), "double");
   EXPECT_THAT(error_of(std::string(kMinimal) + "[run]\nbackend = \"gpu\"\n"), HasSubstr("'gpu' is not one of auto, cpu, cuda"));
 }
 

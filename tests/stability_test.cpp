@@ -349,12 +349,10 @@ TEST_P(Stability, CoincidentParticles) {
   const std::string name = backend_name();
   cellforce::ForcesArgs args;
   args.input = write("co.xyz", "3\nLattice=\"6 0 0 0 6 0 0 0 6\"\nA 0.5 0.5 0.5\nA 3.5 4.5 4.5\nA 3.5 4.5 4.5\n");
-  args.backend.backend = name == "cpu" ? cellforce::Backend::kCpu : cellforce::Backend::kCuda;
-  args.backend.traversal = name == "gputhread" ? cellforce::TraversalForm::kThreadPerCell
-                           : name == "gputile"  ? cellforce::TraversalForm::kWarpPerTile
-                                                : cellforce::TraversalForm::kWarpPerCell;
-  args.backend.sort = name == "gpuchaptersort" ? cellforce::SortMethod::kChapter : cellforce::SortMethod::kCub;
-  args.backend.precision = GetParam().precision;
+  args.engine.set(cellforce::OptionId::kBackend, name == "cpu" ? "cpu" : "cuda");
+  args.engine.set(cellforce::OptionId::kTraversal, name == "gputhread" ? "thread" : name == "gputile" ? "tile" : "warp");
+  args.engine.set(cellforce::OptionId::kSort, name == "gpuchaptersort" ? "chapter" : "cub");
+  args.engine.set(cellforce::OptionId::kPrecision, cellforce::to_string(GetParam().precision));
   args.quiet = true;
   args.out = path("new.h5");
   std::string msg;

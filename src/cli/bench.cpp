@@ -17,7 +17,9 @@
 #include "core/grid.h"
 #include "core/memory.h"
 #include "core/names.h"
-#include "core/reuse.h"
+#include "core/numbers.h"
+#include "core/option_table.h"
+#include "core/text.h"
 #include "io/output_paths.h"
 #include "io/text_file.h"
 #include "scene/scene.h"
@@ -87,6 +89,37 @@ void apply_numbering(MdState& state, Numbering order, uint64_t seed, double cuto
   renumber(state, from);
 }
 
+// The skin asked for: auto (the engine's rule) or a length.
+bool automatic_skin(const OptionList& engine) { return same_name(engine.value(OptionId::kSkin), kAutoSkin); }
+double skin_length(const OptionList& engine) {
+  double skin = 0;
+  read_real(engine.value(OptionId::kSkin), skin);  // a length (format_number's text) unless auto
+  return skin;
+}
+
+// The integrator of a size: in.lj's NVE, or Langevin at its temperature.
+IntegratorOptions bench_integrator(const BenchArgs& args, const Scene& scene) {
+  IntegratorOptions integrator;
+  integrator.kind = args.langevin ? Integrator::kLangevin : Integrator::kVerlet;
+  integrator.dt = scene.integrator.dt;
+  integrator.temperature = scene.initial_temperature;  // kT 1.44
+  integrator.friction = 1.0;
+  integrator.seed = scene.seed;
+  return integrator;
+}
+
+// The skin the context gives this state (auto resolved for its backend, box and size): what a
+// numbering by cells plans its grid for. A context of its own, given back before the timed one is
+// made, so that the timed context starts as every other size's does.
+double skin_in_effect(const BenchArgs& args, const OptionList& engine, const Scene& scene, const MdState& state,
+                      const std::vector<double>& masses) {
+  Context probe = make_context(state.config.box, scene.force_field, engine);
+  probe.set_integrator(bench_integrator(args, scene));
+  probe.set_state(state.config.size(), state.config.positions.data(), state.velocities.data(),
+                  state.config.types.data(), masses.data());
+  return probe.skin();
+}
+
 // Least-squares slope of y against x.
 double slope(const std::vector<double>& x, const std::vector<double>& y) {
   const double n = double(x.size());
@@ -130,7 +163,7 @@ struct SizeResult {
 };
 
 // One size: warm-up, calibration, timed chunks with energy samples, then the reference.
-SizeResult bench_size(const BenchArgs& args, const EngineChoice& engine, int cells, const std::string& label) {
+SizeResult bench_size(const BenchArgs& args, const OptionList& engine, int cells, const std::string& label) {
   SizeResult out;
   nlohmann::json& row = out.row;
   Scene scene = default_scene();
@@ -139,12 +172,12 @@ SizeResult bench_size(const BenchArgs& args, const EngineChoice& engine, int cel
   const double n_sites = 4.0 * double(cells) * double(cells) * double(cells);
   row = {{"engine", "cellforce"},
          {"configuration", label},
-         {"precision", to_string(engine.precision)},
+         {"precision", engine.value(OptionId::kPrecision)},
          {"n", std::size_t(n_sites)},
          {"fcc_cells", cells},
          {"cutoff", scene.force_field.cutoff},
          {"cutoff_mode", to_string(args.mode)},
-         {"skin_requested", engine.reuse.automatic ? nlohmann::json("auto") : nlohmann::json(engine.reuse.skin)}};
+         {"skin_requested", automatic_skin(engine) ? nlohmann::json(kAutoSkin) : nlohmann::json(skin_length(engine))}};
   try {
     check_particle_count(n_sites, 3, "fcc " + std::to_string(cells) + "^3 unit cells");
     MdState state;
@@ -153,23 +186,19 @@ SizeResult bench_size(const BenchArgs& args, const EngineChoice& engine, int cel
     const int dim = 3;
     const std::vector<double> masses(n, scene.masses[0]);
     initialize_velocities(state, masses, scene.initial_temperature, scene.seed, !args.langevin);
-    const ReuseOptions reuse =  // the skin in effect (the context's rule: checked against Context::skin() below)
-        resolve_reuse(engine.reuse, resolve_backend(engine.backend), engine.accumulation, true, state.config.box,
-                      scene.force_field.cutoff, md_list_memory(engine, n));
-    apply_numbering(state, args.order, scene.seed, scene.force_field.cutoff, reuse.skin, engine.rule);
     row["order"] = name_of(args.order, kNumberingNames);
-    row["memory"] = name_of(engine.memory, kListMemoryNames);  // as asked (--memory)
+    row["memory"] = engine.value(OptionId::kMemory);  // as asked (--memory)
+    // The numbering by cells plans its grid for the skin in effect (checked against the timed
+    // context's below).
+    const double planned_skin =
+        args.order == Numbering::kCells ? skin_in_effect(args, engine, scene, state, masses) : 0.0;
+    const CellRule rule = parse_name(engine.value(OptionId::kCellRule), kCellRuleNames).value_or(CellRule::kTight);
+    apply_numbering(state, args.order, scene.seed, scene.force_field.cutoff, planned_skin, rule);
     std::vector<double> final_positions(n * dim), final_forces(n * dim);
     {
       Context ctx = make_context(state.config.box, scene.force_field, engine);
-      IntegratorOptions integrator;
-      integrator.kind = args.langevin ? Integrator::kLangevin : Integrator::kVerlet;
-      integrator.dt = scene.integrator.dt;
-      integrator.temperature = scene.initial_temperature;  // kT 1.44
-      integrator.friction = 1.0;
-      integrator.seed = scene.seed;
       row["integrator"] = args.langevin ? "langevin" : "nve";
-      ctx.set_integrator(integrator);
+      ctx.set_integrator(bench_integrator(args, scene));
       const auto t_setup = Clock::now();
       ctx.set_state(n, state.config.positions.data(), state.velocities.data(), state.config.types.data(),
                     masses.data());
@@ -178,9 +207,9 @@ SizeResult bench_size(const BenchArgs& args, const EngineChoice& engine, int cel
       row["traversal"] = ctx.traversal();
       row["sort"] = ctx.sort();
       row["skin"] = ctx.skin();  // in effect (auto resolved)
-      if (ctx.skin() != reuse.skin)  // the numbering above was planned for the skin in effect
-        throw Error("internal error: the bench resolved the skin " + std::to_string(reuse.skin) +
-                    ", the context " + std::to_string(ctx.skin()));
+      if (args.order == Numbering::kCells && ctx.skin() != planned_skin)  // the numbering's grid
+        throw Error("internal error: the numbering was planned for the skin " + std::to_string(planned_skin) +
+                    ", the context has " + std::to_string(ctx.skin()));
       row["neighbor"] = ctx.neighbor();
       // Warm-up (allocations, first builds), then a calibration of the rate; both excluded.
       ctx.step(std::max<int64_t>(args.warmup, 1), true);
@@ -262,9 +291,10 @@ SizeResult bench_size(const BenchArgs& args, const EngineChoice& engine, int cel
     out.ok = true;  // the timing stands whatever becomes of the reference
     if (args.reference) {
       try {
-        EngineChoice ref_engine = engine;
-        ref_engine.precision = Precision::kDouble;
-        ref_engine.reuse = ReuseOptions{};  // no skin: the cells, built once
+        OptionList ref_engine = engine;
+        ref_engine.set(OptionId::kPrecision, name_of(Precision::kDouble, kPrecisionNames));
+        ref_engine.set(OptionId::kSkin, format_number(0.0));  // no skin: the cells, built once
+        ref_engine.set(OptionId::kNeighborList, name_of(false, kBooleanNames));
         Context ref = make_context(state.config.box, scene.force_field, ref_engine);
         std::vector<double> ref_forces(n * dim);
         Outputs o;
@@ -311,17 +341,18 @@ int run_bench(const BenchArgs& args) {
   if (args.warmup < 1) throw Error("--warmup: at least 1 step, got " + std::to_string(args.warmup));
   if (!(args.seconds > 0)) throw Error("--seconds: expected a time > 0");
 
-  EngineChoice engine = args.engine;
+  OptionList engine = args.engine;
   std::string label = args.label;
-  if (args.chapter) {
-    engine.traversal = TraversalForm::kThreadPerCell;
-    engine.sort = SortMethod::kChapter;
-    engine.rule = CellRule::kChapter;
-    engine.reuse = ReuseOptions{};
+  if (args.chapter) {  // a thread per cell, the chapter's sort and cell rule, a rebuild every step
+    engine.set(OptionId::kTraversal, name_of(TraversalForm::kThreadPerCell, kTraversalNames));
+    engine.set(OptionId::kSort, name_of(SortMethod::kChapter, kSortNames));
+    engine.set(OptionId::kCellRule, name_of(CellRule::kChapter, kCellRuleNames));
+    engine.set(OptionId::kSkin, format_number(0.0));
+    engine.set(OptionId::kNeighborList, name_of(false, kBooleanNames));
     if (label.empty()) label = "chapter";
   }
   if (label.empty()) label = "default";
-  if (engine.reuse.automatic && engine.reuse.list)
+  if (automatic_skin(engine) && engine.flag(OptionId::kNeighborList))
     throw Error("--neighbor-list: give a skin (--skin); without one the skin is auto, which chooses pair lists itself");
   // Every file the bench will write is checked (and claimed) before the first size is timed; each
   // is replaced when it exists, as a rerun of the bench expects.
@@ -337,14 +368,15 @@ int run_bench(const BenchArgs& args) {
     }
   const OutputClaim claim = claim_output_files(outputs, {}, "");
 
-  const std::string reuse = engine.reuse.automatic ? ", skin auto"
-                            : engine.reuse.skin > 0 ? ", skin " + fixed(engine.reuse.skin, "%g") +
-                                                          (engine.reuse.list ? " with pair lists" : "")
-                                                    : ", no skin";
+  const bool lists = engine.flag(OptionId::kNeighborList);
+  const std::string reuse = automatic_skin(engine)    ? ", skin auto"
+                            : skin_length(engine) > 0 ? ", skin " + fixed(skin_length(engine), "%g") +
+                                                            (lists ? " with pair lists" : "")
+                                                      : ", no skin";
   std::printf("cellforce bench: LAMMPS in.lj (fcc, density 0.8442, rc 2.5 %s, T 1.44, %s, dt 0.005), %s, "
               "precision %s%s\n",
               to_string(args.mode), args.langevin ? "Langevin kT 1.44 friction 1" : "NVE", label.c_str(),
-              to_string(engine.precision), reuse.c_str());
+              engine.value(OptionId::kPrecision).c_str(), reuse.c_str());
   std::printf("%12s %14s %10s %12s %10s %9s %9s %9s %9s %9s %8s %8s %11s %11s\n", "N", "form", "steps/s",
               "particle-st/s", "ms/step", "ids", "sort", "cells", "trav", "accum", "st/build", "B/part",
               "F err med", "NVE drift");

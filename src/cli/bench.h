@@ -11,9 +11,10 @@
 #include <string>
 #include <vector>
 
-#include "backends/force_engine.h"  // EngineChoice
-#include "core/force_field.h"       // CutoffMode
-#include "core/names.h"             // Named
+#include "cli/engine_context.h"
+#include "core/force_field.h"   // CutoffMode
+#include "core/names.h"         // Named
+#include "core/option_table.h"
 
 namespace cellforce {
 
@@ -26,10 +27,10 @@ inline constexpr Named<Numbering> kNumberingNames[] = {
     {"lattice", Numbering::kLattice}, {"cells", Numbering::kCells}, {"shuffled", Numbering::kShuffled}};
 
 struct BenchArgs {
-  BenchArgs() { engine.reuse.automatic = true; }  // skin auto, as a scene without [neighbor]
   std::vector<double> sizes;      // particle counts; each runs the nearest fcc lattice (4 c^3)
   std::vector<int> cells;         // or fcc unit cells per axis
-  EngineChoice engine;            // backend, precision, traversal, sort, cell rule, skin (auto)
+  OptionList engine = command_engine_defaults();  // backend, precision, traversal, sort, cell rule, skin
+                                                  // (auto, as a scene without [neighbor]), lists, memory
   bool chapter = false;           // the chapter's configuration: thread per cell, its radix sort,
                                   // cells >= 1.5 x 2h, rebuild every step
   CutoffMode mode = CutoffMode::kTruncate;

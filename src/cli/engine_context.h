@@ -1,18 +1,26 @@
 // The commands' one way to the engine: a cellforce::Context (the public API) set up from the
-// application's typed description of a system (box, force field) and of the engine to use.
+// application's description of a system (box, force field) and the engine options it was given
+// (a scene's [run] and [neighbor], a command's flags), handed to Context::set_option as they are.
 #pragma once
 
 #include <cellforce/cellforce.hpp>
+#include <string>
 
-#include "backends/force_engine.h"  // EngineChoice
 #include "core/box.h"
 #include "core/force_field.h"
+#include "core/option_table.h"
 
 namespace cellforce {
 
-// A context for `box` with the force field's cutoff, mixing, types and explicit pairs, and every
-// engine choice (backend and device, precision, skin and its check, limit and audit, accumulation,
-// cell rule, CUDA traversal and sort). Throws cellforce::Error naming what the API refuses.
-Context make_context(const Box& box, const ForceField& ff, const EngineChoice& engine);
+// The command line's flag of an option: --KEY, the option table's key.
+inline std::string option_flag(OptionId id) { return "--" + std::string(option_key(id)); }
+
+// The engine options every command starts from: the backend auto (a CUDA device when one can be
+// used; a new Context's default is the CPU), the rest as a new Context has them.
+OptionList command_engine_defaults();
+
+// A context for `box` with the force field's cutoff, mixing, types and explicit pairs, and the
+// engine options in their order (set_option). Throws cellforce::Error naming what the API refuses.
+Context make_context(const Box& box, const ForceField& ff, const OptionList& engine);
 
 }  // namespace cellforce

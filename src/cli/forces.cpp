@@ -111,7 +111,8 @@ int run_forces(const ForcesArgs& args) {
   // Before any engine is built: bad input names the particle (and the file).
   with_context(input.source, [&] { validate_system(sys, ff); });
 
-  Context ctx = make_context(sys.box, ff, args.backend);
+  Context ctx = make_context(sys.box, ff, args.engine);
+  const std::string precision = args.engine.value(OptionId::kPrecision);
   const int dim = sys.box.dim;
   ForceResult result;
   result.dim = dim;
@@ -142,8 +143,8 @@ int run_forces(const ForcesArgs& args) {
   const Attributes attrs = {
       {"backend", backend},
       {"engine", description},
-      {"precision", std::string(to_string(args.backend.precision))},
-      {"accumulation", std::string(to_string(args.backend.accumulation))},
+      {"precision", precision},
+      {"accumulation", args.engine.value(OptionId::kAccumulation)},
       {"traversal", ctx.traversal()},
       {"sort", ctx.sort()},
       {"cutoff", ff.cutoff},
@@ -172,7 +173,7 @@ int run_forces(const ForcesArgs& args) {
     }
     std::printf("cellforce forces: %zu particles, %dD, from %s\n", sys.n, dim, input.source.c_str());
     std::printf("  %s; precision %s; cutoff %g (%s); %zu pairs within the cutoff\n",
-                description.c_str(), to_string(args.backend.precision), ff.cutoff,
+                description.c_str(), precision.c_str(), ff.cutoff,
                 to_string(ff.mode), counts.within_cutoff);
     std::printf("  energy %.12g (%.9f per particle), max |F| %.6g\n", result.energy,
                 sys.n ? result.energy / double(sys.n) : 0.0, fmax);

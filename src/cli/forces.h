@@ -6,8 +6,9 @@
 #include <string>
 #include <vector>
 
-#include "backends/force_engine.h"  // EngineChoice
+#include "cli/engine_context.h"
 #include "core/force_field.h"
+#include "core/option_table.h"
 #include "io/configuration_file.h"
 
 namespace cellforce {
@@ -20,7 +21,7 @@ struct ForcesArgs {
   std::vector<std::string> types;  // NAME:SIGMA:EPSILON, one per species
   std::vector<std::string> pairs;  // A:B:SIGMA:EPSILON, explicit pair values
   Mixing mixing = Mixing::kLorentzBerthelot;
-  EngineChoice backend;            // cpu, precision double unless asked otherwise
+  OptionList engine = command_engine_defaults();  // backend auto, precision double unless asked otherwise
   ReadOptions read;                // dimension, frame, H5MD group
   int repeats = 1;                 // evaluations timed; the file holds the last one's results
   bool quiet = false;              // no summary on stdout

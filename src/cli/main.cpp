@@ -1,8 +1,11 @@
-// The cellforce command line. `cellforce forces` reads one configuration (extended XYZ or H5MD)
-// and writes its forces, energies and virial to HDF5 (see cli/forces.h). `cellforce evaluate` builds a lattice scene (by default the LAMMPS
-// in.lj fluid's starting state: fcc, density 0.8442, 32,000 particles, rc 2.5), evaluates forces,
-// energy and virial once per repeat with the CPU or the CUDA pipeline, and reports the physics, the
-// pipeline's counts and its stage times, optionally next to the O(n^2) brute force.
+// The cellforce command line, a client of the public API: every command reaches the engine through
+// a cellforce::Context (cli/engine_context.h), its engine flags checked against the option table
+// (core/option_table.h) and handed to Context::set_option. `cellforce forces` reads one
+// configuration (extended XYZ or H5MD) and writes its forces, energies and virial to HDF5 (see
+// cli/forces.h). `cellforce evaluate` builds a lattice scene (by default the LAMMPS in.lj fluid's
+// starting state: fcc, density 0.8442, 32,000 particles, rc 2.5), evaluates forces, energy and
+// virial once per repeat with the CPU or the CUDA pipeline, and reports the physics, the search
+// structure's counts and the stage times, optionally next to the O(n^2) brute force.
 #include <CLI/CLI.hpp>
 #include <algorithm>
 #include <csignal>
@@ -15,7 +18,6 @@
 
 #include <cellforce/cellforce.hpp>
 
-#include "backends/force_engine.h"
 #include "cli/bench.h"
 #include "cli/engine_context.h"
 #include "cli/forces.h"
@@ -23,8 +25,11 @@
 #include "cli/options.h"
 #include "cli/run.h"
 #include "core/error.h"
+#include "core/grid.h"
 #include "core/memory.h"
+#include "core/names.h"
 #include "core/numbers.h"
+#include "core/option_table.h"
 #include "core/text.h"
 #include "io/output_paths.h"
 #include "io/text_file.h"
@@ -43,7 +48,7 @@ struct EvaluateArgs {
   uint64_t seed = 1;
   double cutoff = 2.5;
   CutoffMode mode = CutoffMode::kTruncate;
-  EngineChoice engine;  // backend, precision, accumulation, cell rule, traversal, sort
+  OptionList engine = command_engine_defaults();  // backend, precision, accumulation, cell rule, traversal, sort
   int repeats = 5;
   bool brute = false;
   std::string json;
@@ -63,6 +68,9 @@ int evaluate(const EvaluateArgs& args) {
   ff.cutoff = args.cutoff;
   ff.mode = args.mode;
   Context ctx = make_context(box, ff, args.engine);
+  const std::string precision = args.engine.value(OptionId::kPrecision);
+  const std::string accumulation = args.engine.value(OptionId::kAccumulation);
+  const CellRule rule = parse_name(args.engine.value(OptionId::kCellRule), kCellRuleNames).value_or(CellRule::kTight);
   const std::string backend = ctx.backend_name();
   const std::string engine_name = ctx.description();
   std::vector<double> forces(n * std::size_t(dim));
@@ -72,8 +80,8 @@ int evaluate(const EvaluateArgs& args) {
   std::printf("cellforce evaluate: %zu particles (%s lattice, %d cells per axis, density %g, jitter %g)\n",
               n, dim == 3 ? "3D" : "2D", args.cells, args.density, args.jitter);
   std::printf("  box %.6g per edge, periodic; cutoff %g (%s); precision %s; %s; %s\n",
-              box.length[0], ff.cutoff, to_string(ff.mode), to_string(args.engine.precision),
-              to_string(args.engine.accumulation), engine_name.c_str());
+              box.length[0], ff.cutoff, to_string(ff.mode), precision.c_str(), accumulation.c_str(),
+              engine_name.c_str());
 
   std::vector<double> total, t_ids, t_sort, t_cells, t_trav, t_acc;
   for (int r = 0; r < std::max(1, args.repeats); ++r) {
@@ -89,8 +97,7 @@ int evaluate(const EvaluateArgs& args) {
   const PairCounts s = ctx.count_pairs(n, config.positions.data(), config.types.data());
   std::printf("grid: %u x %u x %u cells, edge %.6g, half-width h %.6g (rule %s: edge >= %.6g)\n",
               s.grid_cells[0], s.grid_cells[1], s.grid_cells[2], s.cell_edge[0], s.half_width,
-              args.engine.rule == CellRule::kTight ? "rc + h" : "3h",
-              min_cell_edge(args.engine.rule, ff.cutoff, s.half_width));
+              rule == CellRule::kTight ? "rc + h" : "3h", min_cell_edge(rule, ff.cutoff, s.half_width));
   std::printf("entries: %zu (%zu valid), collision cells %zu, max occupancy %zu\n", s.entries,
               s.valid_entries, s.collision_cells, s.max_occupancy);
   std::printf("pairs: %zu tested, %zu within the cutoff (%.1f%%)\n", s.tested,
@@ -114,8 +121,8 @@ int evaluate(const EvaluateArgs& args) {
   nlohmann::json out = {{"n", n},
                         {"cutoff", ff.cutoff},
                         {"cutoff_mode", to_string(ff.mode)},
-                        {"precision", to_string(args.engine.precision)},
-                        {"accumulation", to_string(args.engine.accumulation)},
+                        {"precision", precision},
+                        {"accumulation", accumulation},
                         {"backend", backend},
                         {"engine", engine_name},
                         {"energy_per_particle", energy / double(n)},
@@ -172,20 +179,28 @@ CLI::Validator one_of(const std::map<std::string, T>& names) {
       name.get_description());
 }
 
+// A choice among an engine option's names as a flag (option_flag), its value checked against the
+// table's names where it enters (any letter case) and kept as the table spells it, for
+// Context::set_option.
+CLI::Option* add_engine_option(CLI::App* cmd, OptionList& engine, OptionId id, const std::string& description) {
+  return cmd
+      ->add_option_function<std::string>(
+          option_flag(id), [&engine, id](const std::string& value) { engine.set(id, option_name(id, value)); },
+          description)
+      ->transform(cli::name_in(option_spec(id).names))
+      ->type_name("ENUM");
+}
+
 // The options that choose and configure the engine, shared by every command that evaluates.
-void add_backend_options(CLI::App* cmd, EngineChoice& b) {
-  cmd->add_option("--backend", b.backend, "cpu, cuda, or auto (the GPU when one can be used; the default)")
-      ->transform(one_of(cli::kBackends));
-  cmd->add_option("--precision", b.precision, "single, mixed or double (default double)")
-      ->transform(one_of(cli::kPrecisions));
-  cmd->add_option("--accumulation", b.accumulation, "jacobi or gauss-seidel")
-      ->transform(one_of(cli::kAccumulations));
-  cmd->add_option("--cell-rule", b.rule, "tight (c >= rc + h) or chapter (c >= 3h)")
-      ->transform(one_of(cli::kCellRules));
-  cmd->add_option("--traversal", b.traversal, "CUDA traversal: auto (the default: tile for few cells per multiprocessor, else warp), warp (a warp per cell), thread (a thread per cell) or tile (a block per 32 occupants of a cell)")
-      ->transform(one_of(cli::kTraversals));
-  cmd->add_option("--sort", b.sort, "CUDA sort: cub or chapter (the chapter's radix sort)")
-      ->transform(one_of(cli::kSorts));
+void add_backend_options(CLI::App* cmd, OptionList& engine) {
+  add_engine_option(cmd, engine, OptionId::kBackend, "cpu, cuda, or auto (the GPU when one can be used; the default)");
+  add_engine_option(cmd, engine, OptionId::kPrecision, "single, mixed or double (default double)");
+  add_engine_option(cmd, engine, OptionId::kAccumulation, "jacobi or gauss-seidel");
+  add_engine_option(cmd, engine, OptionId::kCellRule, "tight (c >= rc + h) or chapter (c >= 3h)");
+  add_engine_option(cmd, engine, OptionId::kTraversal,
+                    "CUDA traversal: auto (the default: tile for few cells per multiprocessor, else warp), warp (a "
+                    "warp per cell), thread (a thread per cell) or tile (a block per 32 occupants of a cell)");
+  add_engine_option(cmd, engine, OptionId::kSort, "CUDA sort: cub or chapter (the chapter's radix sort)");
 }
 
 }  // namespace
@@ -207,7 +222,7 @@ int main(int argc, char** argv) {
                   cli::kNonNegative);
   cli::add_number(evaluate_cmd, "--seed", ev.seed, "Seed of the jitter");
   cli::add_number(evaluate_cmd, "--cutoff", ev.cutoff, "Cutoff radius rc", cli::kPositive);
-  evaluate_cmd->add_option("--cutoff-mode", ev.mode, "truncate, shift or force-shift")
+  evaluate_cmd->add_option(option_flag(OptionId::kCutoffMode), ev.mode, "truncate, shift or force-shift")
       ->transform(one_of(cli::kCutoffModes));
   add_backend_options(evaluate_cmd, ev.engine);
   cli::add_number(evaluate_cmd, "--repeats", ev.repeats, "Evaluations to time", cli::kPositive);
@@ -223,15 +238,15 @@ int main(int argc, char** argv) {
       ->required()->check(cli::existing_file());
   forces_cmd->add_option("--out,-o", fa.out, "HDF5 file to write")->required();
   cli::add_number(forces_cmd, "--cutoff", fa.cutoff, "Cutoff radius rc", cli::kPositive)->capture_default_str();
-  forces_cmd->add_option("--cutoff-mode", fa.mode, "truncate, shift or force-shift")
+  forces_cmd->add_option(option_flag(OptionId::kCutoffMode), fa.mode, "truncate, shift or force-shift")
       ->transform(one_of(cli::kCutoffModes));
   forces_cmd->add_option("--type", fa.types,
                          "NAME:SIGMA:EPSILON for each species (repeat); without it a file of one "
                          "species gets sigma = epsilon = 1");
   forces_cmd->add_option("--pair", fa.pairs, "A:B:SIGMA:EPSILON, an explicit pair value (repeat)");
-  forces_cmd->add_option("--mixing", fa.mixing, "lorentz-berthelot or geometric")
+  forces_cmd->add_option(option_flag(OptionId::kMixing), fa.mixing, "lorentz-berthelot or geometric")
       ->transform(one_of(cli::kMixings));
-  add_backend_options(forces_cmd, fa.backend);
+  add_backend_options(forces_cmd, fa.engine);
   cli::add_number(forces_cmd, "--dim", fa.read.dim, "2 or 3 (XYZ: default 3, a 2D file has z = 0; H5MD: from the file)",
                   cli::between(2, 3));
   cli::add_number(forces_cmd, "--frame", fa.read.frame, "Frame to read, 0-based; negative counts from the end (-1: the last)")
@@ -249,12 +264,16 @@ int main(int argc, char** argv) {
              "when one can be used");
   run_cmd->add_option("scene", ra.scene, "Scene file (TOML)")->check(cli::existing_file());
   cli::add_number(run_cmd, "--steps", ra.steps, "Override the scene's number of steps", cli::kNonNegative);
-  run_cmd->add_option("--backend", ra.backend, "Override the scene's backend: cpu, cuda or auto")
-      ->transform(cli::name_in(cli::kBackends));
-  run_cmd->add_option("--precision", ra.precision, "Override the scene's precision: single, mixed or double")
-      ->transform(cli::name_in(cli::kPrecisions));
-  run_cmd->add_option("--traversal", ra.traversal, "CUDA traversal: auto (default), warp, thread or tile")
-      ->transform(cli::name_in(cli::kTraversals));
+  run_cmd->add_option(option_flag(OptionId::kBackend), ra.backend, "Override the scene's backend: cpu, cuda or auto")
+      ->transform(cli::name_in(option_spec(OptionId::kBackend).names));
+  run_cmd
+      ->add_option(option_flag(OptionId::kPrecision), ra.precision,
+                   "Override the scene's precision: single, mixed or double")
+      ->transform(cli::name_in(option_spec(OptionId::kPrecision).names));
+  run_cmd
+      ->add_option(option_flag(OptionId::kTraversal), ra.traversal,
+                   "CUDA traversal: auto (default), warp, thread or tile")
+      ->transform(cli::name_in(option_spec(OptionId::kTraversal).names));
   run_cmd->add_option("--thermo-file", ra.thermo_file, "Write the thermodynamics to this CSV file");
   run_cmd->add_option("--trajectory", ra.trajectory, "Write an H5MD trajectory to this file");
   cli::add_number(run_cmd, "--trajectory-every", ra.trajectory_every, "Steps between trajectory frames",
@@ -263,17 +282,19 @@ int main(int argc, char** argv) {
       ->check(cli::existing_file());
   run_cmd
       ->add_option_function<std::string>(
-          "--skin",
+          option_flag(OptionId::kSkin),
           [&ra](const std::string& value) {
-            if (cli::lowercase(value) == "auto") {
+            if (same_name(value, kAutoSkin)) {
               ra.skin_auto = true;
               return;
             }
             double skin = 0;
             if (const NumberText r = read_real(value, skin); r != NumberText::kOk)
-              throw CLI::ValidationError("--skin", "expected auto or a length >= 0: " + real_problem(value, r));
+              throw CLI::ValidationError(option_flag(OptionId::kSkin),
+                                         "expected auto or a length >= 0: " + real_problem(value, r));
             if (!(skin >= 0) || !std::isfinite(skin))
-              throw CLI::ValidationError("--skin", "must be auto or a finite length >= 0, got " + format_number(skin));
+              throw CLI::ValidationError(option_flag(OptionId::kSkin),
+                                         "must be auto or a finite length >= 0, got " + format_number(skin));
             ra.skin = skin;
           },
           "Override the scene's [neighbor] skin: auto (the engine's rule, the default without [neighbor]) or "
@@ -284,7 +305,7 @@ int main(int argc, char** argv) {
                     "Replace the thermo, trajectory and checkpoint files of an earlier run (refused otherwise)");
 
   BenchArgs ba;
-  ba.engine.precision = Precision::kMixed;
+  ba.engine.set(OptionId::kPrecision, name_of(Precision::kMixed, kPrecisionNames));
   CLI::App* bench_cmd = app.add_subcommand(
       "bench", "Time MD steps of the LAMMPS in.lj fluid (fcc at density 0.8442, rc 2.5, T 1.44, NVE, dt 0.005) "
                "at several sizes: steps/s, particle-steps/s, stage times, memory per particle, median force "
@@ -295,22 +316,22 @@ int main(int argc, char** argv) {
   add_backend_options(bench_cmd, ba.engine);
   bench_cmd
       ->add_option_function<double>(
-          "--skin",
-          [&ba](const double& skin) {
-            ba.engine.reuse.skin = skin;
-            ba.engine.reuse.automatic = false;
-          },
+          option_flag(OptionId::kSkin),
+          [&ba](const double& skin) { ba.engine.set(OptionId::kSkin, format_number(skin)); },  // exact text
           "Build the cell structure for rc + skin and reuse it while no particle moved more than skin/2 (0: "
           "rebuild every step; default: auto, the engine's rule, as a scene without [neighbor])")
       ->transform(cli::number<double>(cli::kNonNegative))
       ->type_name("NUMBER");
-  bench_cmd->add_flag("--neighbor-list", ba.engine.reuse.list,
-                      "With a skin (CUDA, Jacobi): each build records every particle's partners within rc + skin and "
-                      "the steps it serves walk those lists");
+  bench_cmd->add_flag_callback(
+      option_flag(OptionId::kNeighborList),
+      [&ba] { ba.engine.set(OptionId::kNeighborList, name_of(true, kBooleanNames)); },
+      "With a skin (CUDA, Jacobi): each build records every particle's partners within rc + skin and the steps it "
+      "serves walk those lists");
   bench_cmd->add_flag("--chapter", ba.chapter,
                       "The chapter's configuration: a thread per cell, its radix sort, cells >= 1.5 x 2h, a "
                       "rebuild every step");
-  bench_cmd->add_option("--cutoff-mode", ba.mode, "truncate (in.lj, the default), shift or force-shift")
+  bench_cmd
+      ->add_option(option_flag(OptionId::kCutoffMode), ba.mode, "truncate (in.lj, the default), shift or force-shift")
       ->transform(one_of(cli::kCutoffModes));
   cli::add_number(bench_cmd, "--seconds", ba.seconds, "Timed seconds per size (sets the steps)", cli::kPositive)
       ->capture_default_str();
@@ -331,14 +352,12 @@ int main(int argc, char** argv) {
                    "list build's ranks)")
       ->transform(one_of(name_map(kNumberingNames)))
       ->default_str("lattice");
-  bench_cmd
-      ->add_option("--memory", ba.engine.memory,
-                   "CUDA pair lists' memory: auto (lean where the fast layout's ~1,320 bytes a particle would not "
-                   "fit in 90% of the device; the default), fast, or lean (no staged array, occupants staged as the build "
-                   "loads them, the sort's arrays in the dead list's room, the count pass's masks only in the memory "
-                   "left: ~700 bytes a particle and up to ~930 with every mask; builds up to ~2x slower where the "
-                   "masks find no room; an automatic skin is then 0.18 rc instead of 0.24 rc)")
-      ->transform(one_of(cli::kListMemories));
+  add_engine_option(bench_cmd, ba.engine, OptionId::kMemory,
+                    "CUDA pair lists' memory: auto (lean where the fast layout's ~1,320 bytes a particle would not "
+                    "fit in 90% of the device; the default), fast, or lean (no staged array, occupants staged as the "
+                    "build loads them, the sort's arrays in the dead list's room, the count pass's masks only in the "
+                    "memory left: ~700 bytes a particle and up to ~930 with every mask; builds up to ~2x slower where "
+                    "the masks find no room; an automatic skin is then 0.18 rc instead of 0.24 rc)");
   bench_cmd->add_option("--label", ba.label, "The rows' configuration name (default: default, or chapter)");
   bench_cmd->add_option("--save-final", ba.save_final,
                         "Write PREFIX-<n>.positions.f64 and PREFIX-<n>.forces.f64: the last step's positions and "

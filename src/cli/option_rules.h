@@ -19,6 +19,7 @@
 #include <vector>
 
 #include "core/numbers.h"
+#include "core/option_table.h"
 #include "core/text.h"
 #include "cli/options.h"
 
@@ -109,6 +110,13 @@ CLI::Validator name_in(const std::map<std::string, T>& names) {
         return {};
       },
       "{" + keys + "}");
+}
+
+// The same for an engine option's names (core/option_table.h), listed in order as above.
+inline CLI::Validator name_in(const NameList& names) {
+  std::map<std::string, const char*> map;
+  for (const char* name : names) map.emplace(name, name);
+  return name_in(map);
 }
 
 // An existing file that is not a folder (CLI::ExistingFile, with the name shown as display_path

@@ -1,4 +1,5 @@
-// Names of the run-time choices, shared by the CLI and the benchmark programs.
+// Names of the physics' and the lattices' choices as the CLI's flags read them (the engine options'
+// names: core/option_table.h), and helpers shared by the CLI and the benchmark programs.
 #pragma once
 
 #include <algorithm>
@@ -15,18 +16,7 @@ namespace cellforce::cli {
 
 inline const std::map<std::string, CutoffMode> kCutoffModes = name_map(kCutoffModeNames);
 inline const std::map<std::string, Mixing> kMixings = name_map(kMixingNames);
-inline const std::map<std::string, Precision> kPrecisions = name_map(kPrecisionNames);
-inline const std::map<std::string, Accumulation> kAccumulations = name_map(kAccumulationNames);
-inline const std::map<std::string, CellRule> kCellRules = name_map(kCellRuleNames);
-inline const std::map<std::string, Backend> kBackends = name_map(kBackendNames);
-inline const std::map<std::string, TraversalForm> kTraversals = name_map(kTraversalNames);
-inline const std::map<std::string, SortMethod> kSorts = name_map(kSortNames);
-inline const std::map<std::string, ListMemory> kListMemories = name_map(kListMemoryNames);
-inline const std::map<std::string, Lattice> kLattices = {{"sc", Lattice::kSimpleCubic},
-                                                         {"bcc", Lattice::kBcc},
-                                                         {"fcc", Lattice::kFcc},
-                                                         {"square", Lattice::kSquare},
-                                                         {"hexagonal", Lattice::kHexagonal}};
+inline const std::map<std::string, Lattice> kLattices = name_map(kLatticeNames);
 
 inline std::string lowercase(std::string s) {
   std::transform(s.begin(), s.end(), s.begin(), [](unsigned char c) { return char(std::tolower(c)); });

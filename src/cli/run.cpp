@@ -16,20 +16,19 @@
 #include <cellforce/cellforce.hpp>
 
 #include "cli/engine_context.h"
-
-#include "core/names.h"
 #include "core/error.h"
-#include "core/reuse.h"
+#include "core/names.h"
+#include "core/numbers.h"
+#include "core/option_table.h"
 #include "core/text.h"
+#include "io/checkpoint.h"
 #include "io/h5md_writer.h"
 #include "io/output_paths.h"
 #include "io/text_file.h"
-#include "io/checkpoint.h"
-#include "md/md.h"
-#include "md/minimize.h"
+#include "scene/scene.h"
+#include "state/md_state.h"
 #include "state/stable_start.h"
 #include "state/velocities.h"
-#include "scene/scene.h"
 
 #ifndef CELLFORCE_VERSION
 #define CELLFORCE_VERSION "unknown"
@@ -163,30 +162,22 @@ void check_covers(const std::vector<int64_t>& steps, int64_t checkpoint_step, in
 Scene scene_for(const RunArgs& args) {
   Scene scene = args.scene.empty() ? default_scene() : read_scene(args.scene);
   if (args.steps >= 0) scene.steps = args.steps;
-  if (!args.backend.empty()) {
-    const auto backend = parse_name(args.backend, kBackendNames);
-    if (!backend) throw Error("--backend " + quote_excerpt(args.backend) + ": expected " + name_list(kBackendNames));
-    scene.backend.backend = *backend;
-  }
-  if (!args.precision.empty()) {
-    const auto precision = parse_name(args.precision, kPrecisionNames);
-    if (!precision)
-      throw Error("--precision " + quote_excerpt(args.precision) + ": expected " + name_list(kPrecisionNames));
-    scene.backend.precision = *precision;
-  }
-  if (!args.traversal.empty()) {
-    const auto form = parse_name(args.traversal, kTraversalNames);
-    if (!form) throw Error("--traversal " + quote_excerpt(args.traversal) + ": expected " + name_list(kTraversalNames));
-    scene.backend.traversal = *form;
+  // The command line's engine options replace the scene's (checked here too: RunArgs may come from
+  // elsewhere than the command line, whose flags check them already).
+  for (const auto& [id, value] : {std::pair<OptionId, const std::string&>{OptionId::kBackend, args.backend},
+                                  {OptionId::kPrecision, args.precision},
+                                  {OptionId::kTraversal, args.traversal}}) {
+    if (value.empty()) continue;
+    const char* name = option_name(id, value);
+    if (!name)
+      throw Error(option_flag(id) + " " + quote_excerpt(value) + ": expected " + name_list(option_spec(id).names));
+    scene.engine.set(id, name);
   }
   if (!args.thermo_file.empty()) scene.output.thermo_file = args.thermo_file;
-  if (args.skin_auto) {
-    scene.backend.reuse.automatic = true;
-    scene.backend.reuse.skin = 0.0;
-  } else if (!(args.skin < 0)) {  // NaN too: validate_reuse names it
-    scene.backend.reuse.skin = args.skin;
-    scene.backend.reuse.automatic = false;
-  }
+  if (args.skin_auto)
+    scene.engine.set(OptionId::kSkin, kAutoSkin);
+  else if (!(args.skin < 0))  // NaN too: the context's set_option names it
+    scene.engine.set(OptionId::kSkin, format_number(args.skin));
   if (!args.trajectory.empty()) scene.output.trajectory = args.trajectory;
   if (args.trajectory_every > 0) {
     if (scene.output.trajectory.empty()) throw Error("--trajectory-every: the run writes no trajectory (--trajectory)");
@@ -218,7 +209,7 @@ OutputClaim claim_outputs(const RunArgs& args, const Scene& scene, bool restart)
 // The engine for the scene, through the public API: the system and engine choices
 // (make_context), and the integrator.
 Context scene_context(const Scene& scene, const Box& box) {
-  Context ctx = make_context(box, scene.force_field, scene.backend);
+  Context ctx = make_context(box, scene.force_field, scene.engine);
   IntegratorOptions integrator;
   integrator.kind = scene.integrator.kind == IntegratorKind::kLangevin ? Integrator::kLangevin : Integrator::kVerlet;
   integrator.dt = scene.integrator.dt;
@@ -376,16 +367,17 @@ void print_header(const Scene& scene, const MdState& state, Context& ctx, const 
     std::printf(" %.6g%s", state.config.box.length[a], state.config.box.periodic[a] ? "" : " (open)");
   std::printf(", %zu type(s); cutoff %g (%s)\n", ff.types.size(), ff.cutoff, to_string(ff.mode));
   // The neighbour structure as the engine resolved it (skin auto: a rule of backend and box).
-  const ReuseOptions& reuse = scene.backend.reuse;
+  int64_t every = 0;  // checked as the scene was read
+  read_decimal(scene.engine.value(OptionId::kNeighborEvery), every);
   const double skin = ctx.skin();
   std::printf("  neighbour search: %s\n", ctx.neighbor().c_str());
   if (skin > 0)
     std::printf("  cell structure built for rc + skin %g, reused while no particle moved more than %g%s\n", skin,
-                0.5 * skin, reuse.every > 0 ? (", and for at most " + std::to_string(reuse.every) + " steps").c_str() : "");
+                0.5 * skin, every > 0 ? (", and for at most " + std::to_string(every) + " steps").c_str() : "");
   std::printf("  %s, dt %g, %lld steps; %s, precision %s\n",
               scene.integrator.kind == IntegratorKind::kLangevin ? "Langevin (BAOAB)" : "NVE (velocity Verlet)",
               scene.integrator.dt, (long long)scene.steps, ctx.description().c_str(),
-              to_string(scene.backend.precision));
+              scene.engine.value(OptionId::kPrecision).c_str());
   if (!minimize_line.empty()) std::printf("%s\n", minimize_line.c_str());
   if (!args.restart.empty()) std::printf("  restarting from %s at step %lld\n", args.restart.c_str(), (long long)state.step);
   else if (wrapped > 0)
@@ -420,20 +412,20 @@ void print_summary(const Scene& scene, double skin, bool lists, const RunStatist
                 "traversal %.4f | accumulate %.4f | engine total %.4f\n",
                 (long long)st.stage_samples, 1e3 * st.cell_ids, 1e3 * st.sort, 1e3 * st.collision_cells,
                 1e3 * st.traversal, 1e3 * st.accumulate, 1e3 * st.total);
-  const ReuseOptions& reuse = scene.backend.reuse;
+  const OptionList& engine = scene.engine;
   if (skin > 0)
     std::printf("  neighbour structure: skin %g, %lld builds in %lld evaluations (one per %.1f steps), "
                 "%lld dangerous; largest displacement served %.4g (limit skin/2 = %g%s); check %.4f ms per "
                 "evaluation\n",
                 skin, (long long)st.builds, (long long)st.evaluations,
                 steps / double(std::max<int64_t>(st.builds, 1)), (long long)st.dangerous_builds,
-                st.largest_served_displacement, 0.5 * skin, reuse.check ? "" : ", not checked",
-                1e3 * st.check);
+                st.largest_served_displacement, 0.5 * skin,
+                engine.flag(OptionId::kNeighborCheck) ? "" : ", not checked", 1e3 * st.check);
   // A list the engine declined (too crowded for the device's memory) leaves its evaluations to the cells.
   if (lists)
     std::printf("  pair lists served %lld of %lld evaluations (%lld steps behind the step gate)\n",
                 (long long)st.list_evaluations, (long long)st.evaluations, (long long)st.gated_steps);
-  if (skin > 0 && reuse.audit)
+  if (skin > 0 && engine.flag(OptionId::kNeighborAudit))
     std::printf("  audit: missed pairs %zu, repeated pairs %zu (%s)\n", st.missed_pairs, st.repeated_pairs,
                 lists ? "of the pair lists" : "of the cell structure");
 }
@@ -473,7 +465,7 @@ int run_md(const RunArgs& args) {
   checkpoint_info.scene_fingerprint = scene_fingerprint(scene);
   checkpoint_info.scene = scene.source;
   checkpoint_info.backend = ctx.backend_name();
-  checkpoint_info.precision = to_string(scene.backend.precision);
+  checkpoint_info.precision = scene.engine.value(OptionId::kPrecision);
   CheckpointInfo saved;
   if (restart) {
     saved = read_checkpoint(args.restart, state, checkpoint_info);

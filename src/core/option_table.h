@@ -8,6 +8,7 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <optional>
 #include <string>
 #include <string_view>
 #include <utility>
@@ -146,6 +147,14 @@ inline const char* option_name(OptionId id, std::string_view value) {
   return nullptr;
 }
 
+// "a, b or c": the names, for messages (as names.h's name_list).
+inline std::string name_list(const NameList& names) {
+  std::string out;
+  for (std::size_t k = 0; k < names.size; ++k)
+    out += std::string(k == 0 ? "" : k + 1 == names.size ? " or " : ", ") + names.names[k];
+  return out;
+}
+
 // Engine options as the commands hold them until a Context takes them (set_option, in order):
 // (option, value) pairs, each option once, in the order first given (setting one again replaces
 // its value in place). The values are checked where they entered (a scene file's line, a command
@@ -177,6 +186,11 @@ class OptionList {
   std::string value(OptionId id) const {
     const std::string* v = find(id);
     return v ? *v : std::string(option_spec(id).default_value);
+  }
+  // A boolean option's value (given, else the default).
+  bool flag(OptionId id) const {
+    const std::optional<bool> v = parse_name(value(id), kBooleanNames);
+    return v && *v;
   }
   const std::vector<Entry>& entries() const { return entries_; }
   bool operator==(const OptionList& other) const { return entries_ == other.entries_; }

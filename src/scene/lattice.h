@@ -6,11 +6,17 @@
 #include <vector>
 
 #include "core/box.h"
+#include "core/names.h"
 #include "state/configuration.h"
 
 namespace cellforce {
 
 enum class Lattice : uint8_t { kSimpleCubic, kBcc, kFcc, kSquare, kHexagonal };
+inline constexpr Named<Lattice> kLatticeNames[] = {{"sc", Lattice::kSimpleCubic},
+                                                   {"bcc", Lattice::kBcc},
+                                                   {"fcc", Lattice::kFcc},
+                                                   {"square", Lattice::kSquare},
+                                                   {"hexagonal", Lattice::kHexagonal}};
 
 // cells[0] x cells[1] (x cells[2] in 3D) unit cells of lattice constant a, periodic box of the
 // lattice's extent, all particles type 0. fcc: 4 per cell, bcc: 2, sc and square: 1; hexagonal

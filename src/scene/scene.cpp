@@ -16,6 +16,7 @@
 #include "core/memory.h"
 #include "core/names.h"
 #include "core/numbers.h"
+#include "core/option_table.h"
 #include "core/text.h"
 #include "io/configuration_file.h"
 
@@ -100,6 +101,13 @@ class Section {
     }
     return it->second;
   }
+  // An engine option whose key in the file is the option's own (option_table.h): one of its names
+  // in any letter case, returned as the table spells it.
+  std::string option(OptionId id, const char* fallback) {
+    std::map<std::string, const char*> names;  // the names in order, as messages list them
+    for (const char* name : option_spec(id).names) names.emplace(name, name);
+    return choice(option_key(id), fallback, names);
+  }
   // An array of `count` numbers (count = the dimension; a 3D array is accepted in 2D when its
   // third entry is 0 or absent).
   template <class T>
@@ -165,17 +173,13 @@ class Section {
   std::set<std::string> used_;
 };
 
-const std::map<std::string, Lattice> kLatticeNames = {{"sc", Lattice::kSimpleCubic}, {"bcc", Lattice::kBcc},
-                                                      {"fcc", Lattice::kFcc},         {"square", Lattice::kSquare},
-                                                      {"hexagonal", Lattice::kHexagonal}};
+const std::map<std::string, Lattice> kLattices = name_map(kLatticeNames);
 const std::map<std::string, ParticleSource> kSources = {
     {"lattice", ParticleSource::kLattice}, {"random", ParticleSource::kRandom}, {"file", ParticleSource::kFile}};
 const std::map<std::string, CutoffMode> kModes = name_map(kCutoffModeNames);
 const std::map<std::string, Mixing> kMixings = name_map(kMixingNames);
 const std::map<std::string, IntegratorKind> kIntegrators = {{"nve", IntegratorKind::kNve},
                                                             {"langevin", IntegratorKind::kLangevin}};
-const std::map<std::string, Precision> kPrecisions = name_map(kPrecisionNames);
-const std::map<std::string, Backend> kBackends = name_map(kBackendNames);
 
 // A section of the root table; absent sections read as empty (every key at its default).
 Section section(const toml::table& root, const std::string& name, const std::string& file) {
@@ -202,9 +206,9 @@ Scene default_scene() {
   s.integrator.kind = IntegratorKind::kNve;
   s.integrator.dt = 0.005;
   s.steps = 1000;
-  s.backend.backend = Backend::kAuto;
-  s.backend.precision = Precision::kMixed;
-  s.backend.reuse.automatic = true;  // as a scene without [neighbor]
+  s.engine.set(OptionId::kBackend, name_of(Backend::kAuto, kBackendNames));
+  s.engine.set(OptionId::kPrecision, name_of(Precision::kMixed, kPrecisionNames));
+  s.engine.set(OptionId::kSkin, kAutoSkin);  // as a scene without [neighbor]
   s.output.thermo_every = 100;
   return s;
 }
@@ -315,7 +319,7 @@ void read_particles(const toml::table& root, const std::string& name, const std:
     for (auto& entry : p.composition) entry.second /= total;
   };
   if (p.source == ParticleSource::kLattice) {
-    p.lattice = pa.choice("lattice", dim == 3 ? Lattice::kFcc : Lattice::kHexagonal, kLatticeNames);
+    p.lattice = pa.choice("lattice", dim == 3 ? Lattice::kFcc : Lattice::kHexagonal, kLattices);
     const bool lattice_2d = p.lattice == Lattice::kSquare || p.lattice == Lattice::kHexagonal;
     if (lattice_2d != (dim == 2))
       pa.fail("lattice", std::string("a ") + (dim == 2 ? "2D" : "3D") + " scene needs a " +
@@ -402,39 +406,45 @@ void read_minimize(const toml::table& root, const std::string& name, Scene& scen
   mini.finish();
 }
 
-// [neighbor]: skin reuse of the cell structure.
+// [neighbor]: skin reuse of the cell structure, as the engine options skin, neighbor-check,
+// neighbor-every, neighbor-audit and neighbor-list.
 void read_neighbor(const toml::table& root, const std::string& name, Scene& scene) {
   Section neighbor = section(root, "neighbor", name);
-  ReuseOptions& reuse = scene.backend.reuse;
   // skin: "auto" (also when absent) lets the engine choose (resolve_reuse), or a length.
   const toml::node* skin = neighbor.node("skin");
-  reuse.automatic = !skin || (skin->is_string() && same_name(*skin->value<std::string>(), "auto"));
-  if (skin && skin->is_string() && !reuse.automatic)
+  const bool automatic = !skin || (skin->is_string() && same_name(*skin->value<std::string>(), kAutoSkin));
+  if (skin && skin->is_string() && !automatic)
     neighbor.fail("skin", "expected \"auto\" or a length >= 0, got " + quote_excerpt(*skin->value<std::string>()));
-  reuse.skin = reuse.automatic ? 0.0 : neighbor.non_negative("skin", 0.0);
-  reuse.check = neighbor.boolean("check", true);
-  reuse.every = neighbor.integer("every", 0, 0);
-  reuse.audit = neighbor.boolean("audit", false);
-  reuse.list = neighbor.boolean("list", false);
-  if (reuse.automatic && neighbor.node("list"))
+  const double length = automatic ? 0.0 : neighbor.non_negative("skin", 0.0);
+  const bool check = neighbor.boolean("check", true);
+  const int64_t every = neighbor.integer("every", 0, 0);
+  const bool audit = neighbor.boolean("audit", false);
+  const bool list = neighbor.boolean("list", false);
+  if (automatic && neighbor.node("list"))
     neighbor.fail("list", "applies to a skin given as a length (skin = \"auto\", the default, chooses pair lists "
                           "itself where they pay: CUDA with Jacobi accumulation)");
-  if (!reuse.automatic && reuse.skin == 0.0)
+  if (!automatic && length == 0.0)
     for (const char* key : {"check", "every", "audit", "list"})
       if (neighbor.node(key)) neighbor.fail(key, "applies only with a skin (skin > 0 or \"auto\")");
-  if (!reuse.check && reuse.every == 0 && !reuse.audit)
+  if (!check && every == 0 && !audit)
     neighbor.fail("check", "false with every = 0 never rebuilds the cell structure: give every = N (LAMMPS's "
                            "'neigh_modify every N check no'), keep the check, or set audit = true to count "
                            "the pairs that reuse misses");
   neighbor.finish();
+  OptionList& engine = scene.engine;
+  engine.set(OptionId::kSkin, automatic ? std::string(kAutoSkin) : format_number(length));
+  engine.set(OptionId::kNeighborCheck, name_of(check, kBooleanNames));
+  engine.set(OptionId::kNeighborEvery, std::to_string(every));
+  engine.set(OptionId::kNeighborAudit, name_of(audit, kBooleanNames));
+  if (!automatic) engine.set(OptionId::kNeighborList, name_of(list, kBooleanNames));
 }
 
 // [run] and [output].
 void read_run_and_output(const toml::table& root, const std::string& name, Scene& scene) {
   Section run = section(root, "run", name);
   scene.steps = run.integer("steps", 1000, 0);
-  scene.backend.backend = run.choice("backend", Backend::kAuto, kBackends);
-  scene.backend.precision = run.choice("precision", Precision::kMixed, kPrecisions);
+  scene.engine.set(OptionId::kBackend, run.option(OptionId::kBackend, name_of(Backend::kAuto, kBackendNames)));
+  scene.engine.set(OptionId::kPrecision, run.option(OptionId::kPrecision, name_of(Precision::kMixed, kPrecisionNames)));
   run.finish();
 
   Section out = section(root, "output", name);

@@ -52,8 +52,8 @@
 #include <string>
 #include <vector>
 
-#include "backends/force_engine.h"  // EngineChoice
 #include "core/force_field.h"
+#include "core/option_table.h"
 #include "scene/lattice.h"
 
 namespace cellforce {
@@ -122,7 +122,10 @@ struct Scene {
   SceneIntegrator integrator;
   SceneMinimize minimize;
   int64_t steps = 1000;
-  EngineChoice backend;  // backend, precision, skin ([run], [neighbor])
+  // The engine options of [run] (backend, precision) and [neighbor] (skin, neighbor-check,
+  // neighbor-every, neighbor-audit, and neighbor-list with a length skin) as Context::set_option
+  // takes them, checked against the option table as the file is read.
+  OptionList engine;
   SceneOutput output;
 };
 
