@@ -8,6 +8,7 @@
 
 #include <gtest/gtest.h>
 
+#include <memory>
 #include <string>
 #include <tuple>
 
@@ -107,6 +108,33 @@ INSTANTIATE_TEST_SUITE_P(
       return std::string(name_of(std::get<0>(p.param))) + "_" + name_of(std::get<1>(p.param)) +
              "_" + name_of(std::get<2>(p.param)) + "_" + std::get<3>(p.param);
     });
+
+// ---- the stream it is given ------------------------------------------------------------------------
+// An engine given a stream (GpuOptions::stream, as the Context gives its one stream to every engine
+// it makes) queues its work there and leaves the stream to its owner: a second engine on the same
+// stream after the first is gone runs (a destroyed stream would fail it), and both give bitwise the
+// forces of an engine with a stream of its own.
+TEST(GpuStream, EnginesRunOnTheStreamTheyAreGivenAndLeaveItToItsOwner) {
+  CF_SKIP_WITHOUT_DEVICE();
+  const Scene s = make_scene("lattice_fcc_jitter");
+  const std::shared_ptr<void> stream = GpuEngine::make_stream(0);
+  ASSERT_NE(stream.get(), nullptr);
+  GpuOptions given = gpu_options(TraversalForm::kAuto, Precision::kMixed, Accumulation::kJacobi);
+  given.stream = stream.get();
+  ForceResult first;
+  {
+    GpuEngine e(given);
+    EXPECT_EQ(e.stream(), stream.get());
+    e.evaluate(s.config.view(), s.ff, Request{true, true}, first);
+  }
+  const ForceResult second = run_gpu(given, s);
+  const ForceResult own = run_gpu(gpu_options(TraversalForm::kAuto, Precision::kMixed, Accumulation::kJacobi), s);
+  EXPECT_EQ(first.forces, own.forces);
+  EXPECT_EQ(second.forces, own.forces);
+  EXPECT_EQ(second.energy, own.energy);
+  GpuEngine mine(gpu_options(TraversalForm::kAuto, Precision::kMixed, Accumulation::kJacobi));
+  EXPECT_NE(mine.stream(), stream.get());  // without one, an engine makes its own
+}
 
 // ---- the same candidates as the CPU ----------------------------------------------------------------
 class GpuCandidates : public ::testing::TestWithParam<std::tuple<TraversalForm, std::string>> {

@@ -53,7 +53,33 @@ void check_capacity(const SystemView& system, const ForceField& ff) {
                 "D make " + std::to_string(entries));
 }
 
+
+// Throws cellforce::DeviceError when no CUDA device can be used or `device` does not exist.
+void check_device(int device) {
+  const std::string why = GpuEngine::unavailable();
+  if (!why.empty()) throw DeviceError("CUDA engine: " + why);
+  int count = 0;
+  CF_CUDA_CHECK(cudaGetDeviceCount(&count));
+  if (device < 0 || device >= count)
+    throw DeviceError("CUDA engine: device " + std::to_string(device) + " does not exist (" + std::to_string(count) +
+                      " device(s))");
+}
+
 }  // namespace
+
+std::shared_ptr<void> GpuEngine::make_stream(int device) {
+  check_device(device);
+  const DeviceScope scope(device);
+  cudaStream_t stream = nullptr;
+  CF_CUDA_CHECK(cudaStreamCreateWithFlags(&stream, cudaStreamNonBlocking));
+  return std::shared_ptr<void>(stream, [device](void* s) {  // destroyed on its own device
+    int previous = 0;
+    cudaGetDevice(&previous);
+    cudaSetDevice(device);
+    cudaStreamDestroy(static_cast<cudaStream_t>(s));
+    cudaSetDevice(previous);
+  });
+}
 
 GpuEngine::GpuEngine(GpuOptions options)
     : options_(std::move(options)), reuse_(options_.reuse), impl_(std::make_unique<Impl>()) {
@@ -62,13 +88,7 @@ GpuEngine::GpuEngine(GpuOptions options)
     throw Error("CUDA engine: list_threads must be 1, 2, 4 or 8 threads per particle, not " + std::to_string(*t));
   if (const std::optional<int> b = options_.test.list_block; b && *b != 128 && *b != 256)
     throw Error("CUDA engine: list_block must be 128 or 256 threads a block, not " + std::to_string(*b));
-  const std::string why = unavailable();
-  if (!why.empty()) throw DeviceError("CUDA engine: " + why);
-  int count = 0;
-  CF_CUDA_CHECK(cudaGetDeviceCount(&count));
-  if (options_.device < 0 || options_.device >= count)
-    throw DeviceError("CUDA engine: device " + std::to_string(options_.device) + " does not exist (" +
-                std::to_string(count) + " device(s))");
+  check_device(options_.device);
   const DeviceScope scope(options_.device);
   if (options_.stream) {  // the caller's: every evaluation is queued on it, and it outlives the engine
     impl_->stream = static_cast<cudaStream_t>(options_.stream);

@@ -147,6 +147,9 @@ class GpuEngine final : public cuda::ResidentForces {
 
   // Empty when a CUDA device can be used here; otherwise why not.
   static std::string unavailable();
+  // A stream on `device` for an owner to give to its engines (GpuOptions::stream), destroyed with
+  // the last copy of the handle. Throws cellforce::DeviceError as the constructor does.
+  static std::shared_ptr<void> make_stream(int device);
   // The memory of CUDA device `device` in bytes (cudaMemGetInfo's total, what the lists' memory
   // mode weighs: lists_memory); 0 where it cannot be used or does not exist.
   static std::size_t memory_bytes(int device);

@@ -78,5 +78,6 @@ std::unique_ptr<ForceEngine> make_cuda_force_engine(const EngineChoice& choice) 
 
 std::string cuda_unavailable() { return GpuEngine::unavailable(); }
 std::size_t cuda_memory_bytes(int device) { return GpuEngine::memory_bytes(device); }
+std::shared_ptr<void> cuda_make_stream(int device) { return GpuEngine::make_stream(device); }
 
 }  // namespace cellforce

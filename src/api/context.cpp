@@ -73,6 +73,11 @@ struct Context::Impl {
   bool has_box = false, has_cutoff = false;
   ForceField ff;
   EngineChoice choice;  // the engine options (set_option; a new context's: core/option_table.h)
+  // The device stream every engine of this context runs on (CUDA; null on the CPU): made here and
+  // given to each engine, so that force calls and MD steps are one ordered queue. Declared before
+  // the engines, so that it outlives them.
+  std::shared_ptr<void> stream;
+  int stream_device = -1;
   std::unique_ptr<ForceEngine> engine;
   ForceResult result;  // compute()'s staging (the engine's layout), reused across calls
   Statistics statistics;
@@ -98,6 +103,18 @@ struct Context::Impl {
     EngineChoice c = choice;
     c.backend = resolve_backend(choice.backend);
     c.reuse = resolve_reuse(choice.reuse, c.backend, choice.accumulation, for_md, b, ff.cutoff, memory);
+    return c;
+  }
+  // `c` with the context's stream for its device (made at the first engine on it).
+  EngineChoice with_stream(EngineChoice c) {
+    if (c.backend != Backend::kCuda) return c;
+    if (!stream || stream_device != c.device) {
+      if (stream && (engine || md))  // an engine change drops the engines first (engine_changed)
+        throw Error("internal error: the context's stream was replaced while an engine still ran on it");
+      stream = make_engine_stream(c);
+      stream_device = c.device;
+    }
+    c.stream = stream.get();
     return c;
   }
   ReuseOptions md_reuse;  // what `md` was made with
@@ -127,7 +144,7 @@ struct Context::Impl {
 
   // The force engine (force calls: an automatic skin resolves to none whatever the box).
   ForceEngine& get_engine() {
-    if (!engine) engine = make_force_engine(resolved(box, false));
+    if (!engine) engine = make_force_engine(with_stream(resolved(box, false)));
     return *engine;
   }
   ForceEngine& named_engine() { return md ? md->forces() : get_engine(); }
@@ -483,7 +500,7 @@ void Context::set_state(std::size_t n, const double* positions, const double* ve
   // An automatic skin for another box, or another memory mode (another particle count)
   if (s.md && !Impl::same_reuse(resolved.reuse, s.md_reuse)) s.md.reset();
   if (!s.md) {
-    s.md = make_md_engine(resolved);
+    s.md = make_md_engine(s.with_stream(resolved));
     s.md_reuse = resolved.reuse;
   }
   s.md_memory = memory;

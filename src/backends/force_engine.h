@@ -109,12 +109,18 @@ std::size_t device_memory_bytes(const EngineChoice& choice);
 // skin is automatic and the backend CUDA, else choice.memory comes back as given.
 ListMemory md_list_memory(const EngineChoice& choice, std::size_t n);
 
+// A device stream for the engines of one owner (the Context gives it to every engine it makes,
+// EngineChoice::stream, so that its force calls and MD steps share one ordered queue): made on
+// choice.device for the CUDA backend, destroyed with the last copy of the handle; null for the CPU.
+std::shared_ptr<void> make_engine_stream(const EngineChoice& choice);
+
 // The backends themselves (make_force_engine picks one).
 std::unique_ptr<ForceEngine> make_cpu_force_engine(const EngineChoice& choice);
 #ifdef CELLFORCE_HAVE_CUDA
 std::unique_ptr<ForceEngine> make_cuda_force_engine(const EngineChoice& choice);
 std::string cuda_unavailable();  // empty when a CUDA device can be used; otherwise why not
 std::size_t cuda_memory_bytes(int device);  // 0 where it cannot be used
+std::shared_ptr<void> cuda_make_stream(int device);
 #endif
 
 }  // namespace cellforce

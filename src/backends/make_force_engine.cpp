@@ -27,6 +27,15 @@ ListMemory md_list_memory(const EngineChoice& choice, std::size_t n) {
   return lists_memory(choice.memory, n, device_memory_bytes(choice));
 }
 
+std::shared_ptr<void> make_engine_stream(const EngineChoice& choice) {
+#ifdef CELLFORCE_HAVE_CUDA
+  if (resolve_backend(choice.backend) == Backend::kCuda) return cuda_make_stream(choice.device);
+#else
+  (void)choice;
+#endif
+  return nullptr;
+}
+
 std::unique_ptr<ForceEngine> make_force_engine(const EngineChoice& choice) {
   if (choice.reuse.automatic)  // the caller resolves it for its system (resolve_reuse)
     throw Error("internal error: an engine was asked for with an unresolved automatic skin");
