@@ -32,7 +32,13 @@ void drift(MdState& s, double h, double share, bool wrap, double cutoff) {
       const double v = s.velocities[k];
       bool bad = false;
       const double x = drift_value(s.config.positions[k], v, h, axis[a], wrap, bad);
-      if (bad) throw Error(diverged_message(i, a, mul_rn(h, v), x, box, cutoff, share));
+      if (bad) {
+        const double dx = mul_rn(h, v);
+        // A position that left the finite numbers is stored, as the device's drift stores it; a
+        // displacement past the limit leaves the particle where it was.
+        if (std::abs(dx) <= axis[a].most) s.config.positions[k] = x;
+        throw Error(diverged_message(i, a, dx, x, box, cutoff, share));
+      }
       s.config.positions[k] = x;
     }
   }
