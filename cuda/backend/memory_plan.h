@@ -60,5 +60,4 @@ struct BuildMemoryPlan {
 // together. Graphs serve fast builds with CUB's sort.
 BuildMemoryPlan plan_build_memory(const BuildMemoryInputs& in);
 
-
 }  // namespace cellforce::cuda
