@@ -24,6 +24,7 @@
 #include "forces/traversal.cuh"
 #include "search/pair_list.cuh"
 #include "search/stages.cuh"
+#include "transfer.cuh"
 
 namespace cellforce {
 
@@ -34,17 +35,8 @@ T* as(DeviceBuffer<std::byte>& b) {
   return reinterpret_cast<T*>(b.data());
 }
 
-template <class T>
-void upload(DeviceBuffer<T>& d, const T* h, std::size_t count, cudaStream_t stream) {
-  d.reserve(std::max<std::size_t>(count, 1));
-  if (count) CF_CUDA_CHECK(cudaMemcpyAsync(d.data(), h, count * sizeof(T), cudaMemcpyHostToDevice, stream));
-}
-
-template <class T>
-void download(std::vector<T>& h, const T* d, std::size_t count, cudaStream_t stream) {
-  h.resize(count);
-  if (count) CF_CUDA_CHECK(cudaMemcpyAsync(h.data(), d, count * sizeof(T), cudaMemcpyDeviceToHost, stream));
-}
+using cuda::download;
+using cuda::upload;
 
 struct GpuEngine::Impl {
   // Events recorded between the stages of one evaluation.

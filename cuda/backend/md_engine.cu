@@ -44,16 +44,16 @@ void CudaMdEngine::set_state(const MdState& state, const std::vector<double>& ma
   step_ = state.step;
   time_ = state.time;
   host_types_ = state.config.types;
-  upload(positions_, state.config.positions, stream_);
-  upload(velocities_, state.velocities.empty() ? std::vector<double>(n_ * box_.dim, 0.0) : state.velocities,
+  cuda::upload(positions_, state.config.positions, stream_);
+  cuda::upload(velocities_, state.velocities.empty() ? std::vector<double>(n_ * box_.dim, 0.0) : state.velocities,
          stream_);
-  upload(masses_, masses, stream_);
+  cuda::upload(masses_, masses, stream_);
   uniform_mass_.reset();  // one mass for all, bit for bit, is passed as a number (no load per coordinate)
   if (!masses.empty() && std::all_of(masses.begin(), masses.end(), [&](double m) {
         return std::memcmp(&m, &masses[0], sizeof m) == 0;
       }))
     uniform_mass_ = masses[0];
-  upload(types_, state.config.types, stream_);
+  cuda::upload(types_, state.config.types, stream_);
   counters_.bytes_to_device += (2 * n_ * box_.dim + n_) * sizeof(double) + n_ * sizeof(uint32_t);
   flags_.reserve(1);
   reset_flags();
@@ -81,9 +81,9 @@ void CudaMdEngine::get_state(MdState& state) {
   const std::size_t nd = n_ * std::size_t(box_.dim);
   state.config.box = box_;
   state.config.types = host_types_;
-  download(state.config.positions, positions_.data(), nd, stream_);
-  download(state.velocities, velocities_.data(), nd, stream_);
-  download(state.forces, resident_.device_forces(), nd, stream_);
+  cuda::download(state.config.positions, positions_.data(), nd, stream_);
+  cuda::download(state.velocities, velocities_.data(), nd, stream_);
+  cuda::download(state.forces, resident_.device_forces(), nd, stream_);
   CF_CUDA_CHECK(cudaStreamSynchronize(stream_));
   counters_.bytes_to_host += 3 * nd * sizeof(double);
   state.step = step_;

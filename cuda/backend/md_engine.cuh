@@ -38,6 +38,7 @@
 #include "integrate/step_kernels.cuh"
 #include "md/verlet_step.h"
 #include "search/pair_list.cuh"  // unrank
+#include "transfer.cuh"
 
 namespace cellforce {
 
@@ -65,18 +66,6 @@ class CudaMdEngine final : public MdEngine {
     int previous_ = 0;
   };
 
-  template <class T>
-  static void upload(DeviceBuffer<T>& d, const std::vector<T>& h, cudaStream_t stream) {
-    d.reserve(std::max<std::size_t>(h.size(), 1));
-    if (!h.empty())
-      CF_CUDA_CHECK(cudaMemcpyAsync(d.data(), h.data(), h.size() * sizeof(T), cudaMemcpyHostToDevice, stream));
-  }
-
-  template <class T>
-  static void download(std::vector<T>& h, const T* d, std::size_t count, cudaStream_t stream) {
-    h.resize(count);
-    if (count) CF_CUDA_CHECK(cudaMemcpyAsync(h.data(), d, count * sizeof(T), cudaMemcpyDeviceToHost, stream));
-  }
 
  public:
   // The force engine of `choice` (CUDA), made here: the MD engine reaches it only through
@@ -142,8 +131,8 @@ class CudaMdEngine final : public MdEngine {
   // serve them from its list, else enough to reach the next rebuild if it comes as far after this
   // build as the last one did (interval_), and one more, so that few queued steps find the gate
   // shut: a shut step still costs its kernels' loads, except the last, the one past the expected
-  // rebuild, whose kick-drift reads the gate first; at least 2. A chunk that ends before the gate closes costs one more read of the gate. `overshoot`: the
-  // chunk's length is the expected one (not cut short by the run's end, `every` or the gate's own
+  // rebuild, whose kick-drift reads the gate first; at least 2. A chunk that ends before the gate
+  // closes costs one more read of the gate. `overshoot`: the chunk's length is the expected one (not cut short by the run's end, `every` or the gate's own
   // bound), so its last step is the one past the expected rebuild.
   struct GateChunk {
     int64_t count = 0;
