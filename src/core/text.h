@@ -5,6 +5,7 @@
 #pragma once
 
 #include <charconv>
+#include <cstdio>
 #include <cstddef>
 #include <string>
 #include <string_view>
@@ -17,6 +18,14 @@ inline std::string format_number(double x) {
   char buffer[32];
   const auto result = std::to_chars(buffer, buffer + sizeof buffer, x);
   return std::string(buffer, result.ptr);
+}
+
+// `x` to six significant digits (printf's %.6g: 0.001, 2.5e+07, inf), for messages that quote
+// a derived quantity rather than an input the user wrote.
+inline std::string format_6g(double x) {
+  char buffer[32];
+  std::snprintf(buffer, sizeof buffer, "%.6g", x);
+  return buffer;
 }
 
 // The length of the well-formed UTF-8 character (2 to 4 bytes: no overlong form, no surrogate,

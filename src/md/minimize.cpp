@@ -2,7 +2,6 @@
 
 #include <algorithm>
 #include <cmath>
-#include <cstdio>
 #include <limits>
 #include <string>
 
@@ -13,12 +12,6 @@
 
 namespace cellforce {
 namespace {
-
-std::string number(double v) {
-  char buf[32];
-  std::snprintf(buf, sizeof buf, "%.6g", v);
-  return buf;
-}
 
 // Positions into [0, L) on periodic axes. Every FIRE step moves a particle by at most
 // 1.5 x max_displacement (half a step back, then one forward), so a coordinate that is not
@@ -42,7 +35,7 @@ void wrap_positions(MdState& s) {
 void check_fire_settings(const FireSettings& s) {
   auto positive = [](double v, const char* name) {
     if (!(v > 0) || !std::isfinite(v))
-      throw Error(std::string("FIRE: ") + name + " must be a finite number > 0, got " + number(v));
+      throw Error(std::string("FIRE: ") + name + " must be a finite number > 0, got " + format_6g(v));
   };
   positive(s.force_tolerance, "force_tolerance");
   positive(s.dt, "dt");
@@ -52,11 +45,12 @@ void check_fire_settings(const FireSettings& s) {
   positive(s.f_alpha, "f_alpha");
   positive(s.f_inc, "f_inc");
   positive(s.f_dec, "f_dec");
-  if (s.dt_max < s.dt) throw Error("FIRE: dt_max (" + number(s.dt_max) + ") must be at least dt (" + number(s.dt) + ")");
-  if (s.alpha_start >= 1) throw Error("FIRE: alpha_start must be below 1, got " + number(s.alpha_start));
-  if (s.f_alpha > 1) throw Error("FIRE: f_alpha must be at most 1, got " + number(s.f_alpha));
-  if (s.f_inc < 1) throw Error("FIRE: f_inc must be at least 1, got " + number(s.f_inc));
-  if (s.f_dec >= 1) throw Error("FIRE: f_dec must be below 1, got " + number(s.f_dec));
+  if (s.dt_max < s.dt)
+    throw Error("FIRE: dt_max (" + format_6g(s.dt_max) + ") must be at least dt (" + format_6g(s.dt) + ")");
+  if (s.alpha_start >= 1) throw Error("FIRE: alpha_start must be below 1, got " + format_6g(s.alpha_start));
+  if (s.f_alpha > 1) throw Error("FIRE: f_alpha must be at most 1, got " + format_6g(s.f_alpha));
+  if (s.f_inc < 1) throw Error("FIRE: f_inc must be at least 1, got " + format_6g(s.f_inc));
+  if (s.f_dec >= 1) throw Error("FIRE: f_dec must be below 1, got " + format_6g(s.f_dec));
   if (s.max_steps < 0) throw Error("FIRE: max_steps must be at least 0, got " + std::to_string(s.max_steps));
   if (s.n_delay < 0) throw Error("FIRE: n_delay must be at least 0, got " + std::to_string(s.n_delay));
 }
@@ -86,13 +80,13 @@ void throw_fire_force_not_finite(std::size_t particle) {
 
 void throw_fire_position_not_finite(std::size_t particle, int axis, double value) {
   throw Error("FIRE: particle " + std::to_string(particle) + " has a non-finite position (" +
-              std::string(1, "xyz"[axis]) + " = " + number(value) + "): its force was not finite");
+              std::string(1, "xyz"[axis]) + " = " + format_6g(value) + "): its force was not finite");
 }
 
 void throw_fire_not_converged(int64_t steps, const LargestForce& largest, double tolerance) {
   throw Error("FIRE did not converge in " + std::to_string(steps) + " steps: particle " +
-              std::to_string(largest.particle) + " still has the largest force, |F| = " + number(largest.magnitude) +
-              " (tolerance " + number(tolerance) + "); raise max_steps or force_tolerance");
+              std::to_string(largest.particle) + " still has the largest force, |F| = " + format_6g(largest.magnitude) +
+              " (tolerance " + format_6g(tolerance) + "); raise max_steps or force_tolerance");
 }
 
 LargestForce largest_force(const MdState& s) {

@@ -3,7 +3,6 @@
 
 #include <algorithm>
 #include <cmath>
-#include <cstdio>
 #include <limits>
 
 #include "core/box.h"
@@ -11,16 +10,6 @@
 #include "core/text.h"
 
 namespace cellforce {
-namespace {
-
-std::string number(double v) {
-  char buf[32];
-  std::snprintf(buf, sizeof buf, "%.6g", v);
-  return buf;
-}
-
-}  // namespace
-
 void check_step_arithmetic(double dt, const std::vector<double>& masses, const std::vector<uint32_t>& types,
                            const ForceField& ff) {
   if (!std::isfinite(dt * dt))
@@ -86,12 +75,12 @@ void check_stable_start(const MdState& s, const std::vector<double>& masses, dou
   const double scale = 0.5 * dt * dt / masses[p];
   if (scale * contact > limit) {
     const std::string name = type < ff.types.size() ? " (type " + quote_excerpt(ff.types[type].name) + ")" : "";
-    throw Error("dt = " + number(dt) + " is too long a step for the mass " + number(masses[p]) + " of particle " +
-                std::to_string(p) + name + ": a step moves it by dt^2 |F| / 2m = " + number(scale) +
+    throw Error("dt = " + format_6g(dt) + " is too long a step for the mass " + format_6g(masses[p]) + " of particle " +
+                std::to_string(p) + name + ": a step moves it by dt^2 |F| / 2m = " + format_6g(scale) +
                 " x |F|, so that already the force between two particles at distance sigma (24 epsilon/sigma = " +
-                number(contact) + ") would move it by " + number(scale * contact) +
-                ", more than 0.1 x the smallest sigma (" + number(limit) + "); with this mass dt must be below " +
-                number(std::sqrt(2.0 * limit * masses[p] / contact)) + " (lower dt, or check the mass)");
+                format_6g(contact) + ") would move it by " + format_6g(scale * contact) +
+                ", more than 0.1 x the smallest sigma (" + format_6g(limit) + "); with this mass dt must be below " +
+                format_6g(std::sqrt(2.0 * limit * masses[p] / contact)) + " (lower dt, or check the mass)");
   }
 
   // The nearest neighbour of the particle (minimum image on periodic axes): usually the overlap.
@@ -114,11 +103,11 @@ void check_stable_start(const MdState& s, const std::vector<double>& masses, dou
   const std::string neighbour =
       nearest == i ? "it has no neighbour"
                    : "its nearest neighbour is particle " + std::to_string(nearest) + " at distance " +
-                         number(std::sqrt(nearest2));
+                         format_6g(std::sqrt(nearest2));
   throw Error("the dynamics would not be stable from this start: particle " + std::to_string(i) + " has a force of " +
-              number(kick.force) + " (" + neighbour + "), so the first step (dt " + number(dt) +
-              ") would move it by dt^2 |F| / 2m = " + number(kick.displacement) + ", more than 0.1 x the smallest sigma (" +
-              number(limit) + "); " +
+              format_6g(kick.force) + " (" + neighbour + "), so the first step (dt " + format_6g(dt) +
+              ") would move it by dt^2 |F| / 2m = " + format_6g(kick.displacement) +
+              ", more than 0.1 x the smallest sigma (" + format_6g(limit) + "); " +
               (remedy.empty() ? "the start has overlapping particles: add a [minimize] section to the scene (FIRE "
                                 "brings the largest force below its force_tolerance first), or lower dt"
                               : remedy));
