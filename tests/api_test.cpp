@@ -108,18 +108,9 @@ const cf::Precision kPrecisions[] = {cf::Precision::kDouble, cf::Precision::kMix
 
 // ---- the C++ API ----------------------------------------------------------------------------------
 
-// traversal = auto: the tile form up to kTileCellsPerMultiprocessor collision cells per SM, warp
-// per cell beyond; an explicit form is kept whatever the size.
-TEST(EngineOptions, AutoTraversalRule) {
-  const std::size_t limit = std::size_t(cf::kTileCellsPerMultiprocessor) * 132;
-  EXPECT_EQ(cf::resolve_traversal(cf::TraversalForm::kAuto, 216, 132), cf::TraversalForm::kWarpPerTile);
-  EXPECT_EQ(cf::resolve_traversal(cf::TraversalForm::kAuto, limit, 132), cf::TraversalForm::kWarpPerTile);
-  EXPECT_EQ(cf::resolve_traversal(cf::TraversalForm::kAuto, limit + 1, 132), cf::TraversalForm::kWarpPerCell);
-  EXPECT_EQ(cf::resolve_traversal(cf::TraversalForm::kAuto, 13824, 132), cf::TraversalForm::kWarpPerCell);
-  for (cf::TraversalForm f : {cf::TraversalForm::kWarpPerCell, cf::TraversalForm::kThreadPerCell,
-                              cf::TraversalForm::kWarpPerTile})
-    for (std::size_t cells : {std::size_t(1), limit + 1})
-      EXPECT_EQ(cf::resolve_traversal(f, cells, 132), f);
+// The traversal option's names are accepted and others refused (the rule `auto` follows:
+// tests/memory_plan_test.cpp).
+TEST(EngineOptions, TraversalOptionNames) {
   cf::Context ctx(3);
   ctx.set_option("traversal", "auto");
   ctx.set_option("traversal", "tile");

@@ -1,4 +1,4 @@
-// The CUDA engine's memory policy and launch rules (cuda/backend/memory_plan.h,
+// The CUDA engine's build plan, memory policy and launch rules (cuda/backend/memory_plan.h,
 // cuda/search/list_build.h) as host arithmetic: these run without a GPU, on every machine. The
 // expected values are worked out by hand from the rules the headers state.
 #include <gtest/gtest.h>
@@ -24,6 +24,34 @@ BuildMemoryInputs listed_fast(std::size_t n) {
   in.lent_need_words = lent_room_words(in.entries, 1000);
   in.mask_words = 10 * in.lent_need_words;
   return in;
+}
+
+// traversal = auto: the tile form up to kTileCellsPerMultiprocessor collision cells per SM, warp
+// per cell beyond; an explicit form is kept whatever the size.
+TEST(MemoryPlan, AutoTraversalRule) {
+  const std::size_t limit = std::size_t(kTileCellsPerMultiprocessor) * 132;
+  EXPECT_EQ(resolve_traversal(TraversalForm::kAuto, 216, 132), TraversalForm::kWarpPerTile);
+  EXPECT_EQ(resolve_traversal(TraversalForm::kAuto, limit, 132), TraversalForm::kWarpPerTile);
+  EXPECT_EQ(resolve_traversal(TraversalForm::kAuto, limit + 1, 132), TraversalForm::kWarpPerCell);
+  EXPECT_EQ(resolve_traversal(TraversalForm::kAuto, 13824, 132), TraversalForm::kWarpPerCell);
+  for (TraversalForm f : {TraversalForm::kWarpPerCell, TraversalForm::kThreadPerCell, TraversalForm::kWarpPerTile})
+    for (std::size_t cells : {std::size_t(1), limit + 1})
+      EXPECT_EQ(resolve_traversal(f, cells, 132), f);
+}
+
+// The lists' memory mode (lists_memory): as asked, or (auto) lean exactly where n x 1,320 bytes
+// exceeds 90% of the device's memory; fast where the device's memory is unknown (0).
+TEST(MemoryPlan, ListsMemoryIsARuleOfTheSystemAndTheDevice) {
+  const std::size_t h100 = 85'017'493'504;  // an H100 80GB's total as cudaMemGetInfo gives it
+  const std::size_t limit = std::size_t(0.9 * double(h100) / 1320.0);  // the largest fast system (57.97M)
+  EXPECT_GT(limit, 56'000'000u);  // performance.md's largest fast run: 55,990,084 particles at 1,290 B/particle
+  EXPECT_EQ(lists_memory(ListMemory::kAuto, 16'777'216, h100), ListMemory::kFast);
+  EXPECT_EQ(lists_memory(ListMemory::kAuto, limit, h100), ListMemory::kFast);
+  EXPECT_EQ(lists_memory(ListMemory::kAuto, limit + 1, h100), ListMemory::kLean);
+  EXPECT_EQ(lists_memory(ListMemory::kAuto, 100'000'000, h100), ListMemory::kLean);
+  EXPECT_EQ(lists_memory(ListMemory::kAuto, 100'000'000, 0), ListMemory::kFast);
+  EXPECT_EQ(lists_memory(ListMemory::kLean, 1'000, h100), ListMemory::kLean);
+  EXPECT_EQ(lists_memory(ListMemory::kFast, 100'000'000, h100), ListMemory::kFast);
 }
 
 TEST(MemoryPlan, LentWordsAreWhole256ByteBlocks) {

@@ -137,23 +137,6 @@ TEST(ReuseOptions, AutoIsARuleOfTheBackendAndTheBox) {
   EXPECT_FALSE(cellforce::pair_lists_serve(given, Accumulation::kJacobi, small, rc));
 }
 
-// The lists' memory mode (lists_memory): as asked, or (auto) lean exactly where n x 1,320 bytes
-// exceeds 90% of the device's memory; fast where the device's memory is unknown (0).
-TEST(ReuseOptions, ListsMemoryIsARuleOfTheSystemAndTheDevice) {
-  using cellforce::ListMemory;
-  using cellforce::lists_memory;
-  const std::size_t h100 = 85'017'493'504;  // an H100 80GB's total as cudaMemGetInfo gives it
-  const std::size_t limit = std::size_t(0.9 * double(h100) / 1320.0);  // the largest fast system (57.97M)
-  EXPECT_GT(limit, 56'000'000u);  // performance.md's largest fast run: 55,990,084 particles at 1,290 B/particle
-  EXPECT_EQ(lists_memory(ListMemory::kAuto, 16'777'216, h100), ListMemory::kFast);
-  EXPECT_EQ(lists_memory(ListMemory::kAuto, limit, h100), ListMemory::kFast);
-  EXPECT_EQ(lists_memory(ListMemory::kAuto, limit + 1, h100), ListMemory::kLean);
-  EXPECT_EQ(lists_memory(ListMemory::kAuto, 100'000'000, h100), ListMemory::kLean);
-  EXPECT_EQ(lists_memory(ListMemory::kAuto, 100'000'000, 0), ListMemory::kFast);
-  EXPECT_EQ(lists_memory(ListMemory::kLean, 1'000, h100), ListMemory::kLean);
-  EXPECT_EQ(lists_memory(ListMemory::kFast, 100'000'000, h100), ListMemory::kFast);
-}
-
 // The condition a skin adds (grid.h): on a periodic axis of two or more cells, c/2 + h + skin/2 <
 // L/2, so that a particle moved by skin / 2 is still staged as the image next to its cell. In a
 // box of 6.2 with rc 1 and skin 0.8 two cells would break it: the planner takes one, check_grid

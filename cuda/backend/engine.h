@@ -26,10 +26,22 @@
 
 namespace cellforce {
 
+// The CUDA settings in the engine's descriptions and the benchmarks' tables.
+inline const char* to_string(TraversalForm form) {
+  switch (form) {
+    case TraversalForm::kWarpPerCell: return "warp-per-cell";
+    case TraversalForm::kThreadPerCell: return "thread-per-cell";
+    case TraversalForm::kWarpPerTile: return "block-per-tile";  // option value "tile"
+    case TraversalForm::kAuto: return "auto";
+  }
+  return "?";
+}
+inline const char* to_string(SortMethod sort) { return sort == SortMethod::kCub ? "cub" : "chapter"; }
+
 struct GpuOptions {
   Precision precision = Precision::kDouble;
   Accumulation accumulation = Accumulation::kJacobi;
-  TraversalForm traversal = TraversalForm::kAuto;  // kAuto: resolve_traversal() at each build
+  TraversalForm traversal = TraversalForm::kAuto;  // kAuto: resolve_traversal (memory_plan.h) at each build
   SortMethod sort = SortMethod::kCub;
   GridOptions grid;
   ReuseOptions reuse;  // skin > 0: stages 1-3 reused while no particle moved more than skin / 2

@@ -1,5 +1,6 @@
 // The CUDA backend's force job: GpuEngine (backend/engine.h) behind the ForceEngine interface.
 #include "backend/force_engine.h"
+#include "backend/memory_plan.h"
 
 namespace cellforce {
 namespace {
@@ -77,7 +78,9 @@ std::unique_ptr<ForceEngine> make_cuda_force_engine(const EngineChoice& choice) 
 }
 
 std::string cuda_unavailable() { return GpuEngine::unavailable(); }
-std::size_t cuda_memory_bytes(int device) { return GpuEngine::memory_bytes(device); }
+ListMemory cuda_lists_memory(ListMemory asked, std::size_t n, int device) {
+  return cuda::lists_memory(asked, n, GpuEngine::memory_bytes(device));
+}
 std::shared_ptr<void> cuda_make_stream(int device) { return GpuEngine::make_stream(device); }
 
 }  // namespace cellforce

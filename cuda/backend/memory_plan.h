@@ -1,6 +1,7 @@
-// The CUDA engine's memory policy for a build, as a plain host function: which of a build's arrays
-// share room with arrays that are dead at the time (the lean memory mode, the count pass's masks
-// lending their room to the sort) and which builds a CUDA graph replays. The room of the pair
+// The CUDA engine's plan for a build, as plain host functions: the traversal form the collision cells
+// get, the lists' memory mode, which of a build's arrays share room with arrays that are dead at the
+// time (the lean memory mode, the count pass's masks lending their room to the sort) and which
+// builds a CUDA graph replays. The room of the pair
 // list's own arrays is search/list_build.h's (plan_mask_room, plan_list_room). The engine
 // (backend/structure_build.cu) applies it to the device's numbers; the unit tests
 // (tests/memory_plan_test.cpp) check it without a GPU. Plain C++: built with or without CUDA.
@@ -8,9 +9,38 @@
 
 #include <cstddef>
 
-#include "core/engine_options.h"  // ListMemory, lists_memory
+#include <cellforce/options.hpp>  // TraversalForm, ListMemory
 
 namespace cellforce::cuda {
+
+// traversal = auto: a block per row tile while the collision cells (bounded by min(n, grid cells))
+// are at most this many per multiprocessor, else warp per cell: the tile form's lead over warp per
+// cell shrinks as the cells per multiprocessor grow and is gone at about this many
+// (validation/reports/performance.md records the measurement). A rule of the system and the
+// device, not a timing: the choice, and so the bits, are the same on every run.
+inline constexpr int kTileCellsPerMultiprocessor = 16;
+inline TraversalForm resolve_traversal(TraversalForm form, std::size_t cell_bound, int multiprocessors) {
+  if (form != TraversalForm::kAuto) return form;
+  return cell_bound <= std::size_t(kTileCellsPerMultiprocessor) * std::size_t(multiprocessors)
+             ? TraversalForm::kWarpPerTile
+             : TraversalForm::kWarpPerCell;
+}
+
+// The memory mode the lists run in for `n` particles on a device of `device_bytes` (0: unknown, or
+// no device): as asked, or (auto) lean where the fast layout, about kFastListBytesPerParticle with
+// a 0.6 skin and the MD state (a staged array, the sorted arrays, the list, the masks, the gated
+// evaluations' forces, a second rank-ordered array and the MD engine's rank-order copy of the state
+// side by side, the sort's unsorted arrays and scratch in the masks' room; performance.md records
+// the measured bytes per particle), would not fit in 90% of the device. Applied at every build
+// (plan_build_memory), and the automatic skin follows it (core/reuse.h resolve_reuse, given the mode
+// by cuda_lists_memory). The mode itself changes no result; the skin it leads to changes when the
+// builds come and the order of the sums (so the bits), not which pairs are summed.
+inline constexpr double kFastListBytesPerParticle = 1320.0;
+inline ListMemory lists_memory(ListMemory asked, std::size_t n, std::size_t device_bytes) {
+  if (asked != ListMemory::kAuto) return asked;
+  return device_bytes > 0 && double(n) * kFastListBytesPerParticle > 0.9 * double(device_bytes) ? ListMemory::kLean
+                                                                                                 : ListMemory::kFast;
+}
 
 // Words of a dead array (a lean build's last list, or the masks' room) lent to an unsorted array of
 // `entries` cell-ID entries: whole 256-byte blocks (the cell-ID kernel stores 16 bytes at a time;

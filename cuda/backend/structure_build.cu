@@ -17,7 +17,7 @@ void GpuEngine::Impl::build(const GpuOptions& o, PipelineStats& st, const System
   entries = n << g.dim;
   max_cells = std::min<std::size_t>(n, g.num_cells);
   counts.reserve(1);
-  form = resolve_traversal(o.traversal, max_cells, multiprocessors);
+  form = cuda::resolve_traversal(o.traversal, max_cells, multiprocessors);
   ++builds;
   const bool listed = lists(o, sys.box, ff.cutoff);
   const cuda::BuildMemoryPlan plan = plan_build_memory(o, listed, n, last_entries, g);

@@ -33,4 +33,30 @@ enum class Backend : uint8_t {
   kCuda,  // a CUDA device
 };
 
+// Settings of the CUDA engine (options `traversal`, `sort`, `memory`); the CPU engine has none of
+// these stages' variants and ignores them. None changes which pairs are summed.
+
+// How the CUDA traversal maps collision cells onto threads.
+enum class TraversalForm : uint8_t {
+  kWarpPerCell,    // cooperative: a warp shares one cell, occupants staged 32 at a time in shared
+                   // memory, partial sums added in a fixed order (the chapter's future work)
+  kThreadPerCell,  // the chapter's: one thread walks one collision cell
+  kWarpPerTile,    // a block per tile of 32 occupants of a cell, its warps sharing the columns,
+                   // each pair from both sides (no writes but its own rows): parallel work for
+                   // small systems
+  kAuto,           // chosen by the engine at each build from the cells and the device
+};
+
+// The CUDA pipeline's stage 2; both are stable and sort only the bits the grid needs.
+enum class SortMethod : uint8_t {
+  kCub,      // CUB's device radix sort
+  kChapter,  // the chapter's three-phase radix sort (tabulate, prefix sums, stable reorder)
+};
+
+// The CUDA pair lists' memory mode. Lean: no staged array of the cells' own, the sort's arrays in
+// the dead list's room, the count pass's masks only in the memory the device has left (~700 bytes a
+// particle against fast's ~1,300, up to ~930 with every mask; builds up to ~2x slower where the
+// masks find no room); auto: lean where fast would not fit in 90% of the device.
+enum class ListMemory : uint8_t { kAuto, kFast, kLean };
+
 }  // namespace cellforce

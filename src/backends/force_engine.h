@@ -99,14 +99,9 @@ std::unique_ptr<ForceEngine> make_force_engine(const EngineChoice& choice);
 // The backend kAuto stands for here (CUDA when a device can be used, else the CPU); others as given.
 Backend resolve_backend(Backend backend);
 
-// The memory of the device `choice` runs on, in bytes (CUDA: the device's total; 0 on the CPU, in a
-// build without CUDA, or where the device cannot be used): what the lists' memory mode, and with it
-// the automatic skin, weighs (lists_memory, resolve_reuse).
-std::size_t device_memory_bytes(const EngineChoice& choice);
-
-// The lists' memory mode an MD state of n particles runs in under `choice` (lists_memory on the
-// device's memory), for its automatic skin (resolve_reuse); the device is asked only where that
-// skin is automatic and the backend CUDA, else choice.memory comes back as given.
+// The lists' memory mode an MD state of n particles runs in under `choice`, for its automatic skin
+// (resolve_reuse): where that skin is automatic and the backend CUDA, the CUDA engine's rule on the
+// device's memory (cuda_lists_memory); else choice.memory as given.
 ListMemory md_list_memory(const EngineChoice& choice, std::size_t n);
 
 // A device stream for the engines of one owner (the Context gives it to every engine it makes,
@@ -119,7 +114,9 @@ std::unique_ptr<ForceEngine> make_cpu_force_engine(const EngineChoice& choice);
 #ifdef CELLFORCE_HAVE_CUDA
 std::unique_ptr<ForceEngine> make_cuda_force_engine(const EngineChoice& choice);
 std::string cuda_unavailable();  // empty when a CUDA device can be used; otherwise why not
-std::size_t cuda_memory_bytes(int device);  // 0 where it cannot be used
+// The lists' memory mode for n particles on `device` (cuda/backend/memory_plan.h lists_memory on
+// its total memory; `asked` where the device cannot be used).
+ListMemory cuda_lists_memory(ListMemory asked, std::size_t n, int device);
 std::shared_ptr<void> cuda_make_stream(int device);
 #endif
 

@@ -13,18 +13,13 @@ Backend resolve_backend(Backend backend) {
 #endif
 }
 
-std::size_t device_memory_bytes(const EngineChoice& choice) {
-#ifdef CELLFORCE_HAVE_CUDA
-  if (resolve_backend(choice.backend) == Backend::kCuda) return cuda_memory_bytes(choice.device);
-#else
-  (void)choice;
-#endif
-  return 0;
-}
-
 ListMemory md_list_memory(const EngineChoice& choice, std::size_t n) {
   if (!choice.reuse.automatic || resolve_backend(choice.backend) != Backend::kCuda) return choice.memory;
-  return lists_memory(choice.memory, n, device_memory_bytes(choice));
+#ifdef CELLFORCE_HAVE_CUDA
+  return cuda_lists_memory(choice.memory, n, choice.device);
+#else
+  return choice.memory;
+#endif
 }
 
 std::shared_ptr<void> make_engine_stream(const EngineChoice& choice) {

@@ -25,6 +25,10 @@
 #include "scene/scene.h"
 #include "state/velocities.h"
 
+#ifdef CELLFORCE_BENCH_EMBED
+#include "cli/embed_loop.h"
+#endif
+
 #ifndef CELLFORCE_VERSION
 #define CELLFORCE_VERSION "unknown"
 #endif
@@ -162,6 +166,192 @@ struct SizeResult {
   bool ok = false;
 };
 
+// One size's timed run: what it is given and where it writes (the row, the last configuration).
+struct TimedRun {
+  const BenchArgs& args;
+  const Scene& scene;
+  const MdState& state;
+  const std::vector<double>& masses;
+  double planned_skin;  // the numbering by cells was planned for it (0 otherwise)
+  nlohmann::json& row;
+  std::vector<double>& final_positions;
+  std::vector<double>& final_forces;
+};
+
+// What the timed chunks measured: the steps, their wall time, and the total energy per particle at
+// the start and after each chunk, against time.
+struct Chunks {
+  int64_t steps = 0, warmup_steps = 0;
+  double seconds = 0, setup_seconds = 0;
+  std::vector<double> t, e;
+};
+
+// Warm-up (allocations, first builds), then a calibration of the rate, both excluded; then the
+// timed steps in `samples` chunks, each ending with an energy sample (its wait in the chunk's
+// time). advance(count, observe) queues steps; energy() waits for them and gives the total energy;
+// start() runs once before the timed chunks.
+template <class Advance, class Energy, class Start>
+Chunks time_chunks(const TimedRun& run, Clock::time_point t_setup, Advance advance, Energy energy, Start start) {
+  const BenchArgs& args = run.args;
+  const double n = double(run.state.config.size());
+  Chunks c;
+  advance(std::max<int64_t>(args.warmup, 1), true);
+  energy();
+  const auto t_cal = Clock::now();
+  const int64_t cal_steps = std::max<int64_t>(args.warmup / 2, 5);
+  advance(cal_steps, true);
+  energy();
+  const double cal_rate = double(cal_steps) / std::max(seconds_since(t_cal), 1e-9);
+  c.setup_seconds = seconds_since(t_setup);
+  c.warmup_steps = std::max<int64_t>(args.warmup, 1) + cal_steps;
+  const int samples = std::max(args.samples, 2);
+  int64_t steps = args.steps > 0 ? args.steps : int64_t(std::ceil(args.seconds * cal_rate));
+  steps = std::max<int64_t>(steps, samples);
+  const int64_t chunk = (steps + samples - 1) / samples;
+  c.steps = chunk * samples;
+  start();
+  c.t.push_back(0.0);
+  c.e.push_back(energy() / n);
+  for (int s = 0; s < samples; ++s) {
+    const auto t0 = Clock::now();
+    advance(chunk, true);
+    const double total = energy();
+    c.seconds += seconds_since(t0);
+    c.t.push_back(double((s + 1) * chunk) * run.scene.integrator.dt);
+    c.e.push_back(total / n);
+  }
+  return c;
+}
+
+// The row's timing and energy fields from the chunks.
+void record_chunks(const TimedRun& run, const Chunks& c) {
+  nlohmann::json& row = run.row;
+  const double n = double(run.state.config.size());
+  row["setup_seconds"] = c.setup_seconds;
+  row["steps"] = c.steps;
+  row["warmup_steps"] = c.warmup_steps;
+  row["seconds"] = c.seconds;
+  row["steps_per_second"] = double(c.steps) / c.seconds;
+  row["particle_steps_per_second"] = double(c.steps) * n / c.seconds;
+  row["ms_per_step"] = 1e3 * c.seconds / double(c.steps);
+  row["energy_per_particle_start"] = c.e.front();
+  row["energy_per_particle_end"] = c.e.back();
+  row["nve_drift"] = run.args.langevin ? NAN : slope(c.t, c.e);  // per particle per unit time (NVE only)
+  row["nve_time_span"] = c.t.back();
+}
+
+// The row's fields from the run statistics of the timed steps.
+void record_run_statistics(nlohmann::json& row, const RunStatistics& st, int64_t steps, std::size_t n) {
+  const double per_step = 1e3 / double(steps);
+  row["forces_ms_per_step"] = per_step * st.force_seconds;
+  row["integration_ms_per_step"] = per_step * st.integration_seconds;
+  row["stage_ms_per_evaluation"] = {{"cell_ids", 1e3 * st.cell_ids},       {"sort", 1e3 * st.sort},
+                                    {"collision_cells", 1e3 * st.collision_cells},
+                                    {"traversal", 1e3 * st.traversal},   {"accumulate", 1e3 * st.accumulate},
+                                    {"check", 1e3 * st.check},           {"total", 1e3 * st.total},
+                                    {"samples", st.stage_samples}};
+  row["builds"] = st.builds;
+  row["evaluations"] = st.evaluations;
+  row["gated_steps"] = st.gated_steps;
+  row["list_evaluations"] = st.list_evaluations;
+  row["neighbor_list"] = st.evaluations > 0 && st.list_evaluations == st.evaluations;  // lists served every step
+  row["dangerous_builds"] = st.dangerous_builds;
+  row["bytes_per_step_host_device"] = double(st.bytes_to_host + st.bytes_to_device) / double(steps);
+  row["buffer_bytes"] = st.buffer_bytes;
+  row["list_pairs"] = st.list_pairs;
+  row["list_slots"] = st.list_slots;
+  row["list_mask_words"] = st.list_mask_words;
+  row["list_mask_words_held"] = st.list_mask_words_held;
+  row["graph_builds"] = st.graph_builds;
+  row["list_block"] = st.list_block;
+  row["gate_closings"] = st.gate_closings;
+  row["gate_closings_early"] = st.gate_closings_early;
+  row["state_bytes"] = st.state_bytes;
+  row["bytes_per_particle"] = double(st.buffer_bytes + st.state_bytes) / double(n);
+  row["memory_by_buffer"] = nlohmann::json::array();  // [name, bytes], largest first
+  for (const auto& [name, bytes] : st.memory) row["memory_by_buffer"].push_back({name, bytes});
+}
+
+// The context's own MD loop (Context::step).
+void time_steps(const TimedRun& run, Context& ctx) {
+  const BenchArgs& args = run.args;
+  nlohmann::json& row = run.row;
+  const MdState& state = run.state;
+  const std::size_t n = state.config.size();
+  row["loop"] = "step";
+  row["integrator"] = args.langevin ? "langevin" : "nve";
+  ctx.set_integrator(bench_integrator(args, run.scene));
+  const auto t_setup = Clock::now();
+  ctx.set_state(n, state.config.positions.data(), state.velocities.data(), state.config.types.data(),
+                run.masses.data());
+  row["backend"] = ctx.backend_name();
+  row["description"] = ctx.description();
+  row["traversal"] = ctx.traversal();
+  row["sort"] = ctx.sort();
+  row["skin"] = ctx.skin();  // in effect (auto resolved)
+  if (args.order == Numbering::kCells && ctx.skin() != run.planned_skin)  // the numbering's grid
+    throw Error("internal error: the numbering was planned for the skin " + std::to_string(run.planned_skin) +
+                ", the context has " + std::to_string(ctx.skin()));
+  row["neighbor"] = ctx.neighbor();
+  Thermo th;
+  const Chunks c = time_chunks(
+      run, t_setup, [&](int64_t count, bool observe) { ctx.step(count, observe); },
+      [&] {
+        th = ctx.thermo();
+        return th.total;
+      },
+      [&] { ctx.reset_run_statistics(); });  // the run statistics of the timed chunks
+  record_chunks(run, c);
+  record_run_statistics(row, ctx.run_statistics(), c.steps, n);
+  row["temperature_end"] = th.temperature;
+  ctx.get_state(run.final_positions.data(), nullptr, run.final_forces.data());
+}
+
+// An embedding code's loop (cli/embed_loop.h): its own velocity Verlet around compute_device.
+void time_embedded(const TimedRun& run, Context& ctx) {
+#ifdef CELLFORCE_BENCH_EMBED
+  const BenchArgs& args = run.args;
+  nlohmann::json& row = run.row;
+  const MdState& state = run.state;
+  const std::size_t n = state.config.size();
+  if (args.langevin) throw Error("--embed: the embedding loop is velocity Verlet (NVE); leave out --langevin");
+  if (ctx.backend_name() != "cuda") throw Error("--embed: needs the cuda backend (compute_device)");
+  row["loop"] = "embed";
+  row["integrator"] = "nve";
+  const auto t_setup = Clock::now();
+  EmbeddedVerlet loop(ctx, n, state.config.positions.data(), state.velocities.data(), state.config.types.data(),
+                      run.masses.data(), run.scene.integrator.dt);
+  row["backend"] = ctx.backend_name();
+  row["description"] = ctx.description();
+  row["traversal"] = ctx.traversal();
+  row["sort"] = ctx.sort();
+  row["skin"] = ctx.skin();  // force calls: as the context resolves it for them
+  row["neighbor"] = ctx.neighbor();
+  std::size_t builds_before = 0;
+  const Chunks c = time_chunks(
+      run, t_setup, [&](int64_t count, bool observe) { loop.step(count, observe); },
+      [&] { return loop.total_energy(); }, [&] { builds_before = ctx.statistics().builds; });
+  record_chunks(run, c);
+  const Statistics st = ctx.statistics();  // of the last force call
+  row["stage_ms_per_evaluation"] = {{"cell_ids", 1e3 * st.cell_ids_seconds},
+                                    {"sort", 1e3 * st.sort_seconds},
+                                    {"collision_cells", 1e3 * st.collision_cells_seconds},
+                                    {"traversal", 1e3 * st.traversal_seconds},
+                                    {"accumulate", 1e3 * st.accumulate_seconds},
+                                    {"total", 1e3 * st.pipeline_seconds},
+                                    {"samples", 1}};
+  row["builds"] = int64_t(st.builds - builds_before);
+  row["evaluations"] = c.steps;
+  row["buffer_bytes"] = st.buffer_bytes;
+  row["bytes_per_particle"] = double(st.buffer_bytes) / double(n);  // the engine's; the loop's own arrays not
+  loop.download(run.final_positions.data(), run.final_forces.data());
+#else
+  (void)run;
+  (void)ctx;
+  throw Error("--embed: this cellforce was built without CUDA");
+#endif
+}
+
 // One size: warm-up, calibration, timed chunks with energy samples, then the reference.
 SizeResult bench_size(const BenchArgs& args, const OptionList& engine, int cells, const std::string& label) {
   SizeResult out;
@@ -197,90 +387,9 @@ SizeResult bench_size(const BenchArgs& args, const OptionList& engine, int cells
     std::vector<double> final_positions(n * dim), final_forces(n * dim);
     {
       Context ctx = make_context(state.config.box, scene.force_field, engine);
-      row["integrator"] = args.langevin ? "langevin" : "nve";
-      ctx.set_integrator(bench_integrator(args, scene));
-      const auto t_setup = Clock::now();
-      ctx.set_state(n, state.config.positions.data(), state.velocities.data(), state.config.types.data(),
-                    masses.data());
-      row["backend"] = ctx.backend_name();
-      row["description"] = ctx.description();
-      row["traversal"] = ctx.traversal();
-      row["sort"] = ctx.sort();
-      row["skin"] = ctx.skin();  // in effect (auto resolved)
-      if (args.order == Numbering::kCells && ctx.skin() != planned_skin)  // the numbering's grid
-        throw Error("internal error: the numbering was planned for the skin " + std::to_string(planned_skin) +
-                    ", the context has " + std::to_string(ctx.skin()));
-      row["neighbor"] = ctx.neighbor();
-      // Warm-up (allocations, first builds), then a calibration of the rate; both excluded.
-      ctx.step(std::max<int64_t>(args.warmup, 1), true);
-      ctx.thermo();
-      const auto t_cal = Clock::now();
-      const int64_t cal_steps = std::max<int64_t>(args.warmup / 2, 5);
-      ctx.step(cal_steps, true);
-      ctx.thermo();
-      const double cal_rate = double(cal_steps) / std::max(seconds_since(t_cal), 1e-9);
-      row["setup_seconds"] = seconds_since(t_setup);
-      const int samples = std::max(args.samples, 2);
-      int64_t steps = args.steps > 0 ? args.steps : int64_t(std::ceil(args.seconds * cal_rate));
-      steps = std::max<int64_t>(steps, samples);
-      const int64_t chunk = (steps + samples - 1) / samples;
-      steps = chunk * samples;
-
-      ctx.reset_run_statistics();
-      std::vector<double> t, e;
-      Thermo th = ctx.thermo();
-      t.push_back(0.0);
-      e.push_back(th.total / double(n));
-      double loop = 0;
-      for (int s = 0; s < samples; ++s) {
-        const auto t0 = Clock::now();
-        ctx.step(chunk, true);
-        th = ctx.thermo();  // waits for the chunk: its wall time is in the loop's
-        loop += seconds_since(t0);
-        t.push_back(double((s + 1) * chunk) * scene.integrator.dt);
-        e.push_back(th.total / double(n));
-      }
-      const RunStatistics st = ctx.run_statistics();
-      const double per_step = 1e3 / double(steps);
-      row["steps"] = steps;
-      row["warmup_steps"] = std::max<int64_t>(args.warmup, 1) + cal_steps;
-      row["seconds"] = loop;
-      row["steps_per_second"] = double(steps) / loop;
-      row["particle_steps_per_second"] = double(steps) * double(n) / loop;
-      row["ms_per_step"] = 1e3 * loop / double(steps);
-      row["forces_ms_per_step"] = per_step * st.force_seconds;
-      row["integration_ms_per_step"] = per_step * st.integration_seconds;
-      row["stage_ms_per_evaluation"] = {{"cell_ids", 1e3 * st.cell_ids},       {"sort", 1e3 * st.sort},
-                                        {"collision_cells", 1e3 * st.collision_cells},
-                                        {"traversal", 1e3 * st.traversal},   {"accumulate", 1e3 * st.accumulate},
-                                        {"check", 1e3 * st.check},           {"total", 1e3 * st.total},
-                                        {"samples", st.stage_samples}};
-      row["builds"] = st.builds;
-      row["evaluations"] = st.evaluations;
-      row["gated_steps"] = st.gated_steps;
-      row["list_evaluations"] = st.list_evaluations;
-      row["neighbor_list"] = st.evaluations > 0 && st.list_evaluations == st.evaluations;  // lists served every step
-      row["dangerous_builds"] = st.dangerous_builds;
-      row["bytes_per_step_host_device"] = double(st.bytes_to_host + st.bytes_to_device) / double(steps);
-      row["buffer_bytes"] = st.buffer_bytes;
-      row["list_pairs"] = st.list_pairs;
-      row["list_slots"] = st.list_slots;
-      row["list_mask_words"] = st.list_mask_words;
-      row["list_mask_words_held"] = st.list_mask_words_held;
-      row["graph_builds"] = st.graph_builds;
-      row["list_block"] = st.list_block;
-      row["gate_closings"] = st.gate_closings;
-      row["gate_closings_early"] = st.gate_closings_early;
-      row["state_bytes"] = st.state_bytes;
-      row["bytes_per_particle"] = double(st.buffer_bytes + st.state_bytes) / double(n);
-      row["memory_by_buffer"] = nlohmann::json::array();  // [name, bytes], largest first
-      for (const auto& [name, bytes] : st.memory) row["memory_by_buffer"].push_back({name, bytes});
-      row["energy_per_particle_start"] = e.front();
-      row["energy_per_particle_end"] = e.back();
-      row["temperature_end"] = th.temperature;
-      row["nve_drift"] = args.langevin ? NAN : slope(t, e);  // per particle per unit time (NVE only)
-      row["nve_time_span"] = t.back();
-      ctx.get_state(final_positions.data(), nullptr, final_forces.data());
+      const TimedRun run{args, scene, state, masses, planned_skin, row, final_positions, final_forces};
+      if (args.embed) time_embedded(run, ctx);
+      else time_steps(run, ctx);
     }  // the timed context's memory is given back before the reference needs its own
     if (!args.save_final.empty()) {
       const std::string prefix = save_final_prefix(args, n);

@@ -36,6 +36,8 @@ struct BenchArgs {
   CutoffMode mode = CutoffMode::kTruncate;
   bool langevin = false;          // Langevin (BAOAB, kT 1.44, friction 1) instead of in.lj's NVE: the
                                   // rows then have no NVE drift
+  bool embed = false;             // time an embedding code's own Verlet loop around compute_device
+                                  // (cli/embed_loop.h; CUDA, NVE) instead of Context::step
   double seconds = 2.0;           // timed seconds per size (sets the steps after the warm-up)
   int64_t steps = 0;              // > 0: exactly these timed steps instead
   int64_t warmup = 50;            // steps before the timing

@@ -342,6 +342,9 @@ int main(int argc, char** argv) {
                   cli::between(2, 100000))
       ->capture_default_str();
   bench_cmd->add_flag("!--no-reference", ba.reference, "Skip the force error against double precision");
+  bench_cmd->add_flag("--embed", ba.embed,
+                      "Time the loop of a code that embeds cellforce (CUDA): its own velocity Verlet, two kernels "
+                      "of its own on its own stream around compute_device on device arrays, instead of step()");
   bench_cmd->add_flag("--langevin", ba.langevin,
                       "Langevin dynamics (BAOAB, kT 1.44, friction 1) instead of NVE: the same fluid at its "
                       "temperature (no NVE drift)");

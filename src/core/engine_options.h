@@ -5,7 +5,7 @@
 #include <cstddef>
 #include <cstdint>
 
-#include <cellforce/options.hpp>  // Precision, Backend
+#include <cellforce/options.hpp>  // Precision, Backend, the CUDA settings
 
 #include "core/grid.h"
 
@@ -16,58 +16,6 @@ enum class Accumulation : uint8_t {
   kJacobi,       // one pass; 2^d output slots per particle (one per cell type), summed at the end
   kGaussSeidel,  // 2^d passes, one per cell type, adding straight into the output
 };
-
-// How the CUDA traversal maps collision cells onto threads.
-enum class TraversalForm : uint8_t {
-  kWarpPerCell,    // cooperative: a warp shares one cell, occupants staged 32 at a time in shared
-                   // memory, partial sums added in a fixed order (the chapter's future work)
-  kThreadPerCell,  // the chapter's: one thread walks one collision cell
-  kWarpPerTile,    // a block per tile of 32 occupants of a cell, its warps sharing the columns,
-                   // each pair from both sides (no writes but its own rows): parallel work for
-                   // small systems
-  kAuto,           // chosen by the engine at each build from the cells and the device (below)
-};
-
-// kAuto's choice: a block per row tile while the collision cells (bounded by min(n, grid cells))
-// are at most this many per multiprocessor, else warp per cell: the tile form's lead over warp per
-// cell shrinks as the cells per multiprocessor grow and is gone at about this many
-// (validation/reports/performance.md records the measurement). A rule of the system and the
-// device, not a timing: the choice, and so the bits, are the same on every run.
-inline constexpr int kTileCellsPerMultiprocessor = 16;
-inline TraversalForm resolve_traversal(TraversalForm form, std::size_t cell_bound, int multiprocessors) {
-  if (form != TraversalForm::kAuto) return form;
-  return cell_bound <= std::size_t(kTileCellsPerMultiprocessor) * std::size_t(multiprocessors)
-             ? TraversalForm::kWarpPerTile
-             : TraversalForm::kWarpPerCell;
-}
-
-// The CUDA pipeline's stage 2; both are stable and sort only the bits the grid needs.
-enum class SortMethod : uint8_t {
-  kCub,      // CUB's device radix sort
-  kChapter,  // the chapter's three-phase radix sort (tabulate, prefix sums, stable reorder)
-};
-
-// The CUDA pair lists' memory mode. Lean: no staged array of the cells' own, the sort's arrays in
-// the dead list's room, the count pass's masks only in the memory the device has left (~700 bytes a
-// particle against fast's ~1,300, up to ~930 with every mask; builds up to ~2x slower where the
-// masks find no room); auto: lean where fast would not fit in 90% of the device (lists_memory).
-enum class ListMemory : uint8_t { kAuto, kFast, kLean };
-
-// The memory mode the lists run in for `n` particles on a device of `device_bytes` (0: unknown, or
-// no device): as asked, or (auto) lean where the fast layout, about kFastListBytesPerParticle with
-// a 0.6 skin and the MD state (a staged array, the sorted arrays, the list, the masks, the gated
-// evaluations' forces, a second rank-ordered array and the MD engine's rank-order copy of the state
-// side by side, the sort's unsorted arrays and scratch in the masks' room; performance.md records
-// the measured bytes per particle), would not fit in 90% of the device. A rule of the system and the
-// device: cuda/backend/memory_plan.cpp applies it at every build, and the automatic skin follows
-// it (resolve_reuse). The mode itself changes no result; the skin it leads to changes when
-// the builds come and the order of the sums (so the bits), not which pairs are summed.
-inline constexpr double kFastListBytesPerParticle = 1320.0;
-inline ListMemory lists_memory(ListMemory asked, std::size_t n, std::size_t device_bytes) {
-  if (asked != ListMemory::kAuto) return asked;
-  return device_bytes > 0 && double(n) * kFastListBytesPerParticle > 0.9 * double(device_bytes) ? ListMemory::kLean
-                                                                                                 : ListMemory::kFast;
-}
 
 // Counts and stage times (seconds) of the last evaluation. Both backends fold the valid count into
 // t_cell_ids (the GPU's cell-ID kernel counts them: its t_count is ~0) and the GPU
@@ -135,18 +83,6 @@ inline const char* to_string(Precision precision) {
 inline const char* to_string(Accumulation accumulation) {
   return accumulation == Accumulation::kJacobi ? "jacobi" : "gauss-seidel";
 }
-
-inline const char* to_string(TraversalForm form) {
-  switch (form) {
-    case TraversalForm::kWarpPerCell: return "warp-per-cell";
-    case TraversalForm::kThreadPerCell: return "thread-per-cell";
-    case TraversalForm::kWarpPerTile: return "block-per-tile";  // option value "tile"
-    case TraversalForm::kAuto: return "auto";
-  }
-  return "?";
-}
-
-inline const char* to_string(SortMethod sort) { return sort == SortMethod::kCub ? "cub" : "chapter"; }
 
 inline const char* to_string(Backend backend) {
   switch (backend) {

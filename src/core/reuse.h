@@ -52,9 +52,9 @@ void validate_reuse(const ReuseOptions& options);
 bool pair_lists_serve(const ReuseOptions& resolved, Accumulation accumulation, const Box& box, double cutoff);
 
 // The automatic choice (ReuseOptions::automatic): a rule of the backend, the system and (through
-// `memory`, lists_memory) the device's memory, not a timing, so that every run of a scene on the
-// same device makes the same choice and the same bits (a system near a device's capacity may get
-// another skin on a device with less memory).
+// `memory`, the CUDA engine's lists_memory) the device's memory, not a timing, so that every run
+// of a scene on the same device makes the same choice and the same bits (a system near a device's
+// capacity may get another skin on a device with less memory).
 // - An MD engine (md: its steps, minimisation) on CUDA with Jacobi accumulation, where rc + skin
 //   fits in half of every periodic edge: pair lists with a skin of kAutoSkinPerCutoff x rc (0.6 at
 //   in.lj's rc 2.5: of the skins validation/reports/performance.md compares, the one that serves
