@@ -156,7 +156,7 @@ TEST(EngineOptions, OneTableOfOptionNames) {
   }
   EXPECT_EQ(cf::option_keys(), "backend, device, precision, mixing, cutoff-mode, skin, neighbor-check, "
                                "neighbor-every, neighbor-audit, neighbor-list, accumulation, cell-rule, traversal, "
-                               "sort, memory");
+                               "sort, memory, threads");
   // The application's list: each option once, in the order first given; a value given again
   // replaces the first in place; an option not given reads as the table's default.
   cf::OptionList list;

@@ -375,8 +375,13 @@ TEST_P(MdApi, SkinAutoIsTheBackendsRule) {
   EXPECT_LT(largest_position_difference(ctx, ref, n, edge), 1e-9);
   EXPECT_NEAR(ctx.thermo().potential, ref.thermo().potential, 1e-10 * std::abs(ref.thermo().potential));
 
-  cf::Context forces = liquid(s);  // the same context, asked for forces only: no MD state used
-  forces.set_backend(s.backend);   // drops the MD state
+  cf::Context forces(3);  // the same system without an MD state: the force calls' structure
+  const double box[3] = {edge, edge, edge};
+  const bool periodic[3] = {true, true, true};
+  forces.set_box(box, periodic);
+  forces.set_cutoff(2.5, cf::CutoffMode::kForceShift);
+  forces.add_type("A", 1.0, 1.0);
+  forces.set_backend(s.backend);
   EXPECT_EQ(forces.skin(), 0.0);
   EXPECT_THAT(forces.neighbor(), HasSubstr("auto: no skin for force calls"));
   forces.set_option("neighbor-list", "true");  // for a skin given as a length; auto chooses itself

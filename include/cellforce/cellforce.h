@@ -29,6 +29,7 @@
 #include <stdint.h>
 
 #include <cellforce/export.hpp>
+#include <cellforce/version.h>
 
 #ifdef __cplusplus
 extern "C" {
@@ -43,7 +44,8 @@ typedef enum {
   CF_ERROR_INTERNAL = 3  /* out of memory, or a fault of cellforce itself */
 } cf_status;
 
-/* The library's version, "MAJOR.MINOR.PATCH". */
+/* The library's version, "MAJOR.MINOR.PATCH": that of the library loaded (the headers' are the
+ * macros CELLFORCE_VERSION_MAJOR, _MINOR and _PATCH of cellforce/version.h). */
 CELLFORCE_API const char* cf_version(void);
 
 /* A new context for dim = 2 or 3 in *ctx: no box, cutoff or types yet; defaults: CPU backend,
@@ -56,7 +58,14 @@ CELLFORCE_API cf_status cf_create(cf_context** ctx, int dim);
  * and may be 0. */
 CELLFORCE_API cf_status cf_set_box(cf_context* ctx, const double* lengths, const int* periodic);
 
-/* Pairs interact only when r < rc; mode: "truncate", "shift" or "force-shift" (NULL: truncate). */
+/* Pairs interact only when r < rc; mode: "truncate", "shift" or "force-shift", or NULL to keep the
+ * mode (truncate in a new context, or as set by the option cutoff-mode).
+ *
+ * With an MD state (cf_set_state), cf_set_box, cf_set_cutoff, cf_add_type, cf_set_pair and the
+ * options apply to it at once: the state (positions, wrapped into a new box and not scaled;
+ * velocities, types, masses, step) is set again under the new physics or on a new engine, its
+ * forces evaluated there, as a fresh cf_set_state of it would. A change it cannot take fails
+ * naming the setting and leaves the state as it was. */
 CELLFORCE_API cf_status cf_set_cutoff(cf_context* ctx, double rc, const char* mode);
 
 /* A particle type; *index (when index is not NULL) receives its index: 0, 1, ... in the order
@@ -80,8 +89,14 @@ CELLFORCE_API cf_status cf_set_pair(cf_context* ctx, uint32_t a, uint32_t b, dou
  *   memory        auto | fast | lean (CUDA pair lists: lean takes ~700 bytes a particle against
  *                 ~1,300, and for its builds' masks up to ~230 more of the memory the device has
  *                 left (builds up to ~2x slower without them); auto, the default, is lean where
- *                 fast would not fit in 90% of the device) */
+ *                 fast would not fit in 90% of the device)
+ *   threads       auto | N >= 0 (cf_set_threads) */
 CELLFORCE_API cf_status cf_set_option(cf_context* ctx, const char* key, const char* value);
+
+/* The CPU backend's OpenMP threads (its parallel regions run with this many): threads >= 1, or 0
+ * for OpenMP's default (omp_get_max_threads() of the calling thread; option threads = auto, a new
+ * context's). Other threads of the program keep their own count. */
+CELLFORCE_API cf_status cf_set_threads(cf_context* ctx, int threads);
 
 /* Host arrays. positions: n * dim (finite; any periodic image); types: n indices into the types
  * added, or NULL for all type 0; forces: n * dim, written; energy: 1 (total potential energy) or
@@ -111,6 +126,38 @@ CELLFORCE_API cf_status cf_compute_device(cf_context* ctx, size_t n, const doubl
 /* Waits for the cf_compute_device calls queued so far; CF_ERROR_INPUT (with cf_last_error naming
  * the particle or pair) when their kernels found bad input. CF_OK at once when none is pending. */
 CELLFORCE_API cf_status cf_synchronize(cf_context* ctx);
+
+/* ---- molecular dynamics: a state held where the backend computes (on the GPU with cuda) ---- */
+
+/* The integrator of the steps: kind "verlet" (NVE, velocity Verlet) or "langevin" (NVT, BAOAB);
+ * dt: the time step (finite, > 0; time units); temperature: Langevin's kT (finite, >= 0; energy);
+ * friction: Langevin's gamma (finite, > 0; 1 / time); seed: Langevin's noise, keyed by (seed, step,
+ * particle, axis). temperature and friction are not read for "verlet". Takes effect at the next
+ * step; a new context has verlet with dt 0.005. */
+CELLFORCE_API cf_status cf_set_integrator(cf_context* ctx, const char* kind, double dt, double temperature,
+                                          double friction, uint64_t seed);
+
+/* The MD state, from host arrays: positions n * dim (finite; wrapped into the box on periodic
+ * axes); velocities n * dim (length / time) or NULL for all zero; types n indices into the types
+ * added, or NULL for all type 0; masses n (finite, > 0); step >= 0 (time = step * dt). Needs the
+ * box, cutoff and types; evaluates the forces at the positions. */
+CELLFORCE_API cf_status cf_set_state(cf_context* ctx, size_t n, const double* positions, const double* velocities,
+                                     const uint32_t* types, const double* masses, int64_t step);
+
+/* Advances the state count >= 0 steps; the last one also computes the energy and virial for
+ * cf_thermo. */
+CELLFORCE_API cf_status cf_step(cf_context* ctx, int64_t count);
+
+/* The state now into host arrays of n * dim each, n the state's particle count (another n is an
+ * error): positions (wrapped into the box), velocities and forces; any may be NULL. */
+CELLFORCE_API cf_status cf_get_state(cf_context* ctx, size_t n, double* positions, double* velocities,
+                                     double* forces);
+
+/* Thermodynamics now: kinetic and potential energy, temperature (2 KE / degrees of freedom:
+ * dim (n - 1) for verlet, dim n for langevin) and pressure ((2 KE + trace W) / (dim V); NaN when
+ * an axis is open); any pointer may be NULL. */
+CELLFORCE_API cf_status cf_thermo(cf_context* ctx, double* kinetic, double* potential, double* temperature,
+                                  double* pressure);
 
 /* Why the last call on ctx failed ("" after a success); with ctx NULL, why the last cf_create of
  * this thread failed. The text stays valid until the next call on ctx. */

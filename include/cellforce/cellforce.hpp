@@ -29,10 +29,12 @@
 #include <cellforce/error.hpp>
 #include <cellforce/export.hpp>
 #include <cellforce/options.hpp>
+#include <cellforce/version.h>
 
 namespace cellforce {
 
-// The library's version, "MAJOR.MINOR.PATCH".
+// The library's version, "MAJOR.MINOR.PATCH": that of the library loaded, which a program built
+// against this header finds in CELLFORCE_VERSION_MAJOR, _MINOR and _PATCH (cellforce/version.h).
 CELLFORCE_API const char* version();
 
 // Where a compute call writes. Host pointers for compute(), device pointers (on the context's
@@ -195,13 +197,22 @@ class CELLFORCE_API Context {
   Context(const Context&) = delete;
   Context& operator=(const Context&) = delete;
 
-  // ---- the physics (may change between compute calls) ----
+  // ---- the physics (may change between compute calls, and while an MD state exists) ----
+  // With an MD state (set_state), each change below applies to it at once, as a fresh set_state of
+  // the state now (positions, velocities, types, masses, step) under the new physics would: its
+  // forces are evaluated again, and the next step starts from them. A change the state cannot take
+  // (a cutoff beyond half a periodic edge for the new box, a particle out of the new type range)
+  // throws naming the setting, and leaves the state and the context as they were.
+  //
   // lengths[dim], periodic[dim]: edge lengths and which axes wrap. A periodic edge must be finite
   // and > 0 (and at least twice the cutoff, checked when computing); the length of an open axis
-  // is ignored and may be 0 (particles may lie anywhere along it).
+  // is ignored and may be 0 (particles may lie anywhere along it). An MD state's positions are not
+  // scaled: they are wrapped into the new box on its periodic axes.
   void set_box(const double* lengths, const bool* periodic);
-  // Pairs interact only when r < rc (strict); mode: what happens at rc (options.hpp).
-  void set_cutoff(double rc, CutoffMode mode = CutoffMode::kTruncate);
+  // Pairs interact only when r < rc (strict). The first form keeps the cutoff mode (truncate in a
+  // new context, or as set by option cutoff-mode); the second sets it too (options.hpp).
+  void set_cutoff(double rc);
+  void set_cutoff(double rc, CutoffMode mode);
   void set_mixing(Mixing mixing);
   // A particle type; returns its index (0, 1, ... in the order added). sigma and epsilon finite
   // and >= 0; names printable and unique.
@@ -210,6 +221,13 @@ class CELLFORCE_API Context {
   void set_pair(uint32_t a, uint32_t b, double sigma, double epsilon);
 
   // ---- the engine (a change takes effect at the next compute call) ----
+  // With an MD state, a change of any engine setting below (set_option's too, but cutoff-mode and
+  // mixing, which are physics) carries the state (positions, velocities, types, masses, step; the
+  // integrator is the context's) into a new engine made with it, whose forces are evaluated there:
+  // the next step runs on the new engine, as after a fresh set_state of the state now; the run
+  // statistics and the neighbour structure start afresh. The new engine is made beside the old one
+  // (with cuda: both on the device for a moment); when it cannot be made (no CUDA device, no memory
+  // for it), the call throws naming the setting, and the state stays on the old engine.
   void set_backend(Backend backend, int device = 0);
   void set_precision(Precision precision);
   // Verlet skin of the neighbour structure (length): stages 1-3 are built for rc + skin and reused
@@ -250,6 +268,9 @@ class CELLFORCE_API Context {
   //                                           the masks find no room; auto, the default: lean where
   //                                           fast would not fit in 90% of the device; lean memory
   //                                           makes an automatic skin 0.18 rc instead of 0.24 rc)
+  //   threads       auto (the default) | N >= 0 (the CPU backend: OpenMP threads of the engine's
+  //                 parallel regions; 0 and auto: OpenMP's default, omp_get_max_threads(); other
+  //                 threads of the program keep their own count)
   void set_option(std::string_view key, std::string_view value);
 
   // ---- computing ----
@@ -294,7 +315,7 @@ class CELLFORCE_API Context {
   // Host arrays: positions and velocities n x dim (velocities may be null: all zero), types n (or
   // null: all type 0), masses n (finite, > 0). Positions on periodic axes are wrapped into the box.
   // Uploads the state, evaluates the forces at it, and sets the step counter (time = step x dt).
-  // The physics (box, cutoff, types) is taken as it is now; change it, and set the state again.
+  // Later changes of the physics or the engine apply to the state (set_box, set_cutoff, ...).
   // With skin auto, a box or cutoff for which the rule chooses otherwise than for the state before
   // makes a new MD engine: its run statistics and neighbour structure start afresh.
   void set_state(std::size_t n, const double* positions, const double* velocities, const uint32_t* types,
@@ -308,6 +329,8 @@ class CELLFORCE_API Context {
   // steps of this call. `observe`: the last step also computes energy and virial (for thermo()).
   void step(int64_t count, bool observe = true);
   int64_t current_step() const;
+  // The MD state's particle count (throws when there is no state).
+  std::size_t num_particles() const;
   // The state now into host arrays (n x dim each; any may be null); a download with cuda.
   void get_state(double* positions, double* velocities, double* forces);
   // Thermodynamics now: a reduction on the device and 8 numbers copied back with cuda (one more
@@ -326,6 +349,8 @@ class CELLFORCE_API Context {
   void reset_run_statistics();
 
   // ---- what the context is ----
+  // A Context that was moved from (std::move) holds nothing: every call on it but assignment and
+  // destruction throws cellforce::Error saying so.
   int dim() const;
   std::size_t num_types() const;
   // The backend in use, "cpu" or "cuda" (auto resolved; this creates the engine when needed), a
@@ -349,6 +374,7 @@ class CELLFORCE_API Context {
   struct Impl;  // the engine and the physics it is given
 
  private:
+  Impl& self() const;  // *impl_, or cellforce::Error for a Context moved from
   std::unique_ptr<Impl> impl_;
 };
 

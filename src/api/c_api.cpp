@@ -60,6 +60,17 @@ void require(const void* p, const char* what) {
   if (!p) throw cellforce::Error(std::string(what) + " is a null pointer");
 }
 
+constexpr cellforce::Named<cellforce::Integrator> kIntegratorNames[] = {{"verlet", cellforce::Integrator::kVerlet},
+                                                                        {"langevin", cellforce::Integrator::kLangevin}};
+
+// Throws unless the MD state holds n particles (the length of the caller's arrays).
+void require_particles(const cellforce::Context& c, size_t n, const char* call) {
+  const std::size_t held = c.num_particles();
+  if (n != held)
+    throw cellforce::Error(std::string(call) + ": n is " + std::to_string(n) + " but the MD state holds " +
+                           std::to_string(held) + " particles");
+}
+
 }  // namespace
 
 extern "C" {
@@ -86,15 +97,12 @@ cf_status cf_set_box(cf_context* ctx, const double* lengths, const int* periodic
 
 cf_status cf_set_cutoff(cf_context* ctx, double rc, const char* mode) {
   return on(ctx, [&](cellforce::Context& c) {
-    cellforce::CutoffMode m = cellforce::CutoffMode::kTruncate;
-    if (mode) {
-      const auto parsed = cellforce::parse_name(mode, cellforce::kCutoffModeNames);
-      if (!parsed)
-        throw cellforce::Error("cutoff mode " + cellforce::quote_excerpt(mode) + " is not one of " +
-                               cellforce::name_list(cellforce::kCutoffModeNames));
-      m = *parsed;
-    }
-    c.set_cutoff(rc, m);
+    if (!mode) return c.set_cutoff(rc);  // the mode as it is
+    const auto parsed = cellforce::parse_name(mode, cellforce::kCutoffModeNames);
+    if (!parsed)
+      throw cellforce::Error("cutoff mode " + cellforce::quote_excerpt(mode) + " is not one of " +
+                             cellforce::name_list(cellforce::kCutoffModeNames));
+    c.set_cutoff(rc, *parsed);
   });
 }
 
@@ -116,6 +124,10 @@ cf_status cf_set_option(cf_context* ctx, const char* key, const char* value) {
     require(value, (std::string("value of option ") + key).c_str());
     c.set_option(key, value);
   });
+}
+
+cf_status cf_set_threads(cf_context* ctx, int threads) {
+  return on(ctx, [&](cellforce::Context& c) { c.set_option("threads", std::to_string(threads)); });
 }
 
 cf_status cf_compute(cf_context* ctx, size_t n, const double* positions, const uint32_t* types,
@@ -141,6 +153,50 @@ cf_status cf_compute_device(cf_context* ctx, size_t n, const double* positions, 
 
 cf_status cf_synchronize(cf_context* ctx) {
   return on(ctx, [&](cellforce::Context& c) { c.synchronize(); });
+}
+
+cf_status cf_set_integrator(cf_context* ctx, const char* kind, double dt, double temperature, double friction,
+                            uint64_t seed) {
+  return on(ctx, [&](cellforce::Context& c) {
+    require(kind, "integrator kind");
+    const auto parsed = cellforce::parse_name(kind, kIntegratorNames);
+    if (!parsed)
+      throw cellforce::Error("integrator kind " + cellforce::quote_excerpt(kind) + " is not one of " +
+                             cellforce::name_list(kIntegratorNames));
+    cellforce::IntegratorOptions o;
+    o.kind = *parsed;
+    o.dt = dt;
+    o.temperature = temperature;
+    o.friction = friction;
+    o.seed = seed;
+    c.set_integrator(o);
+  });
+}
+
+cf_status cf_set_state(cf_context* ctx, size_t n, const double* positions, const double* velocities,
+                       const uint32_t* types, const double* masses, int64_t step) {
+  return on(ctx, [&](cellforce::Context& c) { c.set_state(n, positions, velocities, types, masses, step); });
+}
+
+cf_status cf_step(cf_context* ctx, int64_t count) {
+  return on(ctx, [&](cellforce::Context& c) { c.step(count); });
+}
+
+cf_status cf_get_state(cf_context* ctx, size_t n, double* positions, double* velocities, double* forces) {
+  return on(ctx, [&](cellforce::Context& c) {
+    require_particles(c, n, "cf_get_state");
+    c.get_state(positions, velocities, forces);
+  });
+}
+
+cf_status cf_thermo(cf_context* ctx, double* kinetic, double* potential, double* temperature, double* pressure) {
+  return on(ctx, [&](cellforce::Context& c) {
+    const cellforce::Thermo t = c.thermo();
+    if (kinetic) *kinetic = t.kinetic;
+    if (potential) *potential = t.potential;
+    if (temperature) *temperature = t.temperature;
+    if (pressure) *pressure = t.pressure;
+  });
 }
 
 const char* cf_last_error(const cf_context* ctx) {

@@ -1,6 +1,4 @@
 // The CPU backend's force job: CpuEngine (src/cpu) behind the ForceEngine interface.
-#include <omp.h>
-
 #include "backends/force_engine.h"
 #include "core/error.h"
 #include "cpu/engine.h"
@@ -34,7 +32,8 @@ class CpuForceEngine final : public ForceEngine {
   }
   Backend backend() const override { return Backend::kCpu; }
   std::string description() const override {
-    return "CPU, " + std::to_string(omp_get_max_threads()) + " OpenMP threads";
+    const int threads = engine_.threads();
+    return "CPU, " + std::to_string(threads) + (threads == 1 ? " OpenMP thread" : " OpenMP threads");
   }
   std::string traversal() const override { return "-"; }
   std::string sort() const override { return "-"; }
@@ -46,6 +45,7 @@ class CpuForceEngine final : public ForceEngine {
     o.accumulation = choice.accumulation;
     o.grid.rule = choice.rule;
     o.reuse = choice.reuse;
+    o.threads = choice.threads;
     o.grid_override = choice.test.grid_override;
     return o;
   }

@@ -34,6 +34,8 @@ struct EngineChoice {
   ReuseOptions reuse;                                     // skin (or automatic), check, every, audit, list
   int device = 0;                                         // CUDA device ordinal
   ListMemory memory = ListMemory::kAuto;                  // CUDA pair lists' memory mode (option `memory`)
+  int threads = 0;                                        // CPU: OpenMP threads of the engine's parallel
+                                                          // regions (option `threads`); 0: OpenMP's default
   // CUDA: the stream (a cudaStream_t) the engine runs on, the caller's; null: the engine makes and
   // owns one. Every evaluation and, for an MD engine, every step kernel is queued on it.
   void* stream = nullptr;

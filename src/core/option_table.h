@@ -34,6 +34,7 @@ enum class OptionId : uint8_t {
   kTraversal,
   kSort,
   kMemory,
+  kThreads,
 };
 
 // What an option's value is, as text.
@@ -42,6 +43,7 @@ enum class OptionKind : uint8_t {
   kBoolean,  // true or false, in any letter case
   kInteger,  // a decimal integer (device: an ordinal >= 0; neighbor-every: a count >= 0)
   kSkin,     // kAutoSkin, or a length >= 0
+  kThreads,  // kAutoThreads, or a count >= 0 (0: as auto)
 };
 
 // The names of a table's values, in the table's order.
@@ -82,6 +84,8 @@ inline constexpr auto kMemory = names_of(kListMemoryNames);
 // The skin's value that lets the engine choose (resolve_reuse): skin, neighbour lists and their
 // memory from the backend, the system and the device.
 inline constexpr const char* kAutoSkin = "auto";
+// The thread count's value that leaves it to OpenMP (omp_get_max_threads(); also written 0).
+inline constexpr const char* kAutoThreads = "auto";
 
 struct OptionSpec {
   OptionId id;
@@ -115,6 +119,7 @@ inline constexpr OptionSpec kOptions[] = {
     {OptionId::kTraversal, "traversal", OptionKind::kChoice, option_detail::list(option_detail::kTraversal), "auto"},
     {OptionId::kSort, "sort", OptionKind::kChoice, option_detail::list(option_detail::kSort), "cub"},
     {OptionId::kMemory, "memory", OptionKind::kChoice, option_detail::list(option_detail::kMemory), "auto"},
+    {OptionId::kThreads, "threads", OptionKind::kThreads, {}, kAutoThreads},
 };
 
 // The option of a key as set_option takes it (exact: keys are not case-folded), or null.

@@ -3,6 +3,8 @@
 
 #include <chrono>
 
+#include <omp.h>
+
 #include "core/error.h"
 #include "cpu/stages.h"
 #include "cpu/traversal.h"
@@ -53,6 +55,25 @@ double seconds_since(Clock::time_point t0) {
   return std::chrono::duration<double>(Clock::now() - t0).count();
 }
 
+// For its lifetime, the parallel regions that the calling thread starts run `threads` threads
+// (0: as before); the count before is restored at the end. OpenMP keeps the count per thread, so
+// other threads of the program, and other engines, keep theirs.
+class ThreadCount {
+ public:
+  explicit ThreadCount(int threads) : before_(omp_get_max_threads()), set_(threads > 0) {
+    if (set_) omp_set_num_threads(threads);
+  }
+  ~ThreadCount() {
+    if (set_) omp_set_num_threads(before_);
+  }
+  ThreadCount(const ThreadCount&) = delete;
+  ThreadCount& operator=(const ThreadCount&) = delete;
+
+ private:
+  int before_;
+  bool set_;
+};
+
 }  // namespace
 
 CpuEngine::CpuEngine(CpuOptions options)
@@ -60,6 +81,8 @@ CpuEngine::CpuEngine(CpuOptions options)
   validate_reuse(options_.reuse);
 }
 CpuEngine::~CpuEngine() = default;
+
+int CpuEngine::threads() const { return options_.threads > 0 ? options_.threads : omp_get_max_threads(); }
 
 // Validates the input, then rebuilds the structure (stages 1-3) or keeps the last one: shared by
 // evaluate() and visited_pairs().
@@ -131,6 +154,7 @@ ReuseState CpuEngine::reuse_state() const {
 
 void CpuEngine::restore_reuse(const SystemView& built_from, const ForceField& ff, int64_t served) {
   if (!reuse_.enabled()) return;
+  const ThreadCount threads(options_.threads);
   validate_system(built_from, ff);
   build(built_from, ff);
   reuse_.set_served(served);
@@ -148,6 +172,7 @@ void CpuEngine::audit(const SystemView& system, const ForceField& ff) {
 void CpuEngine::evaluate(const SystemView& system, const ForceField& ff, const Request& request,
                          ForceResult& result) {
   const auto t0 = Clock::now();
+  const ThreadCount threads(options_.threads);
   Scratch& s = *scratch_;
   prepare(system, ff);
 
@@ -185,6 +210,7 @@ void CpuEngine::evaluate(const SystemView& system, const ForceField& ff, const R
 
 std::vector<std::pair<uint32_t, uint32_t>> CpuEngine::visited_pairs(const SystemView& system,
                                                                     const ForceField& ff) {
+  const ThreadCount threads(options_.threads);
   Scratch& s = *scratch_;
   prepare(system, ff);
   audit(system, ff);

@@ -22,6 +22,9 @@ struct CpuOptions {
   Accumulation accumulation = Accumulation::kJacobi;
   GridOptions grid;
   ReuseOptions reuse;  // skin > 0: stages 1-3 reused while no particle moved more than skin / 2
+  // OpenMP threads of the engine's parallel regions (each call runs its regions with this many);
+  // 0: OpenMP's default for the calling thread (omp_get_max_threads()).
+  int threads = 0;
   // Tests only: use this grid as given, unchecked, instead of planning one.
   std::optional<Grid> grid_override;
 };
@@ -54,6 +57,8 @@ class CpuEngine {
   // stats().buffer_bytes held after the last evaluation.
   std::vector<std::pair<const char*, std::size_t>> buffers() const;
   const CpuOptions& options() const { return options_; }
+  // The threads the engine's parallel regions run with when called from this thread.
+  int threads() const;
 
   struct Scratch;  // opaque: stage buffers reused across evaluations
 

@@ -61,9 +61,23 @@ int main(void) {
       fprintf(stderr, "consumer_c: the forces do not sum to zero (%.3g along axis %d)\n", net[k], k);
       return 1;
     }
-  printf("cellforce %s\nenergy %.17g\n", cf_version(), energy);
+  printf("cellforce %s\nheaders %d.%d.%d\nenergy %.17g\n", cf_version(), CELLFORCE_VERSION_MAJOR,
+         CELLFORCE_VERSION_MINOR, CELLFORCE_VERSION_PATCH, energy);
   for (int k = 0; k < 9; ++k) printf("virial %d %.17g\n", k, virial[k]);
   for (int i = 0; i < 3 * kN; ++i) printf("force %d %.17g\n", i, forces[i]);
+
+  /* Molecular dynamics: kMdSteps Verlet steps from the lattice at rest. */
+  static double masses[kN], x[3 * kN], v[3 * kN];
+  for (int i = 0; i < kN; ++i) masses[i] = kMass[types[i]];
+  CHECK(cf_set_integrator(ctx, "verlet", kDt, 0.0, 0.0, 0));
+  CHECK(cf_set_state(ctx, kN, positions, NULL, types, masses, 0));
+  CHECK(cf_step(ctx, kMdSteps));
+  CHECK(cf_get_state(ctx, kN, x, v, NULL));
+  double kinetic, potential, temperature, pressure;
+  CHECK(cf_thermo(ctx, &kinetic, &potential, &temperature, &pressure));
+  printf("md kinetic %.17g potential %.17g temperature %.17g pressure %.17g\n", kinetic, potential, temperature,
+         pressure);
+  for (int i = 0; i < 3 * kN; ++i) printf("md %d %.17g %.17g\n", i, x[i], v[i]);
   cf_destroy(ctx);
   return 0;
 }

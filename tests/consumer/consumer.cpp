@@ -1,6 +1,9 @@
 // The C++ API as a C++ program uses it: the same checks and output as consumer.c.
 #include <cellforce/cellforce.hpp>
 
+// The target asks for C++14 (tests/consumer/CMakeLists.txt); cellforce::cellforce raises it.
+static_assert(__cplusplus >= 201703L, "the cellforce package should require C++17 of its users");
+
 #include <cmath>
 #include <cstdio>
 #include <vector>
@@ -34,9 +37,25 @@ int main() {
 
     double energy = 0, virial[9];
     ctx.compute(kN, positions.data(), types.data(), {forces.data(), nullptr, &energy, virial});
-    std::printf("cellforce %s\nenergy %.17g\n", cellforce::version(), energy);
+    std::printf("cellforce %s\nheaders %d.%d.%d\nenergy %.17g\n", cellforce::version(), CELLFORCE_VERSION_MAJOR,
+                CELLFORCE_VERSION_MINOR, CELLFORCE_VERSION_PATCH, energy);
     for (int k = 0; k < 9; ++k) std::printf("virial %d %.17g\n", k, virial[k]);
     for (int i = 0; i < 3 * kN; ++i) std::printf("force %d %.17g\n", i, forces[std::size_t(i)]);
+
+    // Molecular dynamics: kMdSteps Verlet steps from the lattice at rest, as consumer.c runs them.
+    std::vector<double> masses(kN), x(3 * kN), v(3 * kN);
+    for (int i = 0; i < kN; ++i) masses[std::size_t(i)] = kMass[types[std::size_t(i)]];
+    cellforce::IntegratorOptions integrator;
+    integrator.dt = kDt;
+    ctx.set_integrator(integrator);
+    ctx.set_state(kN, positions.data(), nullptr, types.data(), masses.data(), 0);
+    ctx.step(kMdSteps);
+    ctx.get_state(x.data(), v.data(), nullptr);
+    const cellforce::Thermo t = ctx.thermo();
+    std::printf("md kinetic %.17g potential %.17g temperature %.17g pressure %.17g\n", t.kinetic, t.potential,
+                t.temperature, t.pressure);
+    for (int i = 0; i < 3 * kN; ++i)
+      std::printf("md %d %.17g %.17g\n", i, x[std::size_t(i)], v[std::size_t(i)]);
     // Errors arrive as cellforce::Error naming the parameter.
     try {
       ctx.set_cutoff(-1.0);

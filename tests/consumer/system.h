@@ -10,6 +10,9 @@
 
 enum { kCells = 6, kN = kCells * kCells * kCells };
 static const double kSpacing = 1.12, kCutoff = 2.5;
+/* The MD run's step, length and masses by type. */
+static const double kDt = 0.004, kMass[2] = {1.0, 1.5};
+enum { kMdSteps = 25 };
 
 static double next_uniform(uint64_t* state) {
   *state = *state * 6364136223846793005ull + 1442695040888963407ull;

@@ -1,0 +1,307 @@
+// cellforce::Context's molecular dynamics (include/cellforce/cellforce.hpp): the MD state on its
+// engine (src/backends), and the changes of physics and engine carried into it while it exists.
+#include <cellforce/cellforce.hpp>
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+
+#include "api/context_impl.h"
+#include "core/error.h"
+#include "core/text.h"
+#include "md/minimize.h"
+#include "state/stable_start.h"
+
+namespace cellforce {
+
+namespace {
+
+void check_output(const void* p, const char* what, std::size_t n) {
+  if (n > 0 && p == nullptr)
+    throw Error(std::string(what) + " is a null pointer (" + std::to_string(n) + " particles)");
+}
+
+// Positions on periodic axes of `box` wrapped into [0, L) (non-finite ones are left for the
+// engine's check, which names the particle).
+void wrap_positions(std::vector<double>& positions, const Box& box) {
+  const std::size_t dim = std::size_t(box.dim);
+  for (std::size_t k = 0; k < positions.size(); ++k) {
+    const std::size_t a = k % dim;
+    if (box.periodic[a] && std::isfinite(positions[k])) positions[k] = wrap_coordinate(positions[k], box.length[a]);
+  }
+}
+
+}  // namespace
+
+IntegratorSettings Context::Impl::settings() const {
+  IntegratorSettings s;
+  s.langevin = integrator.kind == Integrator::kLangevin;
+  s.dt = integrator.dt;
+  s.kT = integrator.temperature;
+  s.friction = integrator.friction;
+  s.seed = integrator.seed;
+  return s;
+}
+
+// The state is downloaded, put under the new box (wrapped, not scaled) and set on the engine as
+// set_state sets a state, so that the next step is the one a fresh context with the new setting
+// would take from it. What the engine alone finds (a pair whose force overflows) can fail after
+// the engine took the state: then the state before is set on it again.
+void Context::Impl::carry(const Box& b, const ForceField& f, const EngineChoice& c, bool new_engine,
+                          const std::string& setting) {
+  MdState before;
+  md->get_state(before);
+  before.config.box = md_box;
+  before.config.types = types;
+  MdState state = before;
+  state.config.box = b;
+  wrap_positions(state.config.positions, b);
+  const ListMemory memory = md_list_memory(c, masses.size());
+  EngineChoice next = resolved(c, b, f.cutoff, true, memory);
+  try {
+    // The checks set_state makes, before any engine is touched.
+    validate_system(state.config.view(), f);
+    check_precision_range(f, c.precision);
+    check_step_arithmetic(integrator.dt, masses, types, f);
+    if (!new_engine && same_reuse(next.reuse, md_reuse)) {
+      try {
+        md->set_state(state, masses, f);
+      } catch (...) {
+        try {
+          md->set_state(before, masses, md_ff);
+        } catch (...) {
+          md.reset();  // no half-set state: the next step() asks for set_state again
+        }
+        throw;
+      }
+    } else {
+      // A new engine beside the old one, on the stream of its device (the old stream lives until
+      // the old engines are gone); the old engine stays the state's until the new one holds it.
+      const std::shared_ptr<void> old_stream = stream;
+      const int old_device = stream_device;
+      std::unique_ptr<MdEngine> fresh;
+      try {
+        fresh = make_md_engine(with_stream(next, true));
+        fresh->set_state(state, masses, f);
+      } catch (...) {
+        fresh.reset();
+        stream = old_stream;
+        stream_device = old_device;
+        throw;
+      }
+      if (new_engine) {  // the force calls' engine is made again with the new choices
+        engine.reset();
+        device_pending = false;
+      }
+      md = std::move(fresh);  // the old engine goes before its stream
+      md_reuse = next.reuse;
+      md_memory = memory;
+    }
+  } catch (const Error& e) {
+    rethrow_with(setting + (new_engine ? ": the MD state cannot move to an engine with it, and stays where it was: "
+                                       : ": the MD state cannot take it, and stays as it was: "),
+                 e);
+  }
+  box = md_box = b;
+  ff = md_ff = f;
+  choice = c;
+}
+
+void Context::set_integrator(const IntegratorOptions& o) {
+  if (o.kind != Integrator::kVerlet && o.kind != Integrator::kLangevin)
+    throw Error("integrator " + std::to_string(int(o.kind)) + " is not an Integrator");
+  if (!std::isfinite(o.dt) || o.dt <= 0) throw Error("dt is " + format_number(o.dt) + "; it must be finite and > 0");
+  if (o.kind == Integrator::kLangevin) {
+    if (!std::isfinite(o.temperature) || o.temperature < 0)
+      throw Error("temperature is " + format_number(o.temperature) + "; it must be finite and >= 0");
+    if (!std::isfinite(o.friction) || o.friction <= 0)
+      throw Error("friction is " + format_number(o.friction) + "; it must be finite and > 0");
+  }
+  Impl& s = self();
+  if (s.md) check_step_arithmetic(o.dt, s.masses, s.types, s.md_ff);
+  s.integrator = o;
+}
+
+void Context::set_state(std::size_t n, const double* positions, const double* velocities, const uint32_t* types,
+                        const double* masses, int64_t step) {
+  Impl& s = self();
+  s.check_ready();
+  check_output(positions, "positions", n);
+  check_output(masses, "masses", n);
+  if (step < 0) throw Error("step " + std::to_string(step) + ": expected a step >= 0");
+  const std::size_t dim = std::size_t(s.dim);
+  MdState state;
+  state.config.box = s.box;
+  state.config.positions.assign(positions, positions + n * dim);
+  state.config.types = types ? std::vector<uint32_t>(types, types + n) : std::vector<uint32_t>(n, 0);
+  state.velocities = velocities ? std::vector<double>(velocities, velocities + n * dim) : std::vector<double>(n * dim, 0.0);
+  for (std::size_t i = 0; i < n; ++i)
+    for (std::size_t a = 0; a < dim; ++a)
+      if (s.box.periodic[a] && std::isfinite(state.config.positions[i * dim + a]))
+        state.config.positions[i * dim + a] = wrap_coordinate(state.config.positions[i * dim + a], s.box.length[a]);
+  for (std::size_t k = 0; k < n * dim; ++k)
+    if (!std::isfinite(state.velocities[k]))
+      throw Error("particle " + std::to_string(k / dim) + " has a non-finite velocity (" +
+                  format_number(state.velocities[k]) + ")");
+  state.step = step;
+  state.time = double(step) * s.integrator.dt;
+  std::vector<double> m(masses, masses + n);
+  validate_masses(m, n);
+  check_step_arithmetic(s.integrator.dt, m, state.config.types, s.ff);
+  const ListMemory memory = md_list_memory(s.choice, n);
+  const EngineChoice resolved = s.resolved(s.box, true, memory);
+  // An automatic skin for another box, or another memory mode (another particle count)
+  if (s.md && !Impl::same_reuse(resolved.reuse, s.md_reuse)) s.md.reset();
+  if (!s.md) {
+    s.md = make_md_engine(s.with_stream(resolved));
+    s.md_reuse = resolved.reuse;
+  }
+  s.md_memory = memory;
+  try {
+    s.md->set_state(state, m, s.ff);
+  } catch (...) {
+    s.md.reset();  // no half-set state: the next step() asks for set_state again
+    throw;
+  }
+  s.md_box = s.box;
+  s.md_ff = s.ff;
+  s.masses = std::move(m);
+  s.types = std::move(state.config.types);
+}
+
+void Context::step(int64_t count, bool observe) {
+  if (count < 0) throw Error("step count " + std::to_string(count) + ": expected >= 0");
+  Impl& s = self();
+  s.get_md().advance(count, s.settings(), observe);
+}
+
+int64_t Context::current_step() const {
+  const Impl& s = self();
+  if (!s.md) throw Error("no MD state: call set_state first");
+  return s.md->step();
+}
+
+std::size_t Context::num_particles() const {
+  const Impl& s = self();
+  if (!s.md) throw Error("no MD state: call set_state first");
+  return s.masses.size();
+}
+
+void Context::get_state(double* positions, double* velocities, double* forces) {
+  MdState state;
+  self().get_md().get_state(state);
+  const std::size_t count = state.config.positions.size();
+  if (positions) std::memcpy(positions, state.config.positions.data(), count * sizeof(double));
+  if (velocities) std::memcpy(velocities, state.velocities.data(), count * sizeof(double));
+  if (forces) std::memcpy(forces, state.forces.data(), count * sizeof(double));
+}
+
+Thermo Context::thermo() {
+  Impl& s = self();
+  const Observables o = s.get_md().observables();
+  const int dim = s.md_box.dim;
+  const bool com_conserved = s.integrator.kind == Integrator::kVerlet;
+  Thermo t;
+  t.kinetic = o.kinetic;
+  t.potential = o.potential;
+  t.total = t.kinetic + t.potential;
+  t.temperature = 2.0 * t.kinetic / degrees_of_freedom(s.masses.size(), dim, com_conserved);
+  double trace = 0;
+  bool closed = true;
+  for (int a = 0; a < dim; ++a) {
+    trace += o.virial[a][a];
+    closed = closed && s.md_box.periodic[a];
+    for (int b = 0; b < dim; ++b) t.virial[a * dim + b] = o.virial[a][b];
+  }
+  t.pressure = closed ? (2.0 * t.kinetic + trace) / (dim * s.md_box.volume()) : std::nan("");
+  return t;
+}
+
+MinimizeResult Context::minimize(const MinimizeOptions& options) {
+  FireSettings fire;
+  fire.force_tolerance = options.force_tolerance;
+  fire.max_steps = options.max_steps;
+  fire.dt = options.dt;
+  fire.dt_max = options.dt_max;
+  fire.max_displacement = options.max_displacement;
+  // In place where the state lives (CUDA: kernels on the device); after a throw the engine holds
+  // the state it had, with its forces.
+  const FireResult r = self().get_md().minimize(fire);
+  MinimizeResult out;
+  out.steps = r.steps;
+  out.initial_energy = r.initial_energy;
+  out.final_energy = r.final_energy;
+  out.initial_max_force = r.initial_max_force;
+  out.final_max_force = r.final_max_force;
+  out.final_max_force_particle = r.final_max_force_particle;
+  return out;
+}
+
+NeighborState Context::neighbor_state() {
+  const ReuseState r = self().get_md().forces().reuse_state();
+  return NeighborState{r.build_positions, r.served};
+}
+
+void Context::restore_neighbor_state(const NeighborState& state) {
+  Impl& s = self();
+  MdEngine& md = s.get_md();
+  const std::size_t n = s.masses.size();
+  if (state.build_positions.size() != n * std::size_t(s.md_box.dim))
+    throw Error("neighbour state of " + std::to_string(state.build_positions.size()) + " coordinates for " +
+                std::to_string(n) + " particles in " + std::to_string(s.md_box.dim) + "D");
+  const SystemView built{s.md_box, n, state.build_positions.data(), s.types.data()};
+  md.forces().restore_reuse(built, s.md_ff, state.served);
+  md.reevaluate();  // the current forces from the restored structure, as the uninterrupted run had them
+}
+
+RunStatistics Context::run_statistics() const {
+  RunStatistics r;
+  const Impl& s = self();
+  if (!s.md) return r;
+  const MdCounters& c = s.md->counters();
+  r.steps = c.steps;
+  r.evaluations = c.evaluations;
+  r.force_seconds = c.force_seconds;
+  r.integration_seconds = c.integration_seconds;
+  r.step_call_seconds = c.host_wait_seconds;
+  r.bytes_to_host = c.bytes_to_host;
+  r.bytes_to_device = c.bytes_to_device;
+  r.stage_samples = c.stage_samples;
+  const double per = c.stage_samples ? 1.0 / double(c.stage_samples) : 0.0;
+  r.cell_ids = per * (c.stages.t_cell_ids + c.stages.t_count);
+  r.sort = per * c.stages.t_sort;
+  r.collision_cells = per * c.stages.t_collision_cells;
+  r.traversal = per * c.stages.t_traversal;
+  r.accumulate = per * c.stages.t_accumulate;
+  r.check = per * c.stages.t_check;
+  r.total = per * c.stages.t_total;
+  r.builds = c.builds;
+  r.largest_served_displacement = c.served;
+  r.dangerous_builds = c.dangerous_builds;
+  r.gated_steps = c.gated_steps;
+  r.list_evaluations = c.list_evaluations;
+  r.missed_pairs = c.missed_pairs;
+  r.repeated_pairs = c.repeated_pairs;
+  r.buffer_bytes = s.md->forces().stats().buffer_bytes;
+  r.list_pairs = s.md->forces().stats().list_pairs;
+  r.list_slots = s.md->forces().stats().list_slots;
+  r.list_mask_words = s.md->forces().stats().list_mask_words;
+  r.list_mask_words_held = s.md->forces().stats().list_mask_words_held;
+  r.graph_builds = c.graph_builds;
+  r.list_block = c.list_block;
+  r.gate_closings = c.gate_closings;
+  r.gate_closings_early = c.gate_closings_early;
+  r.state_bytes = s.md->state_bytes();
+  for (const auto& [name, bytes] : s.md->forces().buffers()) r.memory.emplace_back(name, bytes);
+  for (const auto& [name, bytes] : s.md->state_buffers())
+    if (bytes) r.memory.emplace_back(name, bytes);
+  std::stable_sort(r.memory.begin(), r.memory.end(), [](const auto& a, const auto& b) { return a.second > b.second; });
+  return r;
+}
+
+void Context::reset_run_statistics() {
+  Impl& s = self();
+  if (s.md) s.md->reset_counters();
+}
+
+}  // namespace cellforce
