@@ -327,6 +327,16 @@ int main(int argc, char** argv) {
       [&ba] { ba.engine.set(OptionId::kNeighborList, name_of(true, kBooleanNames)); },
       "With a skin (CUDA, Jacobi): each build records every particle's partners within rc + skin and the steps it "
       "serves walk those lists");
+  add_engine_option(bench_cmd, ba.engine, OptionId::kNeighborCheck,
+                    "With a skin: rebuild when a particle has moved more than skin/2 (true, the default) or only "
+                    "every --neighbor-every evaluations (false: no displacement check)");
+  bench_cmd
+      ->add_option_function<int64_t>(
+          option_flag(OptionId::kNeighborEvery),
+          [&ba](const int64_t& every) { ba.engine.set(OptionId::kNeighborEvery, std::to_string(every)); },
+          "With a skin: a structure serves at most this many evaluations (0: no limit, the default)")
+      ->transform(cli::number<int64_t>(cli::kNonNegative))
+      ->type_name("N");
   bench_cmd->add_flag("--chapter", ba.chapter,
                       "The chapter's configuration: a thread per cell, its radix sort, cells >= 1.5 x 2h, a "
                       "rebuild every step");
