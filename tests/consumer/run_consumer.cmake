@@ -2,24 +2,7 @@
 # (tests/consumer) against that prefix, runs consumer_c and consumer_cpp and requires the same
 # output from both. Run by ctest as package_consumer:
 #   cmake -DBUILD_DIR=... -DSOURCE_DIR=tests/consumer -DWORK_DIR=... -P run_consumer.cmake
-foreach(var BUILD_DIR SOURCE_DIR WORK_DIR)
-  if(NOT DEFINED ${var})
-    message(FATAL_ERROR "run_consumer.cmake: -D${var}=... is required")
-  endif()
-endforeach()
-
-function(step)
-  execute_process(COMMAND ${ARGN} RESULT_VARIABLE rc OUTPUT_VARIABLE out ERROR_VARIABLE err)
-  if(NOT rc EQUAL 0)
-    message(FATAL_ERROR "failed (${rc}): ${ARGN}\n${out}\n${err}")
-  endif()
-endfunction()
-
-file(REMOVE_RECURSE ${WORK_DIR})
-step(${CMAKE_COMMAND} --install ${BUILD_DIR} --prefix ${WORK_DIR}/prefix)
-step(${CMAKE_COMMAND} -S ${SOURCE_DIR} -B ${WORK_DIR}/build -DCMAKE_PREFIX_PATH=${WORK_DIR}/prefix
-     -DCMAKE_BUILD_TYPE=Release)
-step(${CMAKE_COMMAND} --build ${WORK_DIR}/build)
+include(${CMAKE_CURRENT_LIST_DIR}/package_build.cmake)
 foreach(program consumer_c consumer_cpp)
   execute_process(COMMAND ${WORK_DIR}/build/${program} RESULT_VARIABLE rc
                   OUTPUT_FILE ${WORK_DIR}/${program}.txt ERROR_VARIABLE err)
