@@ -124,6 +124,51 @@ TEST(CApiMd, VerletRunIsTheCppRunBitwise) {
   EXPECT_EQ(t_only, ct);
 }
 
+// cf_set_positions and cf_set_velocities are Context::set_positions and set_velocities: the same
+// bits after them and after 10 more steps; a count other than the state's is named.
+TEST(CApiMd, NewPositionsAndVelocitiesAreTheCppCalls) {
+  const Liquid l = liquid();
+  const double box[3] = {l.edge, l.edge, l.edge};
+  Handle c = create(3);
+  const int periodic[3] = {1, 1, 1};
+  ASSERT_EQ(cf_set_box(c.get(), box, periodic), CF_OK);
+  ASSERT_EQ(cf_set_cutoff(c.get(), 2.5, "truncate"), CF_OK);
+  ASSERT_EQ(cf_add_type(c.get(), "A", 1.0, 1.0, nullptr), CF_OK);
+  ASSERT_EQ(cf_add_type(c.get(), "B", 0.9, 0.7, nullptr), CF_OK);
+  ASSERT_EQ(cf_set_option(c.get(), "backend", "cpu"), CF_OK);
+  ASSERT_EQ(cf_set_integrator(c.get(), "verlet", 0.004, 0, 0, 0), CF_OK);
+  ASSERT_EQ(cf_set_state(c.get(), l.n, l.x.data(), l.v.data(), l.types.data(), l.m.data(), 0), CF_OK);
+  cf::Context cpp(3);
+  const bool p3[3] = {true, true, true};
+  cpp.set_box(box, p3);
+  cpp.set_cutoff(2.5, cf::CutoffMode::kTruncate);
+  cpp.add_type("A", 1.0, 1.0);
+  cpp.add_type("B", 0.9, 0.7);
+  cpp.set_backend(cf::Backend::kCpu);
+  cf::IntegratorOptions o;
+  o.dt = 0.004;
+  cpp.set_integrator(o);
+  cpp.set_state(l.n, l.x.data(), l.v.data(), l.types.data(), l.m.data(), 0);
+  std::vector<double> x = l.x, v = l.v;
+  for (std::size_t k = 0; k < x.size(); ++k) x[k] += 0.01 * std::cos(double(k)), v[k] *= 0.5;
+  ASSERT_EQ(cf_set_positions(c.get(), l.n, x.data()), CF_OK) << cf_last_error(c.get());
+  ASSERT_EQ(cf_set_velocities(c.get(), l.n, v.data()), CF_OK) << cf_last_error(c.get());
+  cpp.set_positions(l.n, x.data());
+  cpp.set_velocities(l.n, v.data());
+  for (int round = 0; round < 2; ++round) {
+    std::vector<double> cx(3 * l.n), cv(3 * l.n), cfo(3 * l.n), px(3 * l.n), pv(3 * l.n), pf(3 * l.n);
+    ASSERT_EQ(cf_get_state(c.get(), l.n, cx.data(), cv.data(), cfo.data()), CF_OK);
+    cpp.get_state(px.data(), pv.data(), pf.data());
+    EXPECT_TRUE(cx == px && cv == pv && cfo == pf) << "round " << round;
+    ASSERT_EQ(cf_step(c.get(), 10), CF_OK);
+    cpp.step(10);
+  }
+  EXPECT_EQ(cf_set_positions(c.get(), l.n + 1, x.data()), CF_ERROR_INPUT);
+  EXPECT_THAT(std::string(cf_last_error(c.get())), HasSubstr("257 particles given for a state of 256"));
+  EXPECT_EQ(cf_set_velocities(c.get(), l.n, nullptr), CF_ERROR_INPUT);
+  EXPECT_THAT(std::string(cf_last_error(c.get())), HasSubstr("velocities is a null pointer"));
+}
+
 // Langevin through the C API: the C++ run of the same seed, bit for bit; another seed differs.
 TEST(CApiMd, LangevinRunIsTheCppRunBitwise) {
   const Liquid l = liquid();

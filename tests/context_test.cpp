@@ -222,3 +222,27 @@ TEST(Version, MacrosAreTheLibrarysVersion) {
   EXPECT_EQ(std::string(cf::version()), macros);
   EXPECT_STREQ(CELLFORCE_VERSION_STRING, cf::version());
 }
+
+// set_backend(backend) keeps the device the option chose: the CUDA engine is then asked for device
+// 57, which does not exist, and the call names it (a device reset to 0 would compute).
+TEST(ContextBackend, SetBackendKeepsTheDevice) {
+#ifdef CELLFORCE_HAVE_CUDA
+  cf::Context probe(3);
+  probe.set_backend(cf::Backend::kAuto);
+  if (probe.backend_name() != "cuda") GTEST_SKIP() << "no CUDA device here";
+  cf::Context ctx = pair_context();
+  ctx.set_cutoff(2.5);
+  ctx.set_option("device", "57");
+  ctx.set_backend(cf::Backend::kCpu);
+  EXPECT_TRUE(std::isfinite(pair_energy(ctx, 1.5)));  // the CPU has no device
+  try {
+    ctx.set_backend(cf::Backend::kCuda);
+    pair_energy(ctx, 1.5);
+    ADD_FAILURE() << "device 57 was not asked for";
+  } catch (const cf::Error& e) {
+    EXPECT_THAT(std::string(e.what()), HasSubstr("device 57 does not exist"));
+  }
+#else
+  GTEST_SKIP() << "this build has no CUDA";
+#endif
+}

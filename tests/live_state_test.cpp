@@ -13,6 +13,7 @@
 #include <cmath>
 #include <cstdio>
 #include <functional>
+#include <limits>
 #include <string>
 #include <vector>
 
@@ -317,6 +318,83 @@ TEST_P(LiveState, AnEngineThatCannotBeMadeIsRefused) {
                  {"backend cuda", "the MD state cannot move to an engine with it", "built without CUDA"});
   expect_refused([](cf::Context& c) { c.set_option("backend", "cuda"); }, {"backend cuda"});
 #endif
+}
+
+// New positions and velocities act on the state where it lives: the run continues as a fresh
+// context given the same state (positions moved off the trajectory, velocities reversed, the same
+// step) continues, at the change and 5 steps later (bitwise on the CPU; with cuda to
+// rebuilt_tolerance, the skin's structure of the run against one built at the change); with cuda only the new array crosses to the
+// device (the run statistics count its bytes alone) and nothing comes back.
+TEST_P(LiveState, NewPositionsAndVelocitiesActOnTheStateWhereItLives) {
+  const Start s = liquid_start();
+  cf::Context a(3);
+  set_up(a, s);
+  a.set_state(s.n, s.x.data(), s.v.data(), s.types.data(), s.m.data());
+  a.step(10);
+  const Snapshot at = snapshot(a, s.n);
+  std::vector<double> x = at.x, v = at.v;
+  for (std::size_t k = 0; k < x.size(); ++k) {
+    x[k] += 0.02 * std::sin(0.7 * double(k));  // off the trajectory: other forces
+    v[k] = -v[k];
+  }
+  x[0] += s.edge;  // another periodic image: wrapped as set_state wraps it
+  a.reset_run_statistics();
+  a.set_positions(s.n, x.data());
+  a.set_velocities(s.n, v.data());
+  const cf::RunStatistics st = a.run_statistics();
+  EXPECT_EQ(st.bytes_to_host, 0u);
+  EXPECT_EQ(st.bytes_to_device, backend == cf::Backend::kCuda ? 2 * s.n * 3 * sizeof(double) : 0u);
+  cf::Context b(3);
+  set_up(b, s);
+  b.set_state(s.n, x.data(), v.data(), s.types.data(), s.m.data(), at.step);
+  const Snapshot moved = snapshot(a, s.n);
+  {
+    SCOPED_TRACE("at the change");  // with cuda a's forces come from its reused lists, b's built anew
+    expect_same(moved, snapshot(b, s.n), rebuilt_tolerance());
+  }
+  EXPECT_FALSE(moved.f == at.f) << "the new positions changed no force: the test would not see them ignored";
+  a.step(5);
+  b.step(5);
+  SCOPED_TRACE("5 steps after the change");
+  expect_same(snapshot(a, s.n), snapshot(b, s.n), rebuilt_tolerance());
+}
+
+// Positions the state cannot take (a wrong count, a non-finite coordinate, two particles on one
+// point) and non-finite velocities are refused naming the cause; the run then continues as an
+// untouched twin's (bitwise on the CPU; with cuda a refused evaluation may have rebuilt the
+// structure from the same positions, which moves later builds: rebuilt_tolerance).
+TEST_P(LiveState, NewPositionsTheStateCannotTakeAreRefused) {
+  const Start s = liquid_start();
+  cf::Context a(3), twin(3);
+  for (cf::Context* c : {&a, &twin}) {
+    set_up(*c, s);
+    c->set_state(s.n, s.x.data(), s.v.data(), s.types.data(), s.m.data());
+    c->step(5);
+  }
+  const Snapshot at = snapshot(a, s.n);
+  auto message = [&](const std::function<void()>& call) {
+    try {
+      call();
+    } catch (const cf::Error& e) {
+      return std::string(e.what());
+    }
+    return std::string("no error");
+  };
+  EXPECT_THAT(message([&] { a.set_positions(s.n - 1, at.x.data()); }), HasSubstr("255 particles given for a state of 256"));
+  std::vector<double> bad = at.x;
+  bad[3 * 17 + 1] = std::nan("");
+  EXPECT_THAT(message([&] { a.set_positions(s.n, bad.data()); }), HasSubstr("particle 17"));
+  bad = at.x;
+  for (int c = 0; c < 3; ++c) bad[3 * 9 + std::size_t(c)] = bad[3 * 8 + std::size_t(c)];  // 8 and 9 on one point
+  EXPECT_THAT(message([&] { a.set_positions(s.n, bad.data()); }), HasSubstr("particles 8 and 9"));
+  std::vector<double> v = at.v;
+  v[3 * 4 + 2] = std::numeric_limits<double>::infinity();
+  EXPECT_THAT(message([&] { a.set_velocities(s.n, v.data()); }), HasSubstr("particle 4 has a non-finite velocity"));
+  EXPECT_THAT(message([&] { a.set_velocities(s.n, nullptr); }), HasSubstr("velocities is a null pointer"));
+  expect_same(snapshot(a, s.n), snapshot(twin, s.n), rebuilt_tolerance());
+  a.step(5);
+  twin.step(5);
+  expect_same(snapshot(a, s.n), snapshot(twin, s.n), rebuilt_tolerance());
 }
 
 INSTANTIATE_TEST_SUITE_P(Backends, LiveState, ::testing::Values(cf::Backend::kCpu, cf::Backend::kCuda),

@@ -16,6 +16,7 @@
 #include <utility>
 #include <vector>
 
+#include "backend/caller_arrays.cuh"
 #include "backend/engine_state.cuh"
 #include "core/error.h"
 
@@ -164,19 +165,22 @@ void GpuEngine::evaluate(const SystemView& system, const ForceField& ff, const R
   audit(system, ff);  // after the total: its host search is no part of the engine's time
 }
 
-void GpuEngine::evaluate_device(const DeviceSystemView& dsys, const ForceField& ff,
-                                const DeviceOutputs& out, void* stream) {
+void GpuEngine::evaluate_device(const DeviceInput& input, const ForceField& ff, const DeviceOutputs& out,
+                                void* stream) {
   const DeviceScope scope(options_.device);
   Impl& s = *impl_;
-  if (dsys.n > 0 && (!dsys.positions || !out.forces))
-    throw Error(std::string(dsys.positions ? "forces" : "positions") + " is a null pointer (" +
-                std::to_string(dsys.n) + " particles)");
+  if (input.n > 0 && (!input.positions || !out.forces))
+    throw Error(std::string(input.positions ? "forces" : "positions") + " is a null pointer (" +
+                std::to_string(input.n) + " particles)");
+  if (input.stride != 0 && input.stride < std::size_t(input.box.dim))
+    throw Error("positions: a row stride of " + std::to_string(input.stride) + " elements is less than the " +
+                std::to_string(input.box.dim) + " coordinates of a row");
   // Every pointer must be one the device can use: a host pointer here would fault the context.
-  const std::pair<const void*, const char*> pointers[] = {{dsys.positions, "positions"}, {dsys.types, "types"},
+  const std::pair<const void*, const char*> pointers[] = {{input.positions, "positions"}, {input.types, "types"},
                                                           {out.forces, "forces"}, {out.energies, "energies"},
                                                           {out.energy, "energy"}, {out.virial, "virial"}};
   for (const auto& [p, what] : pointers) {
-    if (!p || (dsys.n == 0 && (p == dsys.positions || p == dsys.types || p == out.forces || p == out.energies)))
+    if (!p || (input.n == 0 && (p == input.positions || p == input.types || p == out.forces || p == out.energies)))
       continue;
     cudaPointerAttributes attributes{};
     const cudaError_t err = cudaPointerGetAttributes(&attributes, p);
@@ -187,14 +191,22 @@ void GpuEngine::evaluate_device(const DeviceSystemView& dsys, const ForceField& 
                   "compute for host arrays)");
   }
   // What can be checked without the arrays: the box, the force field, the capacity.
-  const std::size_t n = dsys.n, dim = std::size_t(dsys.box.dim);
-  const SystemView system{dsys.box, n, nullptr, nullptr};  // no host arrays: nothing reads them
-  validate_physics(dsys.box, ff, n);
+  const std::size_t n = input.n, dim = std::size_t(input.box.dim);
+  const SystemView system{input.box, n, nullptr, nullptr};  // no host arrays: nothing reads them
+  validate_physics(input.box, ff, n);
   check_capacity(system, ff);
 
   const auto caller = static_cast<cudaStream_t>(stream);
   CF_CUDA_CHECK(cudaEventRecord(s.joined, caller));  // the engine starts after the caller's work
   CF_CUDA_CHECK(cudaStreamWaitEvent(s.stream, s.joined, 0));
+  // Positions not held as packed float64 rows: converted into the engine's array, read from there.
+  DeviceSystemView dsys{input.box, n, static_cast<const double*>(input.positions), input.types};
+  if (!input.packed()) {
+    s.positions.reserve(std::max<std::size_t>(n * dim, 1));
+    cuda::pack_positions(input.positions, input.scalar, input.stride == 0 ? dim : input.stride, n, int(dim),
+                         s.positions.data(), s.stream);
+    dsys.positions = s.positions.data();
+  }
   if (!s.accumulate_flags) {  // flags accumulate until synchronize()
     s.reset_flags();
     s.accumulate_flags = true;

@@ -79,7 +79,7 @@ class GpuEngine final : public cuda::ResidentForces {
   // with pair lists when the structure is built (the list's size, 24 bytes, and the free memory)
   // and with the reuse audit. Results are bitwise those of evaluate() on the same input.
   // Throws cellforce::Error for bad pointers or physics, before anything is queued.
-  void evaluate_device(const DeviceSystemView& system, const ForceField& ff, const DeviceOutputs& out,
+  void evaluate_device(const DeviceInput& input, const ForceField& ff, const DeviceOutputs& out,
                        void* stream);
   // Waits for the engine's work, reads what the kernels flagged since the last synchronize() and
   // the counts of the last evaluation and the stage times of the last timed one (stats(); zeros

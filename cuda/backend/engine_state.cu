@@ -152,10 +152,13 @@ void GpuEngine::Impl::throw_flags(const cuda::DeviceFlags& f, const SystemView& 
   if (f.bad_coordinate != ~0ull)
     throw Error("particle " + std::to_string(f.bad_coordinate >> 32) + " has a non-finite " +
                 kAxis[std::min<unsigned>(unsigned(f.bad_coordinate & 0xffffffffu), kMaxDim - 1)] + " coordinate");
-  if (f.bad_type != ~0ull)
-    throw Error("particle " + std::to_string(f.bad_type >> 32) + " has type index " +
-                std::to_string(f.bad_type & 0xffffffffu) + " but there are " + std::to_string(ff.num_types()) +
-                " types");
+  if (f.bad_type != ~0ull) {
+    const uint32_t index = uint32_t(f.bad_type & 0xffffffffu);
+    // An int32 array passes as uint32 (DeviceInput): a negative index is named as such too.
+    const std::string as_int32 = index >= 0x80000000u ? " (" + std::to_string(int32_t(index)) + " as int32)" : "";
+    throw Error("particle " + std::to_string(f.bad_type >> 32) + " has type index " + std::to_string(index) +
+                as_int32 + " but there are " + std::to_string(ff.num_types()) + " types");
+  }
   if (f.bad_pair != ~0ull) {
     const auto i = uint32_t(f.bad_pair >> 32), j = uint32_t(f.bad_pair & 0xffffffffu);
     if (system.positions) throw_close_pair(system, i, j, distance2(system, i, j), &ff, precision);

@@ -29,9 +29,9 @@ void CudaForceEngine::evaluate(const SystemView& system, const ForceField& ff, c
   engine_.evaluate(system, ff, request, result);
 }
 
-void CudaForceEngine::evaluate_device(const DeviceSystemView& system, const ForceField& ff,
+void CudaForceEngine::evaluate_device(const DeviceInput& input, const ForceField& ff,
                                       const DeviceOutputs& out, void* stream) {
-  engine_.evaluate_device(system, ff, out, stream);
+  engine_.evaluate_device(input, ff, out, stream);
 }
 
 PipelineStats CudaForceEngine::stats(const SystemView& system, const ForceField& ff, bool counts) {

@@ -18,7 +18,7 @@ class CudaForceEngine final : public ForceEngine {
 
   void evaluate(const SystemView& system, const ForceField& ff, const Request& request,
                 ForceResult& result) override;
-  void evaluate_device(const DeviceSystemView& system, const ForceField& ff, const DeviceOutputs& out,
+  void evaluate_device(const DeviceInput& input, const ForceField& ff, const DeviceOutputs& out,
                        void* stream) override;
   void synchronize(const ForceField& ff) override { engine_.synchronize(ff); }
   PipelineStats stats(const SystemView& system, const ForceField& ff, bool counts) override;

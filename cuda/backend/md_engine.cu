@@ -76,6 +76,39 @@ void CudaMdEngine::advance(int64_t steps, const IntegratorSettings& settings, bo
   add_stage_sample(counters_, resident_.stats());
 }
 
+// The positions alone are uploaded; the ones before stay on the device (a copy beside them) until
+// the forces at the new ones are known to be finite.
+void CudaMdEngine::set_positions(const std::vector<double>& positions) {
+  const OnDevice on(resident_.device());
+  validate_system(SystemView{box_, n_, positions.data(), host_types_.empty() ? nullptr : host_types_.data()}, ff_);
+  const std::size_t nd = n_ * std::size_t(box_.dim);
+  DeviceBuffer<double> before;
+  before.bind(stream_);
+  before.reserve(std::max<std::size_t>(nd, 1));
+  CF_CUDA_CHECK(cudaMemcpyAsync(before.data(), positions_.data(), nd * sizeof(double), cudaMemcpyDeviceToDevice,
+                                stream_));
+  cuda::upload(positions_, positions, stream_);
+  counters_.bytes_to_device += nd * sizeof(double);
+  at_build_ = false;  // the positions change
+  try {
+    evaluate(true);
+    check(step_, step_);
+  } catch (...) {
+    CF_CUDA_CHECK(cudaMemcpyAsync(positions_.data(), before.data(), nd * sizeof(double), cudaMemcpyDeviceToDevice,
+                                  stream_));
+    reset_flags();
+    evaluate(true);
+    check(step_, step_);
+    throw;
+  }
+}
+
+void CudaMdEngine::set_velocities(const std::vector<double>& velocities) {
+  const OnDevice on(resident_.device());
+  cuda::upload(velocities_, velocities, stream_);
+  counters_.bytes_to_device += velocities.size() * sizeof(double);
+}
+
 void CudaMdEngine::get_state(MdState& state) {
   const OnDevice on(resident_.device());
   const std::size_t nd = n_ * std::size_t(box_.dim);

@@ -78,6 +78,8 @@ class CudaMdEngine final : public MdEngine {
 
   void advance(int64_t steps, const IntegratorSettings& settings, bool observe) override;
 
+  void set_positions(const std::vector<double>& positions) override;
+  void set_velocities(const std::vector<double>& velocities) override;
   void get_state(MdState& state) override;
 
   int64_t step() const override { return step_; }

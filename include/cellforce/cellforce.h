@@ -123,6 +123,21 @@ CELLFORCE_API cf_status cf_compute_energies(cf_context* ctx, size_t n, const dou
 CELLFORCE_API cf_status cf_compute_device(cf_context* ctx, size_t n, const double* positions, const uint32_t* types,
                             double* forces, double* energy, double* virial, void* stream);
 
+/* Arrays as the caller holds them (cellforce.hpp Positions and Types): positions are n rows of
+ * `stride` elements (0: dim; 4 for xyz padded to four) of `scalar`, the first dim of each used;
+ * types (or NULL) are n elements of `index`. The results are those of the packed double and
+ * uint32_t arrays of the same values. A stride below dim, an unknown scalar or index, and (host
+ * arrays) a negative int32 type are CF_ERROR_INPUT naming them. */
+typedef enum cf_scalar { CF_FLOAT64 = 0, CF_FLOAT32 = 1 } cf_scalar;
+typedef enum cf_index { CF_UINT32 = 0, CF_INT32 = 1 } cf_index;
+CELLFORCE_API cf_status cf_compute_layout(cf_context* ctx, size_t n, const void* positions, cf_scalar scalar,
+                                          size_t stride, const void* types, cf_index index, double* forces,
+                                          double* energies, double* energy, double* virial);
+/* As cf_compute_layout with device pointers, as cf_compute_device. */
+CELLFORCE_API cf_status cf_compute_device_layout(cf_context* ctx, size_t n, const void* positions, cf_scalar scalar,
+                                                 size_t stride, const void* types, cf_index index, double* forces,
+                                                 double* energies, double* energy, double* virial, void* stream);
+
 /* Waits for the cf_compute_device calls queued so far; CF_ERROR_INPUT (with cf_last_error naming
  * the particle or pair) when their kernels found bad input. CF_OK at once when none is pending. */
 CELLFORCE_API cf_status cf_synchronize(cf_context* ctx);
@@ -147,6 +162,12 @@ CELLFORCE_API cf_status cf_set_state(cf_context* ctx, size_t n, const double* po
 /* Advances the state count >= 0 steps; the last one also computes the energy and virial for
  * cf_thermo. */
 CELLFORCE_API cf_status cf_step(cf_context* ctx, int64_t count);
+
+/* New positions or velocities (n * dim, n the state's count) for the state where it lives
+ * (cellforce.hpp Context::set_positions, set_velocities): positions are wrapped into the box and
+ * the forces evaluated at them; velocities, step and time are kept. */
+CELLFORCE_API cf_status cf_set_positions(cf_context* ctx, size_t n, const double* positions);
+CELLFORCE_API cf_status cf_set_velocities(cf_context* ctx, size_t n, const double* velocities);
 
 /* The state now into host arrays of n * dim each, n the state's particle count (another n is an
  * error): positions (wrapped into the box), velocities and forces; any may be NULL. */

@@ -49,6 +49,22 @@ struct Outputs {
                                // r_ij = x_i - x_j by minimum image and f_ij the force on i from j
 };
 
+// A caller's particle arrays as it holds them, for the compute calls that take a layout: positions
+// in float64 or float32, each particle's row `stride` elements after the last (dim for packed xyz;
+// 4 for xyz padded to four, as OpenMM and many GPU codes store them; 0 means dim), and types as
+// uint32 or int32 (null: all type 0). The engine computes on float64 copies of the coordinates (a
+// float32 coordinate converts exactly) and uint32 types, so the results are bitwise those of the
+// packed float64 and uint32 arrays holding the same values.
+struct Positions {
+  const void* data = nullptr;        // n rows of `stride` elements of `scalar`, the first dim used
+  Scalar scalar = Scalar::kFloat64;
+  std::size_t stride = 0;            // elements from one particle's row to the next (>= dim); 0: dim
+};
+struct Types {
+  const void* data = nullptr;        // n indices into the types added; null: all type 0
+  Index index = Index::kUInt32;
+};
+
 // Pair counts of a configuration (count_pairs()), and the search structure they were counted on
 // (stages 1-3 of the spatial subdivision: the grid, each particle's cell-ID entries, the
 // collision cells).
@@ -228,7 +244,9 @@ class CELLFORCE_API Context {
   // statistics and the neighbour structure start afresh. The new engine is made beside the old one
   // (with cuda: both on the device for a moment); when it cannot be made (no CUDA device, no memory
   // for it), the call throws naming the setting, and the state stays on the old engine.
-  void set_backend(Backend backend, int device = 0);
+  // set_backend(backend) keeps the device (0 in a new context, or as set by option device).
+  void set_backend(Backend backend);
+  void set_backend(Backend backend, int device);
   void set_precision(Precision precision);
   // Verlet skin of the neighbour structure (length): stages 1-3 are built for rc + skin and reused
   // while no particle has moved more than skin / 2; 0 rebuilds on every call. The default is auto
@@ -294,6 +312,15 @@ class CELLFORCE_API Context {
   // the list), and with the neighbour audit. Results are bitwise those of compute() on the same input and backend.
   void compute_device(std::size_t n, const double* positions, const uint32_t* types, const Outputs& out,
                       void* stream = nullptr);
+  // compute() and compute_device() for arrays as the caller holds them (Positions, Types: float32
+  // or float64 coordinates, a row stride, int32 or uint32 types), with the same results as the
+  // packed float64 and uint32 arrays of the same values. Besides what those calls check: a stride
+  // below dim, a negative int32 type (host arrays: named here; device arrays: by synchronize(), as
+  // any type out of range). compute_device converts the coordinates on the device, on `stream`,
+  // into an array of the engine's (n x dim doubles) unless they are packed float64 already.
+  void compute(std::size_t n, const Positions& positions, const Types& types, const Outputs& out);
+  void compute_device(std::size_t n, const Positions& positions, const Types& types, const Outputs& out,
+                      void* stream = nullptr);
   // Waits for the compute_device calls queued so far and throws cellforce::Error for the first
   // problem their kernels found (naming the particle, or both particles of a pair); afterwards
   // statistics() describes the last of them. Returns at once when none is pending. Changing the
@@ -331,6 +358,13 @@ class CELLFORCE_API Context {
   int64_t current_step() const;
   // The MD state's particle count (throws when there is no state).
   std::size_t num_particles() const;
+  // New positions or velocities (host arrays, n x dim, n the state's count) for the state where it
+  // lives: with cuda the array alone is uploaded. set_positions wraps them into the box as
+  // set_state does and evaluates the forces at them (velocities, step and time kept); a position
+  // that is not finite, or a pair whose force is not finite, throws naming the particle(s) and
+  // leaves the state as it was. set_velocities (finite) changes nothing else.
+  void set_positions(std::size_t n, const double* positions);
+  void set_velocities(std::size_t n, const double* velocities);
   // The state now into host arrays (n x dim each; any may be null); a download with cuda.
   void get_state(double* positions, double* velocities, double* forces);
   // Thermodynamics now: a reduction on the device and 8 numbers copied back with cuda (one more

@@ -59,4 +59,8 @@ enum class SortMethod : uint8_t {
 // masks find no room); auto: lean where fast would not fit in 90% of the device.
 enum class ListMemory : uint8_t { kAuto, kFast, kLean };
 
+// Element types of a caller's arrays (cellforce.hpp Positions and Types; C: cf_compute_layout).
+enum class Scalar : uint8_t { kFloat64, kFloat32 };
+enum class Index : uint8_t { kUInt32, kInt32 };
+
 }  // namespace cellforce

@@ -151,6 +151,41 @@ cf_status cf_compute_device(cf_context* ctx, size_t n, const double* positions, 
   });
 }
 
+namespace {
+
+cellforce::Positions positions_as_held(const void* data, cf_scalar scalar, size_t stride) {
+  if (scalar != CF_FLOAT64 && scalar != CF_FLOAT32)
+    throw cellforce::Error("positions' scalar " + std::to_string(int(scalar)) +
+                           " is neither CF_FLOAT64 (0) nor CF_FLOAT32 (1)");
+  return {data, scalar == CF_FLOAT32 ? cellforce::Scalar::kFloat32 : cellforce::Scalar::kFloat64, stride};
+}
+
+cellforce::Types types_as_held(const void* data, cf_index index) {
+  if (index != CF_UINT32 && index != CF_INT32)
+    throw cellforce::Error("types' index " + std::to_string(int(index)) + " is neither CF_UINT32 (0) nor CF_INT32 (1)");
+  return {data, index == CF_INT32 ? cellforce::Index::kInt32 : cellforce::Index::kUInt32};
+}
+
+}  // namespace
+
+cf_status cf_compute_layout(cf_context* ctx, size_t n, const void* positions, cf_scalar scalar, size_t stride,
+                            const void* types, cf_index index, double* forces, double* energies, double* energy,
+                            double* virial) {
+  return on(ctx, [&](cellforce::Context& c) {
+    c.compute(n, positions_as_held(positions, scalar, stride), types_as_held(types, index),
+              cellforce::Outputs{forces, energies, energy, virial});
+  });
+}
+
+cf_status cf_compute_device_layout(cf_context* ctx, size_t n, const void* positions, cf_scalar scalar, size_t stride,
+                                   const void* types, cf_index index, double* forces, double* energies,
+                                   double* energy, double* virial, void* stream) {
+  return on(ctx, [&](cellforce::Context& c) {
+    c.compute_device(n, positions_as_held(positions, scalar, stride), types_as_held(types, index),
+                     cellforce::Outputs{forces, energies, energy, virial}, stream);
+  });
+}
+
 cf_status cf_synchronize(cf_context* ctx) {
   return on(ctx, [&](cellforce::Context& c) { c.synchronize(); });
 }
@@ -180,6 +215,14 @@ cf_status cf_set_state(cf_context* ctx, size_t n, const double* positions, const
 
 cf_status cf_step(cf_context* ctx, int64_t count) {
   return on(ctx, [&](cellforce::Context& c) { c.step(count); });
+}
+
+cf_status cf_set_positions(cf_context* ctx, size_t n, const double* positions) {
+  return on(ctx, [&](cellforce::Context& c) { c.set_positions(n, positions); });
+}
+
+cf_status cf_set_velocities(cf_context* ctx, size_t n, const double* velocities) {
+  return on(ctx, [&](cellforce::Context& c) { c.set_velocities(n, velocities); });
 }
 
 cf_status cf_get_state(cf_context* ctx, size_t n, double* positions, double* velocities, double* forces) {

@@ -178,6 +178,8 @@ void Context::set_pair(uint32_t a, uint32_t b, double sigma, double epsilon) {
   s.set_physics(s.box, trial, "set_pair (" + std::to_string(a) + ", " + std::to_string(b) + ")");
 }
 
+void Context::set_backend(Backend backend) { set_backend(backend, self().choice.device); }
+
 void Context::set_backend(Backend backend, int device) {
   Impl& s = self();
   if (backend != Backend::kAuto && backend != Backend::kCpu && backend != Backend::kCuda)
@@ -323,8 +325,61 @@ void Context::compute_device(std::size_t n, const double* positions, const uint3
     throw Error("compute_device needs the cuda backend; this context runs on the CPU (set_backend)");
   s.device_pending = true;  // statistics and errors come with synchronize() (also after a throw
                             // here, which may leave work queued)
-  engine.evaluate_device(DeviceSystemView{s.box, n, positions, types}, s.ff,
+  engine.evaluate_device(DeviceInput{s.box, n, positions, Scalar::kFloat64, 0, types}, s.ff,
                          DeviceOutputs{out.forces, out.energies, out.energy, out.virial}, stream);
+}
+
+namespace {
+
+// The checks of arrays as the caller holds them that need no element: the enumerations and the
+// stride.
+void check_layout(const Positions& positions, const Types& types, int dim) {
+  if (positions.scalar != Scalar::kFloat64 && positions.scalar != Scalar::kFloat32)
+    throw Error("positions: scalar " + std::to_string(int(positions.scalar)) + " is neither float64 nor float32");
+  if (types.index != Index::kUInt32 && types.index != Index::kInt32)
+    throw Error("types: index " + std::to_string(int(types.index)) + " is neither uint32 nor int32");
+  if (positions.stride != 0 && positions.stride < std::size_t(dim))
+    throw Error("positions: a row stride of " + std::to_string(positions.stride) + " elements is less than the " +
+                std::to_string(dim) + " coordinates of a row");
+}
+
+}  // namespace
+
+void Context::compute(std::size_t n, const Positions& positions, const Types& types, const Outputs& out) {
+  Impl& s = self();
+  check_layout(positions, types, s.dim);
+  check_output(positions.data, "positions", n);
+  const std::size_t dim = std::size_t(s.dim), stride = positions.stride ? positions.stride : dim;
+  // The rows as packed float64 (a float32 coordinate converts exactly) and int32 types checked.
+  std::vector<double> packed(n * dim);
+  for (std::size_t i = 0; i < n; ++i)
+    for (std::size_t a = 0; a < dim; ++a)
+      packed[i * dim + a] = positions.scalar == Scalar::kFloat32
+                                ? double(static_cast<const float*>(positions.data)[i * stride + a])
+                                : static_cast<const double*>(positions.data)[i * stride + a];
+  if (types.data && types.index == Index::kInt32)
+    for (std::size_t i = 0; i < n; ++i)
+      if (static_cast<const int32_t*>(types.data)[i] < 0)
+        throw Error("particle " + std::to_string(i) + " has type index " +
+                    std::to_string(static_cast<const int32_t*>(types.data)[i]) + ": type indices are >= 0");
+  // An int32 index >= 0 has the bits of the same uint32.
+  compute(n, packed.data(), static_cast<const uint32_t*>(types.data), out);
+}
+
+void Context::compute_device(std::size_t n, const Positions& positions, const Types& types, const Outputs& out,
+                             void* stream) {
+  Impl& s = self();
+  check_layout(positions, types, s.dim);
+  s.check_ready();
+  check_output(positions.data, "positions", n);
+  check_output(out.forces, "forces", n);
+  ForceEngine& engine = s.get_engine();
+  if (engine.backend() != Backend::kCuda)
+    throw Error("compute_device needs the cuda backend; this context runs on the CPU (set_backend)");
+  s.device_pending = true;  // as compute_device of packed arrays
+  DeviceInput input{s.box, n, positions.data, positions.scalar, positions.stride,
+                    static_cast<const uint32_t*>(types.data)};  // int32: a negative index reads as out of range
+  engine.evaluate_device(input, s.ff, DeviceOutputs{out.forces, out.energies, out.energy, out.virial}, stream);
 }
 
 void Context::synchronize() { self().synchronize(); }

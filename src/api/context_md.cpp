@@ -187,6 +187,39 @@ std::size_t Context::num_particles() const {
   return s.masses.size();
 }
 
+namespace {
+
+// n arrays' worth of n x dim host values for the state of `held` particles.
+std::vector<double> state_array(const double* values, std::size_t n, std::size_t held, int dim, const char* what) {
+  if (n != held)
+    throw Error(std::string(what) + ": " + std::to_string(n) + " particles given for a state of " +
+                std::to_string(held));
+  check_output(values, what, n);
+  return std::vector<double>(values, values + n * std::size_t(dim));
+}
+
+}  // namespace
+
+void Context::set_positions(std::size_t n, const double* positions) {
+  Impl& s = self();
+  MdEngine& md = s.get_md();
+  std::vector<double> p = state_array(positions, n, s.masses.size(), s.dim, "positions");
+  wrap_positions(p, s.md_box);
+  md.set_positions(p);
+}
+
+void Context::set_velocities(std::size_t n, const double* velocities) {
+  Impl& s = self();
+  MdEngine& md = s.get_md();
+  const std::vector<double> v = state_array(velocities, n, s.masses.size(), s.dim, "velocities");
+  const std::size_t dim = std::size_t(s.dim);
+  for (std::size_t k = 0; k < v.size(); ++k)
+    if (!std::isfinite(v[k]))
+      throw Error("particle " + std::to_string(k / dim) + " has a non-finite velocity (" + format_number(v[k]) +
+                  ")");
+  md.set_velocities(v);
+}
+
 void Context::get_state(double* positions, double* velocities, double* forces) {
   MdState state;
   self().get_md().get_state(state);

@@ -14,7 +14,7 @@ class CpuForceEngine final : public ForceEngine {
                 ForceResult& result) override {
     engine_.evaluate(system, ff, request, result);
   }
-  void evaluate_device(const DeviceSystemView&, const ForceField&, const DeviceOutputs&, void*) override {
+  void evaluate_device(const DeviceInput&, const ForceField&, const DeviceOutputs&, void*) override {
     throw Error("device arrays need the cuda backend; this context runs on the CPU (backend cpu)");
   }
   void synchronize(const ForceField&) override {}  // nothing is queued: evaluate() returns with its results

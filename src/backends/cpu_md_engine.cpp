@@ -61,6 +61,22 @@ class CpuMdEngine final : public MdEngine {
     evaluate(true);
   }
 
+  void set_positions(const std::vector<double>& positions) override {
+    MdState next = state_;
+    next.config.positions = positions;
+    validate_system(next.config.view(), ff_);
+    std::swap(state_.config.positions, next.config.positions);
+    try {
+      evaluate(true);
+    } catch (...) {
+      std::swap(state_.config.positions, next.config.positions);
+      evaluate(true);
+      throw;
+    }
+  }
+
+  void set_velocities(const std::vector<double>& velocities) override { state_.velocities = velocities; }
+
   void advance(int64_t steps, const IntegratorSettings& settings, bool observe) override {
     const auto t0 = Clock::now();
     double force_seconds = 0;

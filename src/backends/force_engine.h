@@ -55,8 +55,10 @@ class ForceEngine {
   // default stream) already holds, results ready when the stream reaches the point of the call.
   // Throws cellforce::Error on a backend without a device. The host need not wait for the device:
   // problems the device finds in the arrays are raised by synchronize().
-  virtual void evaluate_device(const DeviceSystemView& system, const ForceField& ff,
-                               const DeviceOutputs& out, void* stream) = 0;
+  // The positions as the caller holds them (DeviceInput): packed float64 rows are read in place,
+  // others converted on the device first.
+  virtual void evaluate_device(const DeviceInput& input, const ForceField& ff, const DeviceOutputs& out,
+                               void* stream) = 0;
   // Waits for the work of evaluate_device() calls and throws cellforce::Error for what their
   // kernels flagged (naming the particle or pair); also makes stats() theirs. A no-op on the CPU.
   virtual void synchronize(const ForceField& ff) = 0;

@@ -81,6 +81,15 @@ class MdEngine {
   // again (as reevaluate() does). On a device backend the particles stay on the device.
   virtual FireResult minimize(const FireSettings& settings) = 0;
 
+  // New positions for the state where it lives (n x dim, the state's n; wrapped on periodic axes
+  // by the caller): validated as set_state validates them, stored (on a device backend an upload
+  // of the positions alone) and the forces evaluated at them (with energy and virial); velocities,
+  // step and time kept. On a throw the state is the one before the call, its forces evaluated again.
+  virtual void set_positions(const std::vector<double>& positions) = 0;
+  // New velocities for the state where it lives (n x dim, finite: the caller checks them); nothing
+  // else changes and nothing is evaluated.
+  virtual void set_velocities(const std::vector<double>& velocities) = 0;
+
   // The state now, into `state` (positions, velocities, forces; step and time): a download on a
   // device backend.
   virtual void get_state(MdState& state) = 0;

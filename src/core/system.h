@@ -5,6 +5,8 @@
 #include <cstdint>
 #include <vector>
 
+#include <cellforce/options.hpp>  // Scalar
+
 #include "core/box.h"
 #include "core/cell_totals.h"  // the virial layout
 #include "core/force_field.h"
@@ -26,6 +28,20 @@ struct DeviceSystemView {
   std::size_t n = 0;
   const double* positions = nullptr;
   const uint32_t* types = nullptr;
+};
+
+// A caller's device arrays as it holds them (Context::compute_device): positions as n rows of
+// `stride` elements (0: dim) of float64 or float32, the first dim used; types as in
+// DeviceSystemView (an int32 array passes as uint32: a negative index reads as one out of range).
+struct DeviceInput {
+  Box box;
+  std::size_t n = 0;
+  const void* positions = nullptr;
+  Scalar scalar = Scalar::kFloat64;
+  std::size_t stride = 0;
+  const uint32_t* types = nullptr;
+  // Packed float64 rows: the engine computes on them as they are.
+  bool packed() const { return scalar == Scalar::kFloat64 && (stride == 0 || stride == std::size_t(box.dim)); }
 };
 
 // Where a device evaluation writes: device pointers; forces (n x dim) always, the others when not
