@@ -163,6 +163,15 @@ TEST(CApiMd, NewPositionsAndVelocitiesAreTheCppCalls) {
     ASSERT_EQ(cf_step(c.get(), 10), CF_OK);
     cpp.step(10);
   }
+  // cf_set_box_scaled is set_box with scale_positions.
+  const double bigger[3] = {l.edge * 1.01, l.edge * 1.01, l.edge * 1.01};
+  const bool p3b[3] = {true, true, true};
+  ASSERT_EQ(cf_set_box_scaled(c.get(), bigger, periodic), CF_OK) << cf_last_error(c.get());
+  cpp.set_box(bigger, p3b, true);
+  std::vector<double> cx(3 * l.n), px(3 * l.n);
+  ASSERT_EQ(cf_get_state(c.get(), l.n, cx.data(), nullptr, nullptr), CF_OK);
+  cpp.get_state(px.data(), nullptr, nullptr);
+  EXPECT_TRUE(cx == px) << "scaled positions differ";
   EXPECT_EQ(cf_set_positions(c.get(), l.n + 1, x.data()), CF_ERROR_INPUT);
   EXPECT_THAT(std::string(cf_last_error(c.get())), HasSubstr("257 particles given for a state of 256"));
   EXPECT_EQ(cf_set_velocities(c.get(), l.n, nullptr), CF_ERROR_INPUT);

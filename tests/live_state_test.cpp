@@ -136,9 +136,10 @@ void expect_applied(const Change& change, const Change& fresh, bool moves_forces
     expect_same(snapshot(a, s.n), snapshot(b, s.n), 1e-12);
   }
   const Snapshot before_b = snapshot(b, s.n);
-  if (moves_forces)
+  if (moves_forces) {
     EXPECT_FALSE(before_b.f == at.f && before_b.potential == at.potential)
         << "the new setting changes nothing here: the test would not see it ignored";
+  }
   a.step(5);
   b.step(5);
   SCOPED_TRACE("5 steps after the change");
@@ -177,6 +178,44 @@ TEST_P(LiveState, ABoxChangeAppliesUnscaledAndWrapped) {
     const bool periodic[3] = {true, true, false};
     c.set_box(box, periodic);
   });
+}
+
+// A box change with scaled positions: each coordinate on an axis periodic before and after is
+// multiplied by the new edge over the old, the velocities kept; an axis made open keeps its
+// coordinates. The run continues as a fresh context given the scaled state, and the scaled
+// positions are the old ones times the factors (wrapped: the factors < 1 keep them in the box).
+TEST_P(LiveState, ABoxChangeWithScaledPositionsIsAnAffineChange) {
+  const Start s = liquid_start();
+  const double factor[3] = {0.99, 1.02, 1.0};
+  cf::Context a(3);
+  set_up(a, s);
+  a.set_state(s.n, s.x.data(), s.v.data(), s.types.data(), s.m.data());
+  a.step(10);
+  const Snapshot at = snapshot(a, s.n);
+  const double box[3] = {s.edge * factor[0], s.edge * factor[1], 0};
+  const bool periodic[3] = {true, true, false};  // z made open: its coordinates stay
+  a.set_box(box, periodic, true);
+  std::vector<double> x = at.x;
+  for (std::size_t k = 0; k < x.size(); ++k) x[k] *= factor[k % 3];
+  const Snapshot moved = snapshot(a, s.n);
+  for (std::size_t k = 0; k < x.size(); ++k) {
+    if (k % 3 != 1 || x[k] < box[1]) {  // y may wrap
+      EXPECT_EQ(moved.x[k], x[k]) << "coordinate " << k;
+    }
+  }
+  cf::Context b(3);
+  set_up(b, s);
+  b.set_box(box, periodic);
+  b.set_state(s.n, x.data(), at.v.data(), s.types.data(), s.m.data(), at.step);
+  {
+    SCOPED_TRACE("at the change");
+    expect_same(moved, snapshot(b, s.n), rebuilt_tolerance());
+  }
+  EXPECT_FALSE(moved.f == at.f) << "the scaled box changed no force: the test would not see it ignored";
+  a.step(5);
+  b.step(5);
+  SCOPED_TRACE("5 steps after the change");
+  expect_same(snapshot(a, s.n), snapshot(b, s.n), rebuilt_tolerance());
 }
 
 TEST_P(LiveState, ABoxChangeWrapsThePositionsIntoTheNewBox) {
@@ -398,4 +437,4 @@ TEST_P(LiveState, NewPositionsTheStateCannotTakeAreRefused) {
 }
 
 INSTANTIATE_TEST_SUITE_P(Backends, LiveState, ::testing::Values(cf::Backend::kCpu, cf::Backend::kCuda),
-                         [](const ::testing::TestParamInfo<cf::Backend>& info) { return cf::to_string(info.param); });
+                         [](const ::testing::TestParamInfo<cf::Backend>& param_info) { return cf::to_string(param_info.param); });

@@ -93,12 +93,17 @@ void CudaMdEngine::set_positions(const std::vector<double>& positions) {
   try {
     evaluate(true);
     check(step_, step_);
-  } catch (...) {
-    CF_CUDA_CHECK(cudaMemcpyAsync(positions_.data(), before.data(), nd * sizeof(double), cudaMemcpyDeviceToDevice,
-                                  stream_));
-    reset_flags();
-    evaluate(true);
-    check(step_, step_);
+  } catch (const Error& e) {
+    try {
+      CF_CUDA_CHECK(cudaMemcpyAsync(positions_.data(), before.data(), nd * sizeof(double), cudaMemcpyDeviceToDevice,
+                                    stream_));
+      reset_flags();
+      evaluate(true);
+      check(step_, step_);
+    } catch (const Error& again) {
+      throw Error(e.message() + "; the positions before could not be evaluated again either (" + again.message() +
+                  "): set the state again");
+    }
     throw;
   }
 }

@@ -57,6 +57,9 @@ CELLFORCE_API cf_status cf_create(cf_context** ctx, int dim);
  * (and at least twice the cutoff, checked when computing); the length of an open axis is ignored
  * and may be 0. */
 CELLFORCE_API cf_status cf_set_box(cf_context* ctx, const double* lengths, const int* periodic);
+/* As cf_set_box; with an MD state the positions on each axis periodic before and after are
+ * scaled by the new edge over the old (velocities kept). */
+CELLFORCE_API cf_status cf_set_box_scaled(cf_context* ctx, const double* lengths, const int* periodic);
 
 /* Pairs interact only when r < rc; mode: "truncate", "shift" or "force-shift", or NULL to keep the
  * mode (truncate in a new context, or as set by the option cutoff-mode).
@@ -123,13 +126,14 @@ CELLFORCE_API cf_status cf_compute_energies(cf_context* ctx, size_t n, const dou
 CELLFORCE_API cf_status cf_compute_device(cf_context* ctx, size_t n, const double* positions, const uint32_t* types,
                             double* forces, double* energy, double* virial, void* stream);
 
-/* Arrays as the caller holds them (cellforce.hpp Positions and Types): positions are n rows of
+/* Arrays as the caller holds them (cellforce.hpp Positions and Types; the enumerations are int-sized
+ * for every C compiler, their last values no element type): positions are n rows of
  * `stride` elements (0: dim; 4 for xyz padded to four) of `scalar`, the first dim of each used;
  * types (or NULL) are n elements of `index`. The results are those of the packed double and
  * uint32_t arrays of the same values. A stride below dim, an unknown scalar or index, and (host
  * arrays) a negative int32 type are CF_ERROR_INPUT naming them. */
-typedef enum cf_scalar { CF_FLOAT64 = 0, CF_FLOAT32 = 1 } cf_scalar;
-typedef enum cf_index { CF_UINT32 = 0, CF_INT32 = 1 } cf_index;
+typedef enum cf_scalar { CF_FLOAT64 = 0, CF_FLOAT32 = 1, CF_SCALAR_INT_SIZED = 0x7fffffff } cf_scalar;
+typedef enum cf_index { CF_UINT32 = 0, CF_INT32 = 1, CF_INDEX_INT_SIZED = 0x7fffffff } cf_index;
 CELLFORCE_API cf_status cf_compute_layout(cf_context* ctx, size_t n, const void* positions, cf_scalar scalar,
                                           size_t stride, const void* types, cf_index index, double* forces,
                                           double* energies, double* energy, double* virial);

@@ -217,14 +217,18 @@ class CELLFORCE_API Context {
   // With an MD state (set_state), each change below applies to it at once, as a fresh set_state of
   // the state now (positions, velocities, types, masses, step) under the new physics would: its
   // forces are evaluated again, and the next step starts from them. A change the state cannot take
-  // (a cutoff beyond half a periodic edge for the new box, a particle out of the new type range)
-  // throws naming the setting, and leaves the state and the context as they were.
+  // (a cutoff beyond half a periodic edge for the new box, a pair whose force is not finite under
+  // it) throws naming the setting, and leaves the state and the context as they were.
   //
   // lengths[dim], periodic[dim]: edge lengths and which axes wrap. A periodic edge must be finite
   // and > 0 (and at least twice the cutoff, checked when computing); the length of an open axis
   // is ignored and may be 0 (particles may lie anywhere along it). An MD state's positions are not
   // scaled: they are wrapped into the new box on its periodic axes.
   void set_box(const double* lengths, const bool* periodic);
+  // As set_box; with an MD state and `scale_positions`, each coordinate on an axis periodic before
+  // and after is multiplied by the new edge over the old (an affine change of the box, as a
+  // barostat makes it), velocities kept; without, the positions stay and are wrapped.
+  void set_box(const double* lengths, const bool* periodic, bool scale_positions);
   // Pairs interact only when r < rc (strict). The first form keeps the cutoff mode (truncate in a
   // new context, or as set by option cutoff-mode); the second sets it too (options.hpp).
   void set_cutoff(double rc);
@@ -316,8 +320,9 @@ class CELLFORCE_API Context {
   // or float64 coordinates, a row stride, int32 or uint32 types), with the same results as the
   // packed float64 and uint32 arrays of the same values. Besides what those calls check: a stride
   // below dim, a negative int32 type (host arrays: named here; device arrays: by synchronize(), as
-  // any type out of range). compute_device converts the coordinates on the device, on `stream`,
-  // into an array of the engine's (n x dim doubles) unless they are packed float64 already.
+  // any type out of range). compute_device converts the coordinates on the device, ordered after
+  // the work `stream` holds as every compute_device call is, into an array of the engine's (n x dim
+  // doubles) unless they are packed float64 already.
   void compute(std::size_t n, const Positions& positions, const Types& types, const Outputs& out);
   void compute_device(std::size_t n, const Positions& positions, const Types& types, const Outputs& out,
                       void* stream = nullptr);
@@ -359,7 +364,9 @@ class CELLFORCE_API Context {
   // The MD state's particle count (throws when there is no state).
   std::size_t num_particles() const;
   // New positions or velocities (host arrays, n x dim, n the state's count) for the state where it
-  // lives: with cuda the array alone is uploaded. set_positions wraps them into the box as
+  // lives: with cuda the array alone is uploaded (set_positions keeps the positions before beside
+  // them on the device until the forces at the new ones are known to be finite: n x dim doubles
+  // more for the call). set_positions wraps them into the box as
   // set_state does and evaluates the forces at them (velocities, step and time kept); a position
   // that is not finite, or a pair whose force is not finite, throws naming the particle(s) and
   // leaves the state as it was. set_velocities (finite) changes nothing else.

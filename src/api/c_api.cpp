@@ -95,6 +95,16 @@ cf_status cf_set_box(cf_context* ctx, const double* lengths, const int* periodic
   });
 }
 
+cf_status cf_set_box_scaled(cf_context* ctx, const double* lengths, const int* periodic) {
+  return on(ctx, [&](cellforce::Context& c) {
+    require(lengths, "box lengths");
+    require(periodic, "box periodic");
+    bool p[3] = {false, false, false};
+    for (int a = 0; a < c.dim(); ++a) p[a] = periodic[a] != 0;
+    c.set_box(lengths, p, true);
+  });
+}
+
 cf_status cf_set_cutoff(cf_context* ctx, double rc, const char* mode) {
   return on(ctx, [&](cellforce::Context& c) {
     if (!mode) return c.set_cutoff(rc);  // the mode as it is

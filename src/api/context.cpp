@@ -107,7 +107,9 @@ Context::~Context() = default;
 Context::Context(Context&&) noexcept = default;
 Context& Context::operator=(Context&&) noexcept = default;
 
-void Context::set_box(const double* lengths, const bool* periodic) {
+void Context::set_box(const double* lengths, const bool* periodic) { set_box(lengths, periodic, false); }
+
+void Context::set_box(const double* lengths, const bool* periodic, bool scale_positions) {
   Impl& s = self();
   if (!lengths) throw Error("box lengths is a null pointer");
   if (!periodic) throw Error("box periodic is a null pointer");
@@ -120,7 +122,15 @@ void Context::set_box(const double* lengths, const bool* periodic) {
       throw Error(std::string("box edge ") + kAxis[a] + " is " + format_number(lengths[a]) +
                   "; a periodic edge must be finite and > 0");
   }
-  s.set_physics(box, s.ff, "set_box");
+  if (scale_positions && s.md) {
+    // Each axis periodic before and after: its coordinates scaled by the edges' ratio.
+    double scale[kMaxDim] = {1.0, 1.0, 1.0};
+    for (int a = 0; a < box.dim; ++a)
+      if (box.periodic[a] && s.md_box.periodic[a]) scale[a] = box.length[a] / s.md_box.length[a];
+    s.carry(box, s.ff, s.choice, false, "set_box (positions scaled)", scale);
+  } else {
+    s.set_physics(box, s.ff, "set_box");
+  }
   s.has_box = true;
 }
 

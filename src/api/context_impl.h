@@ -125,7 +125,10 @@ struct Context::Impl {
   // when `new_engine` is false and the skin resolves as before, else on a new one. Throws naming
   // `setting` when the state cannot take them, and then leaves the context as it was; on success
   // the context holds b, f and c.
-  void carry(const Box& b, const ForceField& f, const EngineChoice& c, bool new_engine, const std::string& setting);
+  // `scale` (dim factors, or null): each coordinate of the state multiplied by its axis' factor
+  // before it is wrapped into `b` (set_box with scaled positions).
+  void carry(const Box& b, const ForceField& f, const EngineChoice& c, bool new_engine, const std::string& setting,
+             const double* scale = nullptr);
 
   // What compute needs before any array is read; the arrays themselves are checked by the engine
   // (validate_system: non-finite coordinates, type indices, rc against the box).

@@ -48,16 +48,20 @@ IntegratorSettings Context::Impl::settings() const {
 // would take from it. What the engine alone finds (a pair whose force overflows) can fail after
 // the engine took the state: then the state before is set on it again.
 void Context::Impl::carry(const Box& b, const ForceField& f, const EngineChoice& c, bool new_engine,
-                          const std::string& setting) {
+                          const std::string& setting, const double* scale) {
   MdState before;
   md->get_state(before);
   before.config.box = md_box;
   before.config.types = types;
   MdState state = before;
   state.config.box = b;
+  if (scale)
+    for (std::size_t k = 0; k < state.config.positions.size(); ++k)
+      state.config.positions[k] *= scale[k % std::size_t(b.dim)];
   wrap_positions(state.config.positions, b);
   const ListMemory memory = md_list_memory(c, masses.size());
   EngineChoice next = resolved(c, b, f.cutoff, true, memory);
+  bool dropped = false;  // the state before could not be set again either
   try {
     // The checks set_state makes, before any engine is touched.
     validate_system(state.config.view(), f);
@@ -71,6 +75,7 @@ void Context::Impl::carry(const Box& b, const ForceField& f, const EngineChoice&
           md->set_state(before, masses, md_ff);
         } catch (...) {
           md.reset();  // no half-set state: the next step() asks for set_state again
+          dropped = true;
         }
         throw;
       }
@@ -98,8 +103,10 @@ void Context::Impl::carry(const Box& b, const ForceField& f, const EngineChoice&
       md_memory = memory;
     }
   } catch (const Error& e) {
-    rethrow_with(setting + (new_engine ? ": the MD state cannot move to an engine with it, and stays where it was: "
-                                       : ": the MD state cannot take it, and stays as it was: "),
+    rethrow_with(setting + (dropped      ? ": the MD state cannot take it, nor be set again as it was, and is dropped "
+                                           "(call set_state): "
+                            : new_engine ? ": the MD state cannot move to an engine with it, and stays where it was: "
+                                         : ": the MD state cannot take it, and stays as it was: "),
                  e);
   }
   box = md_box = b;

@@ -68,9 +68,14 @@ class CpuMdEngine final : public MdEngine {
     std::swap(state_.config.positions, next.config.positions);
     try {
       evaluate(true);
-    } catch (...) {
+    } catch (const Error& e) {
       std::swap(state_.config.positions, next.config.positions);
-      evaluate(true);
+      try {
+        evaluate(true);
+      } catch (const Error& again) {
+        throw Error(e.message() + "; the positions before could not be evaluated again either (" + again.message() +
+                    "): set the state again");
+      }
       throw;
     }
   }

@@ -101,7 +101,7 @@ EmbeddedVerlet::EmbeddedVerlet(Context& ctx, std::size_t n, const double* positi
   s.v = device_array(count, velocities);
   s.f = device_array<double>(count);
   s.inv_mass = device_array(n, inv_mass.data());
-  s.types = device_array(n, types);
+  s.types = types ? device_array(n, types) : nullptr;  // null: all type 0
   s.sums = device_array<double>(2);
   s.forces(true);
 }

@@ -16,9 +16,10 @@ namespace cellforce {
 
 class EmbeddedVerlet {
  public:
-  // Uploads the state (positions and velocities n x dim, types n, masses n) to the context's
-  // device, makes a stream, and queues the forces at the positions. The context holds the
-  // physics and the engine options; it must run on CUDA.
+  // Uploads the state (positions and velocities n x dim, types n or null, masses n) to the current
+  // CUDA device (the context's must be the same: bench runs device 0), makes a stream, and queues
+  // the forces at the positions. The context holds the physics and the engine options; it must
+  // run on CUDA.
   EmbeddedVerlet(Context& ctx, std::size_t n, const double* positions, const double* velocities,
                  const uint32_t* types, const double* masses, double dt);
   ~EmbeddedVerlet();
