@@ -13,6 +13,8 @@
 #include <string>
 #include <vector>
 
+#include <nlohmann/json.hpp>
+
 #include "scene/lattice.h"
 #include "state/velocities.h"
 
@@ -334,4 +336,58 @@ TEST(CApiVersion, MacrosAreTheLibrarysVersion) {
   const std::string macros = std::to_string(CELLFORCE_VERSION_MAJOR) + "." + std::to_string(CELLFORCE_VERSION_MINOR) +
                              "." + std::to_string(CELLFORCE_VERSION_PATCH);
   EXPECT_EQ(std::string(cf_version()), macros);
+}
+
+// cf_statistics_json and Context::statistics_json: every statistic as JSON, the same text from C
+// and C++, "run" null without a state and the run statistics' values with one; a buffer too small
+// is refused with the length needed.
+TEST(CApiStatistics, JsonHoldsEveryStatistic) {
+  const Liquid l = liquid();
+  const double box[3] = {l.edge, l.edge, l.edge};
+  Handle c = create(3);
+  const int periodic[3] = {1, 1, 1};
+  ASSERT_EQ(cf_set_box(c.get(), box, periodic), CF_OK);
+  ASSERT_EQ(cf_set_cutoff(c.get(), 2.5, "truncate"), CF_OK);
+  ASSERT_EQ(cf_add_type(c.get(), "A", 1.0, 1.0, nullptr), CF_OK);
+  ASSERT_EQ(cf_add_type(c.get(), "B", 0.9, 0.7, nullptr), CF_OK);
+  ASSERT_EQ(cf_set_option(c.get(), "backend", "cpu"), CF_OK);
+  auto text = [&] {
+    std::size_t length = 0;
+    EXPECT_EQ(cf_statistics_json(c.get(), nullptr, 0, &length), CF_OK) << cf_last_error(c.get());
+    std::string out(length + 1, '\0');
+    EXPECT_EQ(cf_statistics_json(c.get(), out.data(), out.size(), nullptr), CF_OK) << cf_last_error(c.get());
+    out.resize(length);
+    return out;
+  };
+  std::vector<double> f(3 * l.n);
+  ASSERT_EQ(cf_compute(c.get(), l.n, l.x.data(), l.types.data(), f.data(), nullptr, nullptr), CF_OK);
+  nlohmann::json doc = nlohmann::json::parse(text());
+  EXPECT_TRUE(doc["run"].is_null());
+  EXPECT_EQ(doc["version"], cellforce::version());
+  EXPECT_EQ(doc["call"]["builds"].get<std::size_t>(), 1u);
+  EXPECT_TRUE(doc["call"]["rebuilt"].get<bool>());
+  EXPECT_GT(doc["call"]["buffer_bytes"].get<std::size_t>(), 0u);
+
+  ASSERT_EQ(cf_set_integrator(c.get(), "verlet", 0.004, 0, 0, 0), CF_OK);
+  ASSERT_EQ(cf_set_state(c.get(), l.n, l.x.data(), l.v.data(), l.types.data(), l.m.data(), 0), CF_OK);
+  ASSERT_EQ(cf_step(c.get(), 12), CF_OK);
+  doc = nlohmann::json::parse(text());
+  const nlohmann::json& run = doc["run"];
+  ASSERT_TRUE(run.is_object());
+  EXPECT_EQ(run["steps"].get<int64_t>(), 12);
+  EXPECT_EQ(run["evaluations"].get<int64_t>(), 13);  // set_state's and one a step
+  EXPECT_GT(run["force_seconds"].get<double>(), 0.0);
+  EXPECT_GT(run["state_bytes"].get<std::size_t>(), 0u);
+  std::size_t memory = 0;
+  for (const nlohmann::json& m : run["memory"]) memory += m["bytes"].get<std::size_t>();
+  EXPECT_EQ(memory, run["buffer_bytes"].get<std::size_t>() + run["state_bytes"].get<std::size_t>());
+  EXPECT_TRUE(run["stage_seconds"].contains("traversal"));
+
+  std::size_t length = 0;
+  char small[8] = "unset";
+  EXPECT_EQ(cf_statistics_json(c.get(), small, sizeof small, &length), CF_ERROR_INPUT);
+  EXPECT_STREQ(small, "unset");
+  EXPECT_GT(length, sizeof small);
+  EXPECT_THAT(std::string(cf_last_error(c.get())),
+              HasSubstr("a buffer of 8 bytes cannot hold the " + std::to_string(length + 1) + " bytes"));
 }

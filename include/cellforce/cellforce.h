@@ -146,6 +146,12 @@ CELLFORCE_API cf_status cf_compute_device_layout(cf_context* ctx, size_t n, cons
  * the particle or pair) when their kernels found bad input. CF_OK at once when none is pending. */
 CELLFORCE_API cf_status cf_synchronize(cf_context* ctx);
 
+/* Every statistic of the context as one JSON object (cellforce.hpp Context::statistics_json
+ * documents its keys), NUL-terminated into `buffer` of `capacity` bytes; *length (if not NULL)
+ * receives the text's length without the NUL. With buffer NULL only the length is given;
+ * a buffer too small for it is CF_ERROR_INPUT (nothing written; *length says what is needed). */
+CELLFORCE_API cf_status cf_statistics_json(cf_context* ctx, char* buffer, size_t capacity, size_t* length);
+
 /* ---- molecular dynamics: a state held where the backend computes (on the GPU with cuda) ---- */
 
 /* The integrator of the steps: kind "verlet" (NVE, velocity Verlet) or "langevin" (NVT, BAOAB);

@@ -361,6 +361,7 @@ class CELLFORCE_API Context {
   // steps of this call. `observe`: the last step also computes energy and virial (for thermo()).
   void step(int64_t count, bool observe = true);
   int64_t current_step() const;
+  bool has_state() const;  // whether set_state has given the context an MD state
   // The MD state's particle count (throws when there is no state).
   std::size_t num_particles() const;
   // New positions or velocities (host arrays, n x dim, n the state's count) for the state where it
@@ -388,6 +389,12 @@ class CELLFORCE_API Context {
   void restore_neighbor_state(const NeighborState& state);
   RunStatistics run_statistics() const;
   void reset_run_statistics();
+  // Every statistic above as one JSON object (the C API's cf_statistics_json): {"version": ...,
+  // "call": statistics() by the names of Statistics' fields, "run": run_statistics() by the names
+  // of RunStatistics' fields (the per-evaluation stage times under "stage_seconds", the memory as
+  // [{"name", "bytes"}]) or null without an MD state}. Keys are added, never renamed, within a
+  // major version.
+  std::string statistics_json() const;
 
   // ---- what the context is ----
   // A Context that was moved from (std::move) holds nothing: every call on it but assignment and

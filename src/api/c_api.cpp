@@ -5,6 +5,7 @@
 
 #include <cellforce/cellforce.hpp>
 
+#include <cstring>
 #include <new>
 #include <string>
 
@@ -193,6 +194,18 @@ cf_status cf_compute_device_layout(cf_context* ctx, size_t n, const void* positi
   return on(ctx, [&](cellforce::Context& c) {
     c.compute_device(n, positions_as_held(positions, scalar, stride), types_as_held(types, index),
                      cellforce::Outputs{forces, energies, energy, virial}, stream);
+  });
+}
+
+cf_status cf_statistics_json(cf_context* ctx, char* buffer, size_t capacity, size_t* length) {
+  return on(ctx, [&](cellforce::Context& c) {
+    const std::string text = c.statistics_json();
+    if (length) *length = text.size();
+    if (!buffer) return;
+    if (capacity < text.size() + 1)
+      throw cellforce::Error("statistics: a buffer of " + std::to_string(capacity) + " bytes cannot hold the " +
+                             std::to_string(text.size() + 1) + " bytes of the JSON text (its length is in *length)");
+    std::memcpy(buffer, text.c_str(), text.size() + 1);
   });
 }
 

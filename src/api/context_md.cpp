@@ -188,6 +188,8 @@ int64_t Context::current_step() const {
   return s.md->step();
 }
 
+bool Context::has_state() const { return self().md != nullptr; }
+
 std::size_t Context::num_particles() const {
   const Impl& s = self();
   if (!s.md) throw Error("no MD state: call set_state first");
