@@ -54,9 +54,11 @@ struct Outputs {
 // 4 for xyz padded to four, as OpenMM and many GPU codes store them; 0 means dim), and types as
 // uint32 or int32 (null: all type 0). The engine computes on float64 copies of the coordinates (a
 // float32 coordinate converts exactly) and uint32 types, so the results are bitwise those of the
-// packed float64 and uint32 arrays holding the same values.
+// packed float64 and uint32 arrays holding the same values. Host arrays for compute(), device
+// arrays (on the context's device) for compute_device(); rows in the caller's particle order.
 struct Positions {
-  const void* data = nullptr;        // n rows of `stride` elements of `scalar`, the first dim used
+  const void* data = nullptr;        // n rows of `stride` elements of `scalar`, the first dim used:
+                                     // coordinates in length units, any periodic image
   Scalar scalar = Scalar::kFloat64;
   std::size_t stride = 0;            // elements from one particle's row to the next (>= dim); 0: dim
 };

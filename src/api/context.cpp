@@ -53,11 +53,6 @@ Int parse_int(std::string_view key, std::string_view value) {
   return v;
 }
 
-void check_output(const void* p, const char* what, std::size_t n) {
-  if (n > 0 && p == nullptr)
-    throw Error(std::string(what) + " is a null pointer (" + std::to_string(n) + " particles)");
-}
-
 }  // namespace
 
 void Context::Impl::record_statistics() {

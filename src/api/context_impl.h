@@ -17,6 +17,12 @@
 
 namespace cellforce {
 
+// A caller's array of n particles must not be null (n = 0: anything goes).
+inline void check_output(const void* p, const char* what, std::size_t n) {
+  if (n > 0 && p == nullptr)
+    throw Error(std::string(what) + " is a null pointer (" + std::to_string(n) + " particles)");
+}
+
 struct Context::Impl {
   int dim = 3;
   Box box;

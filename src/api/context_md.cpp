@@ -16,9 +16,12 @@ namespace cellforce {
 
 namespace {
 
-void check_output(const void* p, const char* what, std::size_t n) {
-  if (n > 0 && p == nullptr)
-    throw Error(std::string(what) + " is a null pointer (" + std::to_string(n) + " particles)");
+// Velocities (n x dim) finite, else the first particle that has one not is named.
+void check_velocities(const std::vector<double>& velocities, int dim) {
+  for (std::size_t k = 0; k < velocities.size(); ++k)
+    if (!std::isfinite(velocities[k]))
+      throw Error("particle " + std::to_string(k / std::size_t(dim)) + " has a non-finite velocity (" +
+                  format_number(velocities[k]) + ")");
 }
 
 // Positions on periodic axes of `box` wrapped into [0, L) (non-finite ones are left for the
@@ -142,14 +145,8 @@ void Context::set_state(std::size_t n, const double* positions, const double* ve
   state.config.positions.assign(positions, positions + n * dim);
   state.config.types = types ? std::vector<uint32_t>(types, types + n) : std::vector<uint32_t>(n, 0);
   state.velocities = velocities ? std::vector<double>(velocities, velocities + n * dim) : std::vector<double>(n * dim, 0.0);
-  for (std::size_t i = 0; i < n; ++i)
-    for (std::size_t a = 0; a < dim; ++a)
-      if (s.box.periodic[a] && std::isfinite(state.config.positions[i * dim + a]))
-        state.config.positions[i * dim + a] = wrap_coordinate(state.config.positions[i * dim + a], s.box.length[a]);
-  for (std::size_t k = 0; k < n * dim; ++k)
-    if (!std::isfinite(state.velocities[k]))
-      throw Error("particle " + std::to_string(k / dim) + " has a non-finite velocity (" +
-                  format_number(state.velocities[k]) + ")");
+  wrap_positions(state.config.positions, s.box);
+  check_velocities(state.velocities, s.dim);
   state.step = step;
   state.time = double(step) * s.integrator.dt;
   std::vector<double> m(masses, masses + n);
@@ -221,11 +218,7 @@ void Context::set_velocities(std::size_t n, const double* velocities) {
   Impl& s = self();
   MdEngine& md = s.get_md();
   const std::vector<double> v = state_array(velocities, n, s.masses.size(), s.dim, "velocities");
-  const std::size_t dim = std::size_t(s.dim);
-  for (std::size_t k = 0; k < v.size(); ++k)
-    if (!std::isfinite(v[k]))
-      throw Error("particle " + std::to_string(k / dim) + " has a non-finite velocity (" + format_number(v[k]) +
-                  ")");
+  check_velocities(v, s.dim);
   md.set_velocities(v);
 }
 
