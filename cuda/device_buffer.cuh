@@ -15,6 +15,21 @@
 
 namespace cellforce::cuda {
 
+// While a FrozenBuffers lives on this thread, no buffer may take or give back memory: inside the
+// capture of a CUDA graph (backend/call_graph.cuh) memory taken would be the graph's own, and
+// memory given back would be freed at every launch. A buffer that would throws instead, and the
+// capture is abandoned.
+inline int& frozen_buffers() {
+  static thread_local int depth = 0;
+  return depth;
+}
+struct FrozenBuffers {
+  FrozenBuffers() { ++frozen_buffers(); }
+  ~FrozenBuffers() { --frozen_buffers(); }
+  FrozenBuffers(const FrozenBuffers&) = delete;
+  FrozenBuffers& operator=(const FrozenBuffers&) = delete;
+};
+
 template <class T>
 class DeviceBuffer {
  public:
@@ -49,6 +64,7 @@ class DeviceBuffer {
   // Makes room for n elements; the contents are not kept when it grows.
   void reserve(std::size_t n) {
     if (n <= capacity_) return;
+    if (frozen_buffers()) throw Error("internal error: a device buffer grew inside a graph's capture");
     T* old = std::exchange(ptr_, nullptr);
     capacity_ = 0;
     if (bound_) {
@@ -63,6 +79,7 @@ class DeviceBuffer {
   // Frees the memory (in stream order when bound: work queued earlier still reads it), so that a
   // buffer dead between two uses does not add to the peak.
   void release() {
+    if (ptr_ && frozen_buffers()) throw Error("internal error: a device buffer was freed inside a graph's capture");
     T* old = std::exchange(ptr_, nullptr);
     capacity_ = 0;
     if (!old) return;

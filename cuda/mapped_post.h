@@ -50,6 +50,9 @@ class MappedPost {
     return host_ && __atomic_load_n(&host_->tag, __ATOMIC_ACQUIRE) == tag;
   }
 
+  // The tag posted last (an acquire load; 0 before the memory is made or anything was posted).
+  unsigned long long tag() const { return host_ ? __atomic_load_n(&host_->tag, __ATOMIC_ACQUIRE) : 0; }
+
   // The posted values, read once the tag has arrived (volatile: the device writes them; only after
   // arrived() is true, so the memory exists).
   const volatile T& values() const { return *host_; }

@@ -17,6 +17,7 @@
 #include <cstring>
 #include <limits>
 #include <memory>
+#include <random>
 #include <set>
 #include <string>
 #include <thread>
@@ -851,8 +852,10 @@ struct Gate {
 // work ends (the stream is still busy when the call returns), and once the stream is synchronised
 // its results are bitwise those of the host call. The positions themselves arrive behind the gate.
 // On a fresh context (its buffers allocated in the call) and again with them in place, for
-// Jacobi and Gauss-Seidel accumulation. A context destroyed with its work still queued waits for
-// it (stream-ordered buffers are not freed under running kernels: memcheck runs this test).
+// Jacobi and Gauss-Seidel accumulation, without a skin (each call builds its structure; a first
+// build of pair lists waits for their size: DecidedCallsReturnBeforeThePendingWorkOfTheirStream
+// has the skin). A context destroyed with its work still queued waits for it (stream-ordered
+// buffers are not freed under running kernels: memcheck runs this test).
 TEST(ApiDevice, DeviceCallReturnsBeforeThePendingWorkOfItsStream) {
   if (!cf::GpuEngine::unavailable().empty()) GTEST_SKIP() << cf::GpuEngine::unavailable();
   for (const char* accumulation : {"jacobi", "gauss-seidel"}) {
@@ -860,8 +863,10 @@ TEST(ApiDevice, DeviceCallReturnsBeforeThePendingWorkOfItsStream) {
     const Binary b = binary_liquid(3, 4000, 77);
     cf::Context ctx = context_for(b, cf::Backend::kCuda, cf::Precision::kMixed);
     ctx.set_option("accumulation", accumulation);
+    ctx.set_skin(0.0);
     cf::Context reference = context_for(b, cf::Backend::kCuda, cf::Precision::kMixed);
     reference.set_option("accumulation", accumulation);
+    reference.set_skin(0.0);
     const cf::ForceResult host = compute(reference, b.config);
     const std::size_t n = b.config.size(), nd = n * 3;
     cudaStream_t stream = nullptr;
@@ -879,6 +884,7 @@ TEST(ApiDevice, DeviceCallReturnsBeforeThePendingWorkOfItsStream) {
        // launch may synchronise the context, which is no part of what is tested here.
       cf::Context warm = context_for(b, cf::Backend::kCuda, cf::Precision::kMixed);
       warm.set_option("accumulation", accumulation);
+      warm.set_skin(0.0);
       ASSERT_EQ(cudaMemcpy(d_pos, pinned, nd * sizeof(double), cudaMemcpyHostToDevice), cudaSuccess);
       warm.compute_device(n, d_pos, d_types, {d_f, nullptr, d_energy, d_w}, nullptr);
       warm.synchronize();
@@ -912,6 +918,7 @@ TEST(ApiDevice, DeviceCallReturnsBeforeThePendingWorkOfItsStream) {
       Gate gate;
       ASSERT_EQ(cudaLaunchHostFunc(stream, &Gate::hold, &gate), cudaSuccess);
       auto doomed = std::make_unique<cf::Context>(context_for(b, cf::Backend::kCuda, cf::Precision::kMixed));
+      doomed->set_skin(0.0);
       doomed->compute_device(n, d_pos, d_types, {d_f, nullptr, d_energy, d_w}, stream);
       std::thread opener([&] {
         std::this_thread::sleep_for(std::chrono::milliseconds(200));
@@ -928,5 +935,76 @@ TEST(ApiDevice, DeviceCallReturnsBeforeThePendingWorkOfItsStream) {
     cudaFreeHost(pinned);
     cudaStreamDestroy(stream);
   }
+}
+
+// With the defaults (on CUDA a skin and pair lists: the rule of steps), once the first calls have
+// built the structure, every call returns before the pending work of its stream, those where the
+// device rebuilds the structure too, and its results are bitwise those of a host call on the same
+// positions in the same order (the host decides the same rebuilds). 30 calls, each moving every
+// particle by its own step (components within +-0.03, so that the largest displacement passes
+// skin / 2 = 0.3 every few calls); from call 10 on, each call's positions arrive behind a gate.
+TEST(ApiDevice, DecidedCallsReturnBeforeThePendingWorkOfTheirStream) {
+  if (!cf::GpuEngine::unavailable().empty()) GTEST_SKIP() << cf::GpuEngine::unavailable();
+  const Binary b = binary_liquid(3, 4000, 78);
+  cf::Context ctx = context_for(b, cf::Backend::kCuda, cf::Precision::kMixed);
+  cf::Context reference = context_for(b, cf::Backend::kCuda, cf::Precision::kMixed);
+  ASSERT_GT(ctx.skin(), 0.0);
+  const std::size_t n = b.config.size(), nd = n * 3;
+  std::mt19937_64 rng(5);
+  std::uniform_real_distribution<double> u(-0.03, 0.03);
+  std::vector<double> step(nd);
+  for (double& v : step) v = u(rng);
+  cudaStream_t stream = nullptr;
+  ASSERT_EQ(cudaStreamCreateWithFlags(&stream, cudaStreamNonBlocking), cudaSuccess);
+  double* pinned = nullptr;
+  ASSERT_EQ(cudaMallocHost(reinterpret_cast<void**>(&pinned), nd * sizeof(double)), cudaSuccess);
+  double *d_pos = nullptr, *d_f = nullptr, *d_energy = nullptr, *d_w = nullptr;
+  ASSERT_EQ(cudaMalloc(reinterpret_cast<void**>(&d_pos), nd * sizeof(double)), cudaSuccess);
+  ASSERT_EQ(cudaMalloc(reinterpret_cast<void**>(&d_f), nd * sizeof(double)), cudaSuccess);
+  ASSERT_EQ(cudaMalloc(reinterpret_cast<void**>(&d_energy), sizeof(double)), cudaSuccess);
+  ASSERT_EQ(cudaMalloc(reinterpret_cast<void**>(&d_w), 9 * sizeof(double)), cudaSuccess);
+  uint32_t* d_types = device_copy(b.config.types);
+  int gated_rebuilds = 0;
+  for (int k = 0; k < 30; ++k) {
+    SCOPED_TRACE("call " + std::to_string(k));
+    cf::Configuration c = b.config;
+    for (std::size_t i = 0; i < nd; ++i) {
+      const double length = c.box.length[i % 3];
+      double x = c.positions[i] + k * step[i];
+      x -= length * std::floor(x / length);
+      c.positions[i] = x < length ? x : 0.0;
+    }
+    std::memcpy(pinned, c.positions.data(), nd * sizeof(double));
+    const bool gated = k >= 10;
+    Gate gate;
+    if (gated) {
+      ASSERT_EQ(cudaMemsetAsync(d_pos, 0xff, nd * sizeof(double), stream), cudaSuccess);  // NaNs until the copy
+      ASSERT_EQ(cudaLaunchHostFunc(stream, &Gate::hold, &gate), cudaSuccess);
+    }
+    ASSERT_EQ(cudaMemcpyAsync(d_pos, pinned, nd * sizeof(double), cudaMemcpyHostToDevice, stream), cudaSuccess);
+    ctx.compute_device(n, d_pos, d_types, {d_f, nullptr, d_energy, d_w}, stream);
+    const cudaError_t busy = cudaStreamQuery(stream);
+    gate.open = true;
+    ASSERT_EQ(cudaStreamSynchronize(stream), cudaSuccess);
+    if (gated) {
+      EXPECT_FALSE(gate.timed_out) << "compute_device waited for the stream's pending work";
+      EXPECT_EQ(busy, cudaErrorNotReady) << "the stream had finished when compute_device returned";
+    }
+    ctx.synchronize();
+    if (gated && ctx.statistics().rebuilt) ++gated_rebuilds;
+    const cf::ForceResult host = compute(reference, c);
+    EXPECT_EQ(ctx.statistics().rebuilt, reference.statistics().rebuilt);
+    EXPECT_TRUE(host_copy(d_f, nd) == host.forces);
+    EXPECT_EQ(host_copy(d_energy, 1)[0], host.energy);
+    const std::vector<double> w = host_copy(d_w, 9);
+    for (int r = 0; r < 3; ++r)
+      for (int col = 0; col < 3; ++col) EXPECT_EQ(w[std::size_t(r * 3 + col)], host.virial[r][col]);
+  }
+  EXPECT_GE(gated_rebuilds, 2) << "too few rebuilds behind the gate to test the device's decision";
+  for (void* p : {static_cast<void*>(d_pos), static_cast<void*>(d_types), static_cast<void*>(d_f),
+                  static_cast<void*>(d_energy), static_cast<void*>(d_w)})
+    cudaFree(p);
+  cudaFreeHost(pinned);
+  cudaStreamDestroy(stream);
 }
 #endif

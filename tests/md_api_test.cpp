@@ -342,7 +342,7 @@ TEST_P(MdApi, GatedStepsEqualStepByStep) {
 // edge 13.4 > 2 (rc + 0.6)) gets pair lists with a skin of 0.24 rc = 0.6 on CUDA and no skin on the
 // CPU, as core/reuse.h's rule says; the CUDA run walks the lists on every evaluation and builds
 // less often than it evaluates, and follows the run without a skin (the same pairs, summed in
-// another order) to round-off over 50 double steps. Force calls get no skin on either.
+// another order) to round-off over 50 double steps. Force calls take the same rule.
 TEST_P(MdApi, SkinAutoIsTheBackendsRule) {
   const bool cuda = GetParam() == cf::Backend::kCuda;
   RunSetup s;
@@ -382,17 +382,19 @@ TEST_P(MdApi, SkinAutoIsTheBackendsRule) {
   forces.set_cutoff(2.5, cf::CutoffMode::kForceShift);
   forces.add_type("A", 1.0, 1.0);
   forces.set_backend(s.backend);
-  EXPECT_EQ(forces.skin(), 0.0);
-  EXPECT_THAT(forces.neighbor(), HasSubstr("auto: no skin for force calls"));
+  const double rule = cuda ? 0.24 * 2.5 : 0.0;  // the rule of steps
+  EXPECT_EQ(forces.skin(), rule);
+  EXPECT_EQ(forces.neighbor(), cuda ? "skin 0.6 (auto: 0.24 rc), pair lists"
+                                    : "none, stages 1-3 every evaluation (auto: no skin on the cpu)");
   forces.set_option("neighbor-list", "true");  // for a skin given as a length; auto chooses itself
-  EXPECT_EQ(forces.skin(), 0.0);
+  EXPECT_EQ(forces.skin(), rule);
   forces.set_skin(0.3);
   EXPECT_EQ(forces.skin(), 0.3);
   EXPECT_EQ(forces.neighbor(), cuda ? "skin 0.3, pair lists" : "skin 0.3, cells reused");
   forces.set_option("neighbor-list", "false");
   EXPECT_EQ(forces.neighbor(), "skin 0.3, cells reused");
   forces.set_option("skin", "auto");
-  EXPECT_EQ(forces.skin(), 0.0);
+  EXPECT_EQ(forces.skin(), rule);
 }
 
 // RunStatistics::memory: the engine's stage buffers and the MD state's arrays, by buffer, largest

@@ -107,7 +107,11 @@ TEST(ReuseOptions, AutoIsARuleOfTheBackendAndTheBox) {
         << cellforce::describe_reuse(automatic, r, b, acc, md, bx, rc, kFast);
   };
   none(Backend::kCpu, Accumulation::kJacobi, true, box, "no skin on the cpu");
-  none(Backend::kCuda, Accumulation::kJacobi, false, box, "no skin for force calls");
+  // Force calls (md false) take the rule of steps: on CUDA the device decides their rebuilds.
+  const ReuseOptions calls = resolve_reuse(automatic, Backend::kCuda, Accumulation::kJacobi, false, box, rc, kFast);
+  EXPECT_DOUBLE_EQ(calls.skin, skin);
+  EXPECT_TRUE(calls.list);
+  none(Backend::kCpu, Accumulation::kJacobi, false, box, "no skin on the cpu");
   none(Backend::kCuda, Accumulation::kGaussSeidel, true, box, "pair lists need jacobi");
   cellforce::Box small = box;
   small.length[1] = std::nextafter(2.0 * (rc + skin), 0.0);

@@ -199,25 +199,39 @@ void GpuEngine::evaluate_device(const DeviceInput& input, const ForceField& ff, 
   const auto caller = static_cast<cudaStream_t>(stream);
   CF_CUDA_CHECK(cudaEventRecord(s.joined, caller));  // the engine starts after the caller's work
   CF_CUDA_CHECK(cudaStreamWaitEvent(s.stream, s.joined, 0));
-  // Positions not held as packed float64 rows: converted into the engine's array, read from there.
-  DeviceSystemView dsys{input.box, n, static_cast<const double*>(input.positions), input.types};
-  if (!input.packed()) {
-    s.positions.reserve(std::max<std::size_t>(n * dim, 1));
-    cuda::pack_positions(input.positions, input.scalar, input.stride == 0 ? dim : input.stride, n, int(dim),
-                         s.positions.data(), s.stream);
-    dsys.positions = s.positions.data();
-  }
+  const bool decided = device_decides(system, ff);
+  if (!decided) settle_device_calls(true);  // before the host's path, and before it waits for the caller
   if (!s.accumulate_flags) {  // flags accumulate until synchronize()
     s.reset_flags();
     s.accumulate_flags = true;
   }
-  // The arrays are checked on the device; what it finds is raised by synchronize().
-  cuda::check_input(dsys.positions, dsys.types, n, int(dim), uint32_t(ff.num_types()), s.flags.data(), s.stream);
+  // The arrays are checked on the device; what it finds is raised by synchronize(). A call the
+  // device may decide reads copies in the engine's arrays (its graph names them), made in the pass
+  // that checks them and measures the displacement; otherwise positions not held as packed float64
+  // rows are converted into the engine's array and read from there.
+  DeviceSystemView dsys{input.box, n, static_cast<const double*>(input.positions), input.types};
+  if (decided) {
+    take_call_input(input, ff);
+    dsys.positions = s.positions.data();
+    dsys.types = input.types ? s.types.data() : nullptr;
+  } else {
+    if (!input.packed()) {
+      s.positions.reserve(std::max<std::size_t>(n * dim, 1));
+      cuda::pack_positions(input.positions, input.scalar, input.stride == 0 ? dim : input.stride, n, int(dim),
+                           s.positions.data(), s.stream);
+      dsys.positions = s.positions.data();
+    }
+    cuda::check_input(dsys.positions, dsys.types, n, int(dim), uint32_t(ff.num_types()), s.flags.data(), s.stream);
+  }
   s.plan_from_corners = true;
   s.corner_count = 0;
-  prepare_resident(system, ff, dsys);
   const Request request{out.energies || out.energy, out.virial != nullptr};
-  traverse(system, ff, request, false);
+  s.borrow(dsys.positions, dsys.types);
+  const bool queued = decided && queue_device_call(system, ff, request);
+  if (!queued) {
+    prepare_resident(system, ff, dsys);
+    traverse(system, ff, request, false);
+  }
   if (n) {
     CF_CUDA_CHECK(cudaMemcpyAsync(out.forces, s.forces.data(), n * dim * sizeof(double),
                                   cudaMemcpyDeviceToDevice, s.stream));
@@ -227,10 +241,10 @@ void GpuEngine::evaluate_device(const DeviceInput& input, const ForceField& ff, 
   }
   if (request.energy || request.virial)  // sum_cells wrote the totals (zeros for no cells)
     cuda::write_totals(s.totals.data(), int(dim), out.energy, out.virial, s.stream);
-  s.record(Impl::kDownloaded);
+  if (!queued) s.record(Impl::kDownloaded);  // a decided call records no stage events
   CF_CUDA_CHECK(cudaEventRecord(s.finished, s.stream));
   CF_CUDA_CHECK(cudaStreamWaitEvent(caller, s.finished, 0));
-  if (options_.reuse.audit && !stats_.rebuilt) {  // diagnostics: the positions come to the host
+  if (options_.reuse.audit && !stats_.rebuilt && !queued) {  // diagnostics: the positions come to the host
     std::vector<double> host_positions;
     std::vector<uint32_t> host_types;
     download(host_positions, dsys.positions, n * dim, s.stream);
@@ -244,6 +258,7 @@ void GpuEngine::synchronize(const ForceField& ff) {
   const DeviceScope scope(options_.device);
   Impl& s = *impl_;
   CF_CUDA_CHECK(cudaStreamSynchronize(s.stream));
+  settle_device_calls(true);
   if (!s.accumulate_flags) return;
   cuda::DeviceFlags flags{};
   CF_CUDA_CHECK(cudaMemcpyAsync(&flags, s.flags.data(), sizeof(flags), cudaMemcpyDeviceToHost, s.stream));
@@ -423,6 +438,8 @@ void GpuEngine::prepare(const SystemView& system, const ForceField& ff, const De
   Impl& s = *impl_;
   validate_system(system, ff);
   check_capacity(system, ff);
+  settle_device_calls(true);  // what the device decided, before the host decides
+  s.call_state_stale = true;
   s.upload_system(system, on_device);
   const bool rebuild = reuse_.decide(system, ff.cutoff, [&] {
     return cuda::max_displacement2(system.box, s.pos, s.build_positions.data(), system.n, s.cub,
@@ -444,6 +461,8 @@ void GpuEngine::prepare_resident(const SystemView& system, const ForceField& ff,
                                  std::optional<double> known_d2) {
   Impl& s = *impl_;
   check_capacity(system, ff);
+  settle_device_calls(true);  // what the device decided, before the host decides
+  s.call_state_stale = true;
   s.upload_system(system, &on_device);
   const bool rebuild = reuse_.decide(system, ff.cutoff, [&] {
     return known_d2 ? *known_d2

@@ -72,8 +72,13 @@ class GpuEngine final : public cuda::ResidentForces {
   // any of out.energies, out.energy, out.virial is given. The host does not wait for the device
   // (nor for the caller's stream): the box, force field and pointers are checked on the host, the
   // arrays on the device, and what the kernels find (a coordinate that is not finite, a type index
-  // out of range, a pair whose force is not finite) is raised by synchronize(). The host waits
-  // only with an open axis (the particles' bounds, 2 x dim numbers, plan the grid when the
+  // out of range, a pair whose force is not finite) is raised by synchronize().
+  // With a skin, pair lists, the displacement check and every axis periodic, once the structure
+  // has been built twice the device decides each call's rebuild (a CUDA graph a call:
+  // backend/call_graph.cuh) and the host waits for nothing; the results are bitwise those of the
+  // host-decided path (EngineTestHooks::device_decides false), except after a list that outgrew its
+  // array (the cells serve, exact, until the next build: list_overflows()). Otherwise the host
+  // waits with an open axis (the particles' bounds, 2 x dim numbers, plan the grid when the
   // structure is built), with a skin and the displacement check (the largest displacement, 8
   // bytes; with the check off, once per build retired by `every`, for the dangerous-build count),
   // with pair lists when the structure is built (the list's size, 24 bytes, and the free memory)
@@ -150,6 +155,14 @@ class GpuEngine final : public cuda::ResidentForces {
   // graphs captured for it (backend/build_graph.cuh).
   std::size_t build_replays() const;
   std::size_t build_captures() const;
+  // compute_device calls the device's call graph served (it decided their rebuilds: backend/
+  // call_graph.cuh), the graphs captured for them, the builds it decided and of those the builds
+  // whose list did not fit its array (the cells served until the next build). Counted when the
+  // host has read the device's state (synchronize()).
+  std::size_t device_calls() const;
+  std::size_t call_captures() const;
+  std::size_t device_builds() const;
+  std::size_t list_overflows() const;
   const GpuOptions& options() const { return options_; }
   // The traversal form in use: options().traversal, or what kAuto chose at the last build (kAuto
   // before the first).
@@ -178,6 +191,13 @@ class GpuEngine final : public cuda::ResidentForces {
   void plan_corners(const Box& box, std::size_t n, const double* positions);
   void finish_timing();
   void build(const SystemView& system, const ForceField& ff);
+  // The decided calls (backend/device_calls.cu): whether this call may be one, queueing it on the
+  // call graph (false: the host's own path serves it), and reading what the device did: the
+  // posted sizes of its builds without waiting, and with `wait` its state too.
+  bool device_decides(const SystemView& system, const ForceField& ff) const;
+  void take_call_input(const DeviceInput& input, const ForceField& ff);
+  bool queue_device_call(const SystemView& system, const ForceField& ff, const Request& request);
+  void settle_device_calls(bool wait);
   void audit(const SystemView& system, const ForceField& ff);
   GpuOptions options_;
   ReusePolicy reuse_;

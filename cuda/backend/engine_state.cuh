@@ -17,6 +17,7 @@
 #include <vector>
 
 #include "backend/build_graph.cuh"
+#include "backend/call_graph.cuh"
 #include "backend/memory_plan.h"
 #include "backend/engine.h"
 #include "check.cuh"
@@ -83,6 +84,20 @@ struct GpuEngine::Impl {
   // be built (list_usable); builds counts the structures built.
   cuda::PairList list;
   cuda::BuildGraph graph;  // the build's fixed part as a CUDA graph (backend/build_graph.cuh)
+  // Force calls whose rebuild the device decides (backend/call_graph.cuh, backend/device_calls.cu):
+  // the graph, the device's state, the calls it served since the host last read that state
+  // (unsettled), whether the state must first be set to the structure in use (stale: the host's
+  // own path served the last call), the device's builds the host has counted, and the last device
+  // build whose posted sizes the host settled.
+  cuda::CallGraph call_graph;
+  DeviceBuffer<cuda::CallState> call_state;
+  std::size_t calls_unsettled = 0, calls_settled = 0;
+  bool call_state_stale = true;
+  unsigned long long device_builds = 0, settled_tag = 0;
+  std::size_t list_overflows = 0;  // device builds whose list did not fit its array (settled)
+  // While a call graph's build body is captured: Impl::build queues its fixed part plainly (no
+  // build graph of its own inside the capture).
+  bool plain_build = false;
   std::size_t builds = 0, list_built_for = ~std::size_t(0);
   bool list_usable = false;
   // Lean memory (pair lists on a system whose buffers would not fit beside each other): the build
@@ -103,7 +118,7 @@ struct GpuEngine::Impl {
     f("staged occupants", staged), f("LJ table", table), f("Jacobi slots: forces", force_slots);
     f("Jacobi slots: energies", energy_slots), f("cell sums", cell_sums), f("forces", forces);
     f("energies", energies), f("totals", totals), f("flags", flags), f("pairs (tests)", pairs);
-    f("build positions", build_positions);
+    f("build positions", build_positions), f("decided calls: state", call_state);
     f("chapter sort: keys", chapter_sort.keys), f("chapter sort: values", chapter_sort.values);
     f("chapter sort: counts", chapter_sort.counts), f("chapter sort: digit totals", chapter_sort.digit_totals);
     f("collision cells: run starts", collision.run_start), f("collision cells: CUB scratch", collision.cub);
@@ -270,6 +285,23 @@ struct GpuEngine::Impl {
   template <class Real, class Accum>
   cuda::TraversalArgs<Real, Accum> traversal_args(const Grid& g, const SystemView& sys, const ForceField& ff,
                                                   CutoffMode mode);
+
+  // The cells' traversal and the sums of its slots and cells (the evaluation of a structure
+  // without a list).
+  template <class Real, class Accum>
+  void evaluate_cells(const GpuOptions& o, const Grid& g, const SystemView& sys, const ForceField& ff,
+                      const Request& req);
+  // The room evaluate_cells takes, taken now (before a call graph's capture).
+  template <class Real, class Accum>
+  void reserve_cells(const GpuOptions& o, const Grid& g, std::size_t n, const Request& req);
+
+  // The call graph of the structure in use (backend/device_calls.cu) and its key: every buffer's
+  // address and capacity and what else shapes its operations.
+  template <class Real, class Accum>
+  void make_call_graph(const GpuOptions& o, const PipelineStats& st, const SystemView& sys, const ForceField& ff,
+                       const Request& req, double limit2, cuda::CallGraph::Key key);
+  cuda::CallGraph::Key call_key(const GpuOptions& o, const Grid& g, const ForceField& ff, std::size_t n,
+                                const Request& req);
 
   // Returns whether the pair lists served (else the cells did).
   template <class Real, class Accum>

@@ -151,23 +151,44 @@ template <class Real, class Accum>
 bool GpuEngine::Impl::traverse_and_sum(const GpuOptions& o, const Grid& g, const SystemView& sys,
                       const ForceField& ff, const Request& req) {
   if (lists(o, sys.box, ff.cutoff) && evaluate_lists<Real, Accum>(g, sys, ff, req)) return true;
+  evaluate_cells<Real, Accum>(o, g, sys, ff, req);
+  return false;
+}
+
+template <class Real, class Accum>
+void GpuEngine::Impl::reserve_cells(const GpuOptions& o, const Grid& g, std::size_t n, const Request& req) {
+  const bool gs = o.accumulation == Accumulation::kGaussSeidel;
+  const std::size_t dim = std::size_t(g.dim), copies = gs ? 1 : std::size_t(g.num_types());
+  const bool tiles = form == TraversalForm::kWarpPerTile;
+  const std::size_t sums = tiles ? cuda::max_tiles(entries, max_cells) : max_cells;
+  staged.reserve(std::max<std::size_t>(entries, 1) * sizeof(cuda::StagedEntry<Real>));
+  force_slots.reserve(std::max<std::size_t>(copies * n * dim, 1) * sizeof(Accum));
+  if (req.energy || req.virial) {
+    energy_slots.reserve(std::max<std::size_t>(copies * n, 1) * sizeof(Accum));
+    cell_sums.reserve(std::max<std::size_t>(sums, 1) * cuda::kCellSums * sizeof(Accum));
+    totals.reserve(cuda::kCellSums);
+  }
+  forces.reserve(std::max<std::size_t>(n * dim, 1));
+  if (req.energy) energies.reserve(std::max<std::size_t>(n, 1));
+}
+
+template <class Real, class Accum>
+void GpuEngine::Impl::evaluate_cells(const GpuOptions& o, const Grid& g, const SystemView& sys, const ForceField& ff,
+                                     const Request& req) {
   const bool gs = o.accumulation == Accumulation::kGaussSeidel;
   const bool observables = req.energy || req.virial;
   const std::size_t n = sys.n, dim = std::size_t(g.dim);
   const int copies = gs ? 1 : g.num_types();
   // Energy and virial sums per collision cell, or per row tile for the tile form.
   const bool tiles = form == TraversalForm::kWarpPerTile;
-  const std::size_t sums = tiles ? cuda::max_tiles(entries, max_cells) : max_cells;
+  reserve_cells<Real, Accum>(o, g, n, req);
   cuda::TraversalArgs<Real, Accum> args = prepare<Real, Accum>(g, sys, ff, ff.mode);
 
-  force_slots.reserve(std::max<std::size_t>(copies * n * dim, 1) * sizeof(Accum));
   CF_CUDA_CHECK(cudaMemsetAsync(force_slots.data(), 0, copies * n * dim * sizeof(Accum), stream));
   args.force = as<Accum>(force_slots);
   args.force_slot_stride = gs ? 0 : n * dim;
   if (observables) {
-    energy_slots.reserve(std::max<std::size_t>(copies * n, 1) * sizeof(Accum));
     CF_CUDA_CHECK(cudaMemsetAsync(energy_slots.data(), 0, copies * n * sizeof(Accum), stream));
-    cell_sums.reserve(std::max<std::size_t>(sums, 1) * cuda::kCellSums * sizeof(Accum));
     args.energy = as<Accum>(energy_slots);
     args.energy_slot_stride = gs ? 0 : n;
     args.cell_sums = as<Accum>(cell_sums);
@@ -188,18 +209,13 @@ bool GpuEngine::Impl::traverse_and_sum(const GpuOptions& o, const Grid& g, const
   }
   record(kTraversed);
 
-  forces.reserve(std::max<std::size_t>(n * dim, 1));
-  if (req.energy) energies.reserve(std::max<std::size_t>(n, 1));
   cuda::sum_slots<Accum>(as<Accum>(force_slots), req.energy ? as<Accum>(energy_slots) : nullptr,
                          g.dim, n, copies, forces.data(), req.energy ? energies.data() : nullptr,
                          stream);
-  if (observables) {
-    totals.reserve(cuda::kCellSums);
+  if (observables)
     cuda::sum_cells<Accum>(as<Accum>(cell_sums), tiles ? tile_start.data() + max_cells : &counts.data()->cell_range[1],
                            totals.data(), stream);
-  }
   record(kAccumulated);
-  return false;
 }
 
 #define CF_EVALUATION(Real, Accum)                                                                              \
@@ -219,7 +235,11 @@ bool GpuEngine::Impl::traverse_and_sum(const GpuOptions& o, const Grid& g, const
   template cuda::TraversalArgs<Real, Accum> GpuEngine::Impl::traversal_args<Real, Accum>(                       \
       const Grid&, const SystemView&, const ForceField&, CutoffMode);                                          \
   template bool GpuEngine::Impl::traverse_and_sum<Real, Accum>(const GpuOptions&, const Grid&, const SystemView&, \
-                                                               const ForceField&, const Request&);
+                                                               const ForceField&, const Request&);            \
+  template void GpuEngine::Impl::evaluate_cells<Real, Accum>(const GpuOptions&, const Grid&, const SystemView&,  \
+                                                             const ForceField&, const Request&);              \
+  template void GpuEngine::Impl::reserve_cells<Real, Accum>(const GpuOptions&, const Grid&, std::size_t,         \
+                                                            const Request&);
 CF_EVALUATION(float, float)
 CF_EVALUATION(float, double)
 CF_EVALUATION(double, double)

@@ -51,8 +51,9 @@ void GpuEngine::Impl::build(const GpuOptions& o, PipelineStats& st, const System
   // The fixed part of a list build, from here to the list's partition (build_pair_list), queued,
   // captured or replayed as a CUDA graph (backend/build_graph.cuh). Its operations are queued only
   // while graph.queuing().
-  graph.begin(plan.graphed ? build_key(o, g, ff, n) : cuda::BuildGraph::Key{}, plan.graphed, stream,
-              o.test.build_graph_audit.value_or(false));
+  if (!plain_build)
+    graph.begin(plan.graphed ? build_key(o, g, ff, n) : cuda::BuildGraph::Key{}, plan.graphed, stream,
+                o.test.build_graph_audit.value_or(false));
   if (graph.queuing()) queue_ids_and_sort(o, g, n, unsorted_keys, unsorted_ids, loan);
   if ((lean || plan.free_after_sort) && o.sort == SortMethod::kCub) {  // dead until the next build (the
     keys.release();                                                    // chapter's sort may reuse them)

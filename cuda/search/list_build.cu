@@ -113,6 +113,12 @@ class ListBuilder {
     const unsigned long long chunks_held = list_.neighbors.capacity() / (std::size_t(kGroup) * kChunk);
     const bool early = row_blocks_ && chunks_held > 0;
     if (early) walk<ListPass::kFill>(list_.group_chunks.data() + groups_, chunks_held);
+    if (list_.overflow) {  // a build the device decided: no wait, the host settles from the post later
+      flag_overflow<<<1, 32, 0, stream_>>>(list_.group_chunks.data() + groups_, early ? chunks_held : 0,
+                                           list_.overflow);
+      CF_CUDA_CHECK_LAUNCH();
+      return true;
+    }
     const SizesReadback::Sizes read = list_.readback.wait(stream_);
     const std::size_t width = std::size_t(read.value[0]), pairs = std::size_t(read.value[1]);
     const std::size_t mask_words = masks_.base ? std::size_t(read.value[2]) : 0;  // every unit's masks
@@ -260,9 +266,9 @@ class ListBuilder {
   // the words every unit's masks would take and the list's chunks, posted into its mapped memory.
   void post_sizes() {
     unsigned long long tag = 0;
-    PostedSizes* post = list_.readback.begin(tag);
+    PostedSizes* post = list_.device_tag ? list_.readback.device_post() : list_.readback.begin(tag);
     gather_sizes<<<1, 32, 0, stream_>>>(list_.sizes.data(), masks_.base ? masks_.base + launched_units_ : nullptr,
-                                        list_.group_chunks.data() + groups_, post, tag);
+                                        list_.group_chunks.data() + groups_, post, tag, list_.device_tag);
     CF_CUDA_CHECK_LAUNCH();
   }
 

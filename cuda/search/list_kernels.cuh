@@ -540,7 +540,7 @@ __global__ void sum_slot_counts(const uint32_t* __restrict__ slot_counts, std::s
 __global__ void gather_sizes(const unsigned long long* __restrict__ sizes,
                              const unsigned long long* __restrict__ masks_end,
                              const unsigned long long* __restrict__ chunks_end, PostedSizes* out,
-                             unsigned long long tag) {
+                             unsigned long long tag, const unsigned long long* __restrict__ device_tag) {
   if (threadIdx.x == 0) {
     volatile PostedSizes* o = out;
     o->value[0] = sizes[0];
@@ -548,8 +548,18 @@ __global__ void gather_sizes(const unsigned long long* __restrict__ sizes,
     o->value[2] = masks_end ? *masks_end : 0ull;
     o->value[3] = *chunks_end;
     __threadfence_system();  // the sizes reach the host before the tag
-    o->tag = tag;
+    o->tag = device_tag ? (*device_tag | SizesReadback::kDeviceTag) : tag;
   }
+}
+
+// A build the device decided (PairList::overflow): whether the early fill found the list longer
+// than the array (it then wrote nothing).
+__global__ void flag_overflow(const unsigned long long* __restrict__ chunks_end, unsigned long long chunks_held,
+                              unsigned long long* overflow) {
+  if (threadIdx.x != 0) return;
+  const unsigned long long over = *chunks_end > chunks_held ? 1ull : 0ull;
+  overflow[0] = over;
+  overflow[1] += over;
 }
 
 }  // namespace

@@ -99,6 +99,19 @@ class SizesReadback {
   struct Sizes {
     unsigned long long value[4];
   };
+  // Where a build the device decided posts (backend/call_graph.cuh): its tag is the device's count
+  // of such builds with the top bit set (device_tag), never a host build's.
+  PostedSizes* device_post() { return posted_.device(); }
+  static constexpr unsigned long long kDeviceTag = 1ull << 63;
+  // The last post, whatever its tag, without waiting: false when none is there yet or the device
+  // wrote a new one while it was read.
+  bool peek(unsigned long long& tag, Sizes& sizes) const {
+    tag = posted_.tag();
+    if (tag == 0) return false;
+    const volatile PostedSizes& v = posted_.values();
+    sizes = Sizes{{v.value[0], v.value[1], v.value[2], v.value[3]}};
+    return posted_.tag() == tag;
+  }
   Sizes wait(cudaStream_t stream) const {
     for (;;) {
       if (posted_.arrived(builds_)) break;
@@ -194,6 +207,12 @@ struct PairList {
   std::size_t masks_refused = 0;       // the smallest mask demand the device had no (full) room for (0: none)
   bool masks_settled = false;          // lean: the room was sized to the memory left (in part): not
                                        // asked for again until it is given up (give_up_masks)
+  // A build the device decided (backend/call_graph.cuh), while it is captured: the post's tag is
+  // read from device_tag (kDeviceTag added), and the build ends after the early fill, setting
+  // *overflow to whether the list needed more chunks than its array holds (the fill then wrote
+  // nothing: the cells serve until the next build) and adding it to overflow[1]. Null otherwise.
+  const unsigned long long* device_tag = nullptr;
+  unsigned long long* overflow = nullptr;
 
   // Calls f(name, buffer) on every buffer.
   template <class F>

@@ -32,6 +32,8 @@ struct EngineTestHooks {
                                           // capture that must record nothing
   std::optional<bool> gate_notice;        // false: a gated chunk's host waits for the gate's copy at
                                           // its end, not for a shut kernel's notice
+  std::optional<bool> device_decides;     // false: compute_device's rebuild is decided on the host at
+                                          // every call (a wait), never by the device's call graph
   std::optional<bool> gate_notice_check;  // true: it waits for the copy, and the notice must be there
                                           // exactly where the gate closed, with the copy's values
 };

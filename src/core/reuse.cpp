@@ -35,7 +35,8 @@ ReuseOptions resolve_reuse(const ReuseOptions& options, Backend backend, Accumul
   r.automatic = false;  // resolved: what the engine runs
   r.skin = 0.0;
   r.list = false;
-  if (!md || backend != Backend::kCuda || !(cutoff > 0)) return r;
+  (void)md;  // force calls take the rule of steps: on CUDA the device decides their rebuilds
+  if (backend != Backend::kCuda || !(cutoff > 0)) return r;
   ReuseOptions lists = r;
   lists.skin = (memory == ListMemory::kLean ? kAutoLeanSkinPerCutoff : kAutoSkinPerCutoff) * cutoff;
   lists.list = true;
@@ -44,6 +45,7 @@ ReuseOptions resolve_reuse(const ReuseOptions& options, Backend backend, Accumul
 
 std::string describe_reuse(const ReuseOptions& requested, const ReuseOptions& resolved, Backend backend,
                            Accumulation accumulation, bool md, const Box& box, double cutoff, ListMemory memory) {
+  (void)md;
   std::ostringstream s;
   if (resolved.skin > 0) {
     s << "skin " << resolved.skin;
@@ -58,8 +60,7 @@ std::string describe_reuse(const ReuseOptions& requested, const ReuseOptions& re
   } else {
     s << "none, stages 1-3 every evaluation";
     if (requested.automatic)
-      s << " (auto: " << (!md                                     ? "no skin for force calls"
-                          : backend != Backend::kCuda                 ? "no skin on the cpu"
+      s << " (auto: " << (backend != Backend::kCuda                 ? "no skin on the cpu"
                           : accumulation != Accumulation::kJacobi ? "pair lists need jacobi"
                                                                   : "rc + skin exceeds half the box")
         << ")";

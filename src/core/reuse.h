@@ -63,8 +63,9 @@ bool pair_lists_serve(const ReuseOptions& resolved, Accumulation accumulation, c
 //   fast layout), kAutoLeanSkinPerCutoff x rc: a lean build keeps its count pass's masks only in
 //   the memory left, and a shorter list leaves more (performance.md: at ~100M particles of in.lj
 //   every mask is held from a skin of 0.45 down, and 0.45 serves fastest).
-// - Force calls (md false: compute, compute_device): no skin. Each call's positions are the
-//   caller's, and the displacement check would make compute_device wait for the host.
+// - Force calls (md false: compute, compute_device) take the same rule: on CUDA the device decides
+//   compute_device's rebuilds (cuda/backend/call_graph.cuh), so the check makes it wait for nothing
+//   once its graph is made.
 // - Otherwise no skin: without lists the skin's larger cells cost the traversal about what the
 //   skipped builds save (performance.md), and on the CPU the build is a few percent of an
 //   evaluation (validation/reports/stability.md, table 11; performance.md, the CPU backend).
@@ -137,6 +138,12 @@ class ReusePolicy {
   bool measures_displacement() const { return enabled() && (options_.check || options_.audit); }
   void built(const SystemView& system, double cutoff);
   void reused(int64_t evaluations = 1) { served_ += evaluations; }
+  // Builds the device decided since the host last looked (CUDA force calls: backend/call_graph.cuh),
+  // and the evaluations the structure in use has served now, its build's included.
+  void adopt(std::size_t device_builds, int64_t served) {
+    builds_ += device_builds;
+    served_ = served;
+  }
   // The structure no longer matches the last build (a fresh search overwrote it).
   void invalidate() { valid_ = false; }
   std::size_t builds() const { return builds_; }
