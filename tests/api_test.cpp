@@ -264,7 +264,8 @@ TEST(Api, PairCountsDescribeTheSearchStructure) {
         EXPECT_LE(c.valid_entries, c.entries);
         EXPECT_GT(c.collision_cells, 0u);
         EXPECT_GE(c.max_occupancy, 2u);
-        EXPECT_NEAR(c.half_width, b.ff.cutoff * std::sqrt(0.5), 1e-5 * b.ff.cutoff);
+        const double reach = b.ff.cutoff + ctx.skin();  // the structure's search radius (a skin on CUDA: auto)
+        EXPECT_NEAR(c.half_width, reach * std::sqrt(0.5), 1e-5 * reach);
         const cf::CellRule r = *cf::parse_name(rule, cf::kCellRuleNames);
         for (int a = 0; a < 3; ++a) {
           if (a >= dim) {
@@ -274,7 +275,7 @@ TEST(Api, PairCountsDescribeTheSearchStructure) {
           EXPECT_GE(c.grid_cells[a], 1u);
           EXPECT_NEAR(c.cell_edge[a] * c.grid_cells[a], b.config.box.length[a], 1e-9 * b.config.box.length[a]);
           if (c.grid_cells[a] > 1) {
-            EXPECT_GE(c.cell_edge[a], cf::min_cell_edge(r, b.ff.cutoff, c.half_width));
+            EXPECT_GE(c.cell_edge[a], cf::min_cell_edge(r, reach, c.half_width));
           }
         }
       }

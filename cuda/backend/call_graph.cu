@@ -63,7 +63,8 @@ __global__ void take_input_kernel(const T* __restrict__ in, std::size_t stride, 
 __global__ void decide_kernel(CallState* state, double limit2, cudaGraphConditionalHandle rebuild) {
   if (threadIdx.x != 0) return;
   const unsigned long long bits = state->d2;
-  const bool again = __longlong_as_double(static_cast<long long>(bits)) > limit2;
+  const bool again = __longlong_as_double(static_cast<long long>(bits)) > limit2 || state->force != 0;
+  state->force = 0;
   state->last_d2 = bits;
   state->d2 = 0;
   ++state->calls;
@@ -118,6 +119,15 @@ void take_call_input(const void* in, Scalar scalar, std::size_t stride, const ui
 
 void reset_call_state(CallState* state, int64_t served, bool overflow, cudaStream_t stream) {
   reset_kernel<<<1, 32, 0, stream>>>(state, static_cast<unsigned long long>(served), overflow ? 1ull : 0ull);
+  CF_CUDA_CHECK_LAUNCH();
+}
+
+__global__ void request_kernel(CallState* state) {
+  if (threadIdx.x == 0) state->force = 1;
+}
+
+void request_build(CallState* state, cudaStream_t stream) {
+  request_kernel<<<1, 32, 0, stream>>>(state);
   CF_CUDA_CHECK_LAUNCH();
 }
 

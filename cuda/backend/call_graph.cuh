@@ -23,6 +23,7 @@
 
 #include <cuda_runtime.h>
 
+#include <algorithm>
 #include <cstddef>
 #include <cstdint>
 #include <utility>
@@ -47,6 +48,7 @@ struct CallState {
   unsigned long long served;    // evaluations of the structure in use, its build's included
   unsigned long long overflow;  // 1: the list of the structure in use did not fit its array
   unsigned long long overflows; // builds whose list did not fit (PairList::overflow: the two words)
+  unsigned long long force;     // 1: the next decided call rebuilds (the list's array grew after one)
 };
 
 struct DeviceFlags;
@@ -62,24 +64,44 @@ void take_call_input(const void* in, Scalar scalar, std::size_t stride, const ui
 // After a call the host served: the structure in use has served `served` evaluations and its list
 // fits (overflow false) or the cells serve it.
 void reset_call_state(CallState* state, int64_t served, bool overflow, cudaStream_t stream);
+void request_build(CallState* state, cudaStream_t stream);
 void queue_decide(CallState* state, double limit2, cudaGraphConditionalHandle rebuild, cudaStream_t stream);
 void queue_select(const CallState* state, cudaGraphConditionalHandle lists, cudaStream_t stream);
 
+// The graphs of the last few keys (a caller that asks for energies every so often, or writes the
+// forces into two arrays by turns, switches between two or three), each made once.
 class CallGraph {
  public:
   using Key = std::vector<uint64_t>;
+  static constexpr std::size_t kKept = 4;
   CallGraph() = default;
   CallGraph(const CallGraph&) = delete;
   CallGraph& operator=(const CallGraph&) = delete;
   ~CallGraph() {
-    if (exec_) cudaGraphExecDestroy(exec_);  // a destructor cannot throw: errors are ignored
+    for (Entry& e : kept_)
+      if (e.exec) cudaGraphExecDestroy(e.exec);  // a destructor cannot throw: errors are ignored
   }
 
-  bool ready(const Key& key) const { return exec_ && key == key_; }
+  // The graph of `key`, made already (else null).
+  cudaGraphExec_t find(const Key& key) {
+    for (Entry& e : kept_)
+      if (e.key == key) {
+        e.used = ++uses_;
+        return e.exec;
+      }
+    return nullptr;
+  }
+  // Whether a graph is kept whose key differs from `key` in its first `prefix` words only.
+  bool kept_but_prefix(const Key& key, std::size_t prefix) const {
+    for (const Entry& e : kept_)
+      if (e.key.size() == key.size() && std::equal(key.begin() + prefix, key.end(), e.key.begin() + prefix))
+        return true;
+    return false;
+  }
   // A key whose capture failed (a buffer would have grown): not tried again until the key changes.
   bool refused(const Key& key) const { return !refused_.empty() && key == refused_; }
-  void launch(cudaStream_t stream) {
-    CF_CUDA_CHECK(cudaGraphLaunch(exec_, stream));
+  void launch(cudaGraphExec_t exec, cudaStream_t stream) {
+    CF_CUDA_CHECK(cudaGraphLaunch(exec, stream));
     ++launches_;
   }
   std::size_t launches() const { return launches_; }
@@ -87,12 +109,12 @@ class CallGraph {
 
   // Captures the graph above: decide(handle) and select(handle) queue the kernels that set the
   // conditions; build(), lists() and cells() queue the bodies. On an exception the graph is not
-  // kept and `key` is refused.
+  // kept and `key` is refused. The least recently used graph gives way past kKept.
   template <class Decide, class Build, class Select, class Lists, class Cells>
-  void make(Key key, cudaStream_t stream, Decide&& decide, Build&& build, Select&& select, Lists&& lists,
-            Cells&& cells) {
-    drop();
+  cudaGraphExec_t make(Key key, cudaStream_t stream, Decide&& decide, Build&& build, Select&& select, Lists&& lists,
+                       Cells&& cells) {
     cudaGraph_t top = nullptr;
+    cudaGraphExec_t exec = nullptr;
     CF_CUDA_CHECK(cudaGraphCreate(&top, 0));
     try {
       FrozenBuffers frozen;
@@ -107,26 +129,26 @@ class CallGraph {
       add_if(top, selected, listed, 2, body);
       capture(body[0], {}, stream, lists);
       capture(body[1], {}, stream, cells);
-      CF_CUDA_CHECK(cudaGraphInstantiate(&exec_, top, 0));
+      CF_CUDA_CHECK(cudaGraphInstantiate(&exec, top, 0));
     } catch (...) {
-      if (exec_) cudaGraphExecDestroy(exec_);
-      exec_ = nullptr;
+      if (exec) cudaGraphExecDestroy(exec);
       cudaGraphDestroy(top);
       refused_ = std::move(key);
       throw;
     }
     cudaGraphDestroy(top);
-    key_ = std::move(key);
+    if (kept_.size() == kKept) {
+      auto oldest = kept_.begin();
+      for (auto e = kept_.begin(); e != kept_.end(); ++e)
+        if (e->used < oldest->used) oldest = e;
+      cudaGraphExec_t gone = oldest->exec;
+      kept_.erase(oldest);
+      CF_CUDA_CHECK(cudaGraphExecDestroy(gone));
+    }
+    kept_.push_back(Entry{std::move(key), exec, ++uses_});
     refused_.clear();
     ++captures_;
-  }
-
-  void drop() {
-    if (!exec_) return;
-    cudaGraphExec_t exec = exec_;
-    exec_ = nullptr;
-    key_.clear();
-    CF_CUDA_CHECK(cudaGraphExecDestroy(exec));
+    return exec;
   }
 
  private:
@@ -172,9 +194,14 @@ class CallGraph {
     return node;
   }
 
-  Key key_, refused_;
-  cudaGraphExec_t exec_ = nullptr;
-  std::size_t launches_ = 0, captures_ = 0;
+  struct Entry {
+    Key key;
+    cudaGraphExec_t exec = nullptr;
+    std::size_t used = 0;
+  };
+  std::vector<Entry> kept_;
+  Key refused_;
+  std::size_t uses_ = 0, launches_ = 0, captures_ = 0;
 };
 
 }  // namespace cellforce::cuda

@@ -40,72 +40,137 @@ void grow_list_array(cuda::PairList& list, std::size_t slots, cudaStream_t strea
 
 }  // namespace
 
-void GpuEngine::take_call_input(const DeviceInput& input, const ForceField& ff) {
+void GpuEngine::wait_decided_calls() {
   Impl& s = *impl_;
-  const std::size_t n = input.n, dim = std::size_t(input.box.dim);
-  if (s.call_state.capacity() == 0) {  // counters from zero
-    s.call_state.reserve(1);
-    CF_CUDA_CHECK(cudaMemsetAsync(s.call_state.data(), 0, sizeof(cuda::CallState), s.stream));
-  }
-  if (s.call_state_stale) {  // the host's path served the last call: the device's state from it
-    cuda::reset_call_state(s.call_state.data(), reuse_.served(), !s.list_usable, s.stream);
-    s.call_state_stale = false;
-  }
-  s.positions.reserve(std::max<std::size_t>(n * dim, 1));
-  if (input.types) s.types.reserve(std::max<std::size_t>(n, 1));
-  cuda::take_call_input(input.positions, input.scalar, input.stride == 0 ? dim : input.stride, input.types, n,
-                        input.box, uint32_t(ff.num_types()), s.positions.data(),
-                        input.types ? s.types.data() : nullptr, s.build_positions.data(), s.flags.data(),
-                        s.call_state.data(), s.stream);
+  if (s.decided_pending) CF_CUDA_CHECK(cudaStreamWaitEvent(s.stream, s.finished, 0));
 }
 
-bool GpuEngine::queue_device_call(const SystemView& system, const ForceField& ff, const Request& request) {
+bool GpuEngine::ready_device_call(const SystemView& system, const ForceField& ff, const Request& request,
+                                  const DeviceOutputs& out, bool typed) {
   Impl& s = *impl_;
-  settle_device_calls(false);  // may grow the list's array: the graph is then made again
-  if (!device_decides(system, ff)) return false;
+  settle_device_calls(false);  // the sizes the device's builds posted
+  wait_decided_calls();        // what the engine's stream queues below comes after them
   // Room for lists 1/8 longer than the last one (a liquid's lists grow as it leaves its lattice,
   // and a device build that finds no room for its list leaves the call to the cells): below it,
   // the array grows to 1/4 more, where the device's memory has it.
+  // A list that did not fit (the cells serve it) is built again at the next call, into the grown
+  // array; a list crowded enough for the host to decline it (the cells serve) takes no more room.
+  const std::size_t n = system.n, dim = std::size_t(system.box.dim);
+  if (s.call_state.capacity() == 0) {  // counters from zero
+    s.call_state.reserve(1);
+    CF_CUDA_CHECK(cudaMemsetAsync(s.call_state.data(), 0, sizeof(cuda::CallState), s.stream));
+    s.engine_dirty = true;
+  }
   cuda::PairList& list = s.list;
-  if (list.neighbors.capacity() < list.slots + list.slots / 8) {
+  const bool crowded = list.slots > 2 * list.pairs + 64 * n;
+  if (!crowded && list.neighbors.capacity() < list.slots + list.slots / 8) {
     std::size_t free_bytes = 0, total_bytes = 0;
     CF_CUDA_CHECK(cudaMemGetInfo(&free_bytes, &total_bytes));
     const std::size_t want = list.slots + list.slots / 4;
-    if (want * sizeof(uint32_t) + std::max<std::size_t>(free_bytes / 16, std::size_t(512) << 20) < free_bytes)
+    if (want * sizeof(uint32_t) + std::max<std::size_t>(free_bytes / 16, std::size_t(512) << 20) < free_bytes) {
+      const bool overflowed = list.slots > list.neighbors.capacity();
       grow_list_array(list, want, s.stream);
+      if (overflowed) cuda::request_build(s.call_state.data(), s.stream);
+      s.engine_dirty = true;
+    }
   }
+  s.positions.reserve(std::max<std::size_t>(n * dim, 1));
+  s.types.reserve(std::max<std::size_t>(n, 1));
+  s.borrow(s.positions.data(), typed ? s.types.data() : nullptr);  // what the call's input pass writes
   const Grid& g = stats_.grid;
   auto ready = [&](auto real, auto accum) {
     using Real = decltype(real);
     using Accum = decltype(accum);
     s.upload_table<Real>(ff);
-    s.reserve_cells<Real, Accum>(options_, g, system.n, request);  // the graph's ELSE body
-    cuda::CallGraph::Key key = s.call_key(options_, g, ff, system.n, request);
-    if (s.call_graph.ready(key)) return true;
+    s.reserve_cells<Real, Accum>(options_, g, n, request);  // the graph's ELSE body
+    DeviceOutputs into = s.direct_outputs ? out : DeviceOutputs{};
+    cuda::CallGraph::Key key = s.call_key(options_, g, ff, n, request, into);
+    if (key != s.last_call_key) {  // room may have been taken for it, on the engine's stream
+      s.engine_dirty = true;
+      s.last_call_key = key;
+    }
+    s.call_exec = s.call_graph.find(key);
+    if (s.call_exec) return true;
+    if (s.direct_outputs && s.call_graph.kept_but_prefix(key, 2) && ++s.output_changes > 2) {
+      s.direct_outputs = false;  // from now on the engine's arrays, copied out
+      into = DeviceOutputs{};
+      key = s.call_key(options_, g, ff, n, request, into);
+      s.call_exec = s.call_graph.find(key);
+      if (s.call_exec) return true;
+    }
     if (s.call_graph.refused(key)) return false;
     try {
-      s.make_call_graph<Real, Accum>(options_, stats_, system, ff, request, reuse_.limit2(), std::move(key));
+      s.call_exec =
+          s.make_call_graph<Real, Accum>(options_, stats_, system, ff, request, reuse_.limit2(), into, std::move(key));
     } catch (const Error&) {  // a buffer would have grown: the host's path serves until the key changes
       return false;
     }
     return true;
   };
-  bool usable = false;
   switch (options_.precision) {
-    case Precision::kSingle: usable = ready(float{}, float{}); break;
-    case Precision::kMixed: usable = ready(float{}, double{}); break;
-    case Precision::kDouble: usable = ready(double{}, double{}); break;
+    case Precision::kSingle: return ready(float{}, float{});
+    case Precision::kMixed: return ready(float{}, double{});
+    case Precision::kDouble: break;
   }
-  if (!usable) return false;
-  s.call_graph.launch(s.stream);
+  return ready(double{}, double{});
+}
+
+void GpuEngine::queue_device_call(const DeviceInput& input, const ForceField& ff, const DeviceOutputs& out,
+                                  void* stream) {
+  Impl& s = *impl_;
+  const auto caller = static_cast<cudaStream_t>(stream);
+  const std::size_t n = input.n, dim = std::size_t(input.box.dim);
+  struct Stale {  // a throw below may leave this call's displacement in the state: set it afresh next time
+    Impl& s;
+    bool done = false;
+    ~Stale() {
+      if (!done) s.call_state_stale = true;
+    }
+  } stale{s};
+  // The call runs on the caller's stream, after what the engine's stream queued (its flags, any
+  // room taken) and after the last decided call where that ran on another stream.
+  if (s.engine_dirty) {
+    CF_CUDA_CHECK(cudaEventRecord(s.joined, s.stream));
+    CF_CUDA_CHECK(cudaStreamWaitEvent(caller, s.joined, 0));
+    s.engine_dirty = false;
+  }
+  if (s.decided_pending && s.decided_on != caller) CF_CUDA_CHECK(cudaStreamWaitEvent(caller, s.finished, 0));
+  if (s.call_state_stale) {  // the host's path served the last call: the device's state from it
+    cuda::reset_call_state(s.call_state.data(), reuse_.served(), !s.list_usable, caller);
+    s.call_state_stale = false;
+  }
+  cuda::take_call_input(input.positions, input.scalar, input.stride == 0 ? dim : input.stride, input.types, n,
+                        input.box, uint32_t(ff.num_types()), s.positions.data(),
+                        input.types ? s.types.data() : nullptr, s.build_positions.data(), s.flags.data(),
+                        s.call_state.data(), caller);
+  const Request request{out.energies || out.energy, out.virial != nullptr};
+  if (!s.call_exec) throw Error("internal error: a decided call without its graph");
+  s.call_graph.launch(s.call_exec, caller);
+  s.call_exec = nullptr;
+  if (!s.direct_outputs && n) {
+    CF_CUDA_CHECK(cudaMemcpyAsync(out.forces, s.forces.data(), n * dim * sizeof(double), cudaMemcpyDeviceToDevice,
+                                  caller));
+    if (out.energies)
+      CF_CUDA_CHECK(cudaMemcpyAsync(out.energies, s.energies.data(), n * sizeof(double), cudaMemcpyDeviceToDevice,
+                                    caller));
+  }
+  if (request.energy || request.virial)
+    cuda::write_totals(s.totals.data(), int(dim), out.energy, out.virial, caller);
+  CF_CUDA_CHECK(cudaEventRecord(s.finished, caller));
+  s.decided_on = caller;
+  s.decided_pending = true;
   ++s.calls_unsettled;
-  return true;
+  stale.done = true;
 }
 
 void GpuEngine::settle_device_calls(bool wait) {
   Impl& s = *impl_;
   if (s.calls_unsettled == 0) return;
-  if (wait) CF_CUDA_CHECK(cudaStreamSynchronize(s.stream));
+  if (wait) {
+    if (s.decided_pending) CF_CUDA_CHECK(cudaEventSynchronize(s.finished));
+    s.decided_pending = false;
+    CF_CUDA_CHECK(cudaStreamSynchronize(s.stream));
+  }
   // The sizes the device's last build posted: the list's figures, and a list that did not fit gets
   // an array for the next build (the cells serve until then).
   unsigned long long tag = 0;
@@ -149,8 +214,10 @@ std::size_t GpuEngine::device_builds() const { return std::size_t(impl_->device_
 std::size_t GpuEngine::list_overflows() const { return impl_->list_overflows; }
 
 cuda::CallGraph::Key GpuEngine::Impl::call_key(const GpuOptions& o, const Grid& g, const ForceField& ff, std::size_t n,
-                                               const Request& req) {
+                                               const Request& req, const DeviceOutputs& out) {
   cuda::CallGraph::Key key;
+  cuda::add_to_key(key, out.forces);  // the evaluations write the caller's arrays
+  cuda::add_to_key(key, out.energies);
   for_each_buffer([&](const char*, auto& buffer) {
     cuda::add_to_key(key, buffer.data());
     cuda::add_to_key(key, buffer.capacity());
@@ -182,9 +249,9 @@ cuda::CallGraph::Key GpuEngine::Impl::call_key(const GpuOptions& o, const Grid& 
 }
 
 template <class Real, class Accum>
-void GpuEngine::Impl::make_call_graph(const GpuOptions& o, const PipelineStats& st, const SystemView& sys,
+cudaGraphExec_t GpuEngine::Impl::make_call_graph(const GpuOptions& o, const PipelineStats& st, const SystemView& sys,
                                       const ForceField& ff, const Request& req, double limit2,
-                                      cuda::CallGraph::Key key) {
+                                      const DeviceOutputs& out, cuda::CallGraph::Key key) {
   // The capture queues nothing that runs now: what the captured code writes on the host is put back.
   struct Restore {
     Impl& s;
@@ -201,6 +268,7 @@ void GpuEngine::Impl::make_call_graph(const GpuOptions& o, const PipelineStats& 
       s.plain_build = false;
       s.list.device_tag = nullptr;
       s.list.overflow = nullptr;
+      s.forces_out = s.energies_out = nullptr;
     }
   } restore{*this, builds, list_built_for, list.width, list.pairs, list.slots, list_usable, timing};
   timing = false;      // no event nodes in a conditional body
@@ -208,9 +276,11 @@ void GpuEngine::Impl::make_call_graph(const GpuOptions& o, const PipelineStats& 
   cuda::CallState* state = call_state.data();
   list.device_tag = &state->builds;
   list.overflow = &state->overflow;
+  forces_out = out.forces;  // the evaluations write the caller's arrays (the build writes neither)
+  energies_out = out.energies;
   PipelineStats scratch = st;
   const Grid g = st.grid;
-  call_graph.make(
+  return call_graph.make(
       std::move(key), stream, [&](cudaGraphConditionalHandle h) { cuda::queue_decide(state, limit2, h, stream); },
       [&] {
         build(o, scratch, sys, ff);
@@ -226,9 +296,9 @@ void GpuEngine::Impl::make_call_graph(const GpuOptions& o, const PipelineStats& 
 }
 
 #define CF_CALL_GRAPH(Real, Accum)                                                                              \
-  template void GpuEngine::Impl::make_call_graph<Real, Accum>(const GpuOptions&, const PipelineStats&,          \
+  template cudaGraphExec_t GpuEngine::Impl::make_call_graph<Real, Accum>(const GpuOptions&, const PipelineStats&,          \
                                                               const SystemView&, const ForceField&, const Request&, \
-                                                              double, cuda::CallGraph::Key);
+                                                              double, const DeviceOutputs&, cuda::CallGraph::Key);
 CF_CALL_GRAPH(float, float)
 CF_CALL_GRAPH(float, double)
 CF_CALL_GRAPH(double, double)

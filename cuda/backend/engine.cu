@@ -196,42 +196,41 @@ void GpuEngine::evaluate_device(const DeviceInput& input, const ForceField& ff, 
   validate_physics(input.box, ff, n);
   check_capacity(system, ff);
 
-  const auto caller = static_cast<cudaStream_t>(stream);
-  CF_CUDA_CHECK(cudaEventRecord(s.joined, caller));  // the engine starts after the caller's work
-  CF_CUDA_CHECK(cudaStreamWaitEvent(s.stream, s.joined, 0));
+  const Request request{out.energies || out.energy, out.virial != nullptr};
   const bool decided = device_decides(system, ff);
   if (!decided) settle_device_calls(true);  // before the host's path, and before it waits for the caller
+  wait_decided_calls();  // what the engine's stream queues comes after the decided calls still queued
   if (!s.accumulate_flags) {  // flags accumulate until synchronize()
     s.reset_flags();
     s.accumulate_flags = true;
-  }
-  // The arrays are checked on the device; what it finds is raised by synchronize(). A call the
-  // device may decide reads copies in the engine's arrays (its graph names them), made in the pass
-  // that checks them and measures the displacement; otherwise positions not held as packed float64
-  // rows are converted into the engine's array and read from there.
-  DeviceSystemView dsys{input.box, n, static_cast<const double*>(input.positions), input.types};
-  if (decided) {
-    take_call_input(input, ff);
-    dsys.positions = s.positions.data();
-    dsys.types = input.types ? s.types.data() : nullptr;
-  } else {
-    if (!input.packed()) {
-      s.positions.reserve(std::max<std::size_t>(n * dim, 1));
-      cuda::pack_positions(input.positions, input.scalar, input.stride == 0 ? dim : input.stride, n, int(dim),
-                           s.positions.data(), s.stream);
-      dsys.positions = s.positions.data();
-    }
-    cuda::check_input(dsys.positions, dsys.types, n, int(dim), uint32_t(ff.num_types()), s.flags.data(), s.stream);
+    s.engine_dirty = true;
   }
   s.plan_from_corners = true;
   s.corner_count = 0;
-  const Request request{out.energies || out.energy, out.virial != nullptr};
-  s.borrow(dsys.positions, dsys.types);
-  const bool queued = decided && queue_device_call(system, ff, request);
-  if (!queued) {
-    prepare_resident(system, ff, dsys);
-    traverse(system, ff, request, false);
+  // A call the device decides runs on the caller's stream (backend/device_calls.cu): its input
+  // pass copies and checks the arrays and measures the displacement, its graph writes the caller's
+  // outputs.
+  if (decided && ready_device_call(system, ff, request, out, input.types != nullptr)) {
+    queue_device_call(input, ff, out, stream);
+    return;
   }
+  settle_device_calls(true);
+  s.engine_dirty = true;
+  const auto caller = static_cast<cudaStream_t>(stream);
+  CF_CUDA_CHECK(cudaEventRecord(s.joined, caller));  // the engine starts after the caller's work
+  CF_CUDA_CHECK(cudaStreamWaitEvent(s.stream, s.joined, 0));
+  // The arrays are checked on the device; what it finds is raised by synchronize(). Positions not
+  // held as packed float64 rows are converted into the engine's array and read from there.
+  DeviceSystemView dsys{input.box, n, static_cast<const double*>(input.positions), input.types};
+  if (!input.packed()) {
+    s.positions.reserve(std::max<std::size_t>(n * dim, 1));
+    cuda::pack_positions(input.positions, input.scalar, input.stride == 0 ? dim : input.stride, n, int(dim),
+                         s.positions.data(), s.stream);
+    dsys.positions = s.positions.data();
+  }
+  cuda::check_input(dsys.positions, dsys.types, n, int(dim), uint32_t(ff.num_types()), s.flags.data(), s.stream);
+  prepare_resident(system, ff, dsys);
+  traverse(system, ff, request, false);
   if (n) {
     CF_CUDA_CHECK(cudaMemcpyAsync(out.forces, s.forces.data(), n * dim * sizeof(double),
                                   cudaMemcpyDeviceToDevice, s.stream));
@@ -241,10 +240,10 @@ void GpuEngine::evaluate_device(const DeviceInput& input, const ForceField& ff, 
   }
   if (request.energy || request.virial)  // sum_cells wrote the totals (zeros for no cells)
     cuda::write_totals(s.totals.data(), int(dim), out.energy, out.virial, s.stream);
-  if (!queued) s.record(Impl::kDownloaded);  // a decided call records no stage events
+  s.record(Impl::kDownloaded);
   CF_CUDA_CHECK(cudaEventRecord(s.finished, s.stream));
   CF_CUDA_CHECK(cudaStreamWaitEvent(caller, s.finished, 0));
-  if (options_.reuse.audit && !stats_.rebuilt && !queued) {  // diagnostics: the positions come to the host
+  if (options_.reuse.audit && !stats_.rebuilt) {  // diagnostics: the positions come to the host
     std::vector<double> host_positions;
     std::vector<uint32_t> host_types;
     download(host_positions, dsys.positions, n * dim, s.stream);
@@ -339,6 +338,7 @@ cuda::RankOrder GpuEngine::rank_order(const Box& box, std::size_t n, const doubl
                                       const ForceField& ff, bool fused) {
   const DeviceScope scope(options_.device);
   Impl& s = *impl_;
+  settle_device_calls(true);  // the list in use may be one the device built
   if (!s.list_usable || s.list_built_for != s.builds)
     throw Error("internal error: rank_order() without the pair list of the structure in use");
   s.borrow(positions, types);
@@ -440,6 +440,7 @@ void GpuEngine::prepare(const SystemView& system, const ForceField& ff, const De
   check_capacity(system, ff);
   settle_device_calls(true);  // what the device decided, before the host decides
   s.call_state_stale = true;
+  s.engine_dirty = true;
   s.upload_system(system, on_device);
   const bool rebuild = reuse_.decide(system, ff.cutoff, [&] {
     return cuda::max_displacement2(system.box, s.pos, s.build_positions.data(), system.n, s.cub,
@@ -463,6 +464,7 @@ void GpuEngine::prepare_resident(const SystemView& system, const ForceField& ff,
   check_capacity(system, ff);
   settle_device_calls(true);  // what the device decided, before the host decides
   s.call_state_stale = true;
+  s.engine_dirty = true;
   s.upload_system(system, &on_device);
   const bool rebuild = reuse_.decide(system, ff.cutoff, [&] {
     return known_d2 ? *known_d2
@@ -547,6 +549,8 @@ void GpuEngine::restore_reuse(const SystemView& built_from, const ForceField& ff
   if (!reuse_.enabled()) return;
   const DeviceScope scope(options_.device);
   Impl& s = *impl_;
+  settle_device_calls(true);
+  s.engine_dirty = true;
   s.plan_from_corners = false;  // the grid from these host positions
   validate_system(built_from, ff);
   s.upload_system(built_from);

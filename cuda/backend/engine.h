@@ -73,11 +73,13 @@ class GpuEngine final : public cuda::ResidentForces {
   // (nor for the caller's stream): the box, force field and pointers are checked on the host, the
   // arrays on the device, and what the kernels find (a coordinate that is not finite, a type index
   // out of range, a pair whose force is not finite) is raised by synchronize().
-  // With a skin, pair lists, the displacement check and every axis periodic, once the structure
-  // has been built twice the device decides each call's rebuild (a CUDA graph a call:
-  // backend/call_graph.cuh) and the host waits for nothing; the results are bitwise those of the
-  // host-decided path (EngineTestHooks::device_decides false), except after a list that outgrew its
-  // array (the cells serve, exact, until the next build: list_overflows()). Otherwise the host
+  // With a skin, pair lists, the displacement check and every axis periodic, once the first calls
+  // have built the structure the device decides each call's rebuild (a CUDA graph a call, run on
+  // the caller's stream: backend/call_graph.cuh) and the host waits for nothing; the results are
+  // bitwise those of the host-decided path (EngineTestHooks::device_decides false) until a list
+  // outgrows its array (list_overflows(); the cells serve, exact, and the next call rebuilds into
+  // a larger array once the host has read the build's sizes: from there on exact, not bitwise that
+  // path's). Otherwise the host
   // waits with an open axis (the particles' bounds, 2 x dim numbers, plan the grid when the
   // structure is built), with a skin and the displacement check (the largest displacement, 8
   // bytes; with the check off, once per build retired by `every`, for the dangerous-build count),
@@ -195,8 +197,10 @@ class GpuEngine final : public cuda::ResidentForces {
   // call graph (false: the host's own path serves it), and reading what the device did: the
   // posted sizes of its builds without waiting, and with `wait` its state too.
   bool device_decides(const SystemView& system, const ForceField& ff) const;
-  void take_call_input(const DeviceInput& input, const ForceField& ff);
-  bool queue_device_call(const SystemView& system, const ForceField& ff, const Request& request);
+  bool ready_device_call(const SystemView& system, const ForceField& ff, const Request& request,
+                         const DeviceOutputs& out, bool typed);
+  void queue_device_call(const DeviceInput& input, const ForceField& ff, const DeviceOutputs& out, void* stream);
+  void wait_decided_calls();
   void settle_device_calls(bool wait);
   void audit(const SystemView& system, const ForceField& ff);
   GpuOptions options_;

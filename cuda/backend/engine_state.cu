@@ -70,6 +70,7 @@ void GpuEngine::Impl::stage_record(Event e) {
 GpuEngine::Impl::~Impl() {
   // Queued work may still use the buffers and the pinned table: stream-ordered memory is freed
   // without waiting for it, so wait here (a destructor cannot throw; errors are ignored).
+  if (decided_pending) cudaEventSynchronize(finished);  // a decided call runs on the caller's stream
   if (stream) cudaStreamSynchronize(stream);
   for (cudaEvent_t e : events)
     if (e) cudaEventDestroy(e);

@@ -98,6 +98,25 @@ struct GpuEngine::Impl {
   // While a call graph's build body is captured: Impl::build queues its fixed part plainly (no
   // build graph of its own inside the capture).
   bool plain_build = false;
+  // While a call graph is captured: the caller's arrays its evaluations write the forces and the
+  // per-particle energies into (null: the engine's own, copied out after).
+  double* forces_out = nullptr;
+  double* energies_out = nullptr;
+  // Whether the graphs write the caller's output arrays (the first two words of their keys): not
+  // once a caller has changed them for the same graph more than twice (arrays by turns or a new one
+  // each call: a graph each would be made every call); the engine's arrays are then copied out.
+  bool direct_outputs = true;
+  int output_changes = 0;
+  // Whether the engine's stream holds work a decided call must follow (flags reset, room taken, a
+  // host path's call): the caller's stream then waits for it; the key of the last decided call
+  // (another key may have taken room).
+  bool engine_dirty = true;
+  cuda::CallGraph::Key last_call_key;
+  // The stream the last decided call ran on (the caller's; `finished` recorded there after it),
+  // null when none is pending: the engine's own stream waits for it before anything it queues.
+  cudaStream_t decided_on = nullptr;
+  bool decided_pending = false;
+  cudaGraphExec_t call_exec = nullptr;  // the graph ready_device_call found or made for this call
   std::size_t builds = 0, list_built_for = ~std::size_t(0);
   bool list_usable = false;
   // Lean memory (pair lists on a system whose buffers would not fit beside each other): the build
@@ -298,10 +317,10 @@ struct GpuEngine::Impl {
   // The call graph of the structure in use (backend/device_calls.cu) and its key: every buffer's
   // address and capacity and what else shapes its operations.
   template <class Real, class Accum>
-  void make_call_graph(const GpuOptions& o, const PipelineStats& st, const SystemView& sys, const ForceField& ff,
-                       const Request& req, double limit2, cuda::CallGraph::Key key);
+  cudaGraphExec_t make_call_graph(const GpuOptions& o, const PipelineStats& st, const SystemView& sys, const ForceField& ff,
+                       const Request& req, double limit2, const DeviceOutputs& out, cuda::CallGraph::Key key);
   cuda::CallGraph::Key call_key(const GpuOptions& o, const Grid& g, const ForceField& ff, std::size_t n,
-                                const Request& req);
+                                const Request& req, const DeviceOutputs& out);
 
   // Returns whether the pair lists served (else the cells did).
   template <class Real, class Accum>

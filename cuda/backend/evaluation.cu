@@ -26,8 +26,8 @@ cuda::ListArgs<Real, Accum> GpuEngine::Impl::list_args(const Grid& g, const Syst
   la.table = as<LJParams<Real>>(table);
   la.first = make_lj_params<Real>(ff.pair_sigma(0, 0), ff.pair_epsilon(0, 0), ff.cutoff, ff.mode);
   la.rc2 = Real(ff.cutoff) * Real(ff.cutoff);
-  la.forces = forces.data();
-  la.energies = req.energy ? energies.data() : nullptr;
+  la.forces = forces_out ? forces_out : forces.data();
+  la.energies = req.energy ? (energies_out ? energies_out : energies.data()) : nullptr;
   la.flags = flags.data();
   return la;
 }
@@ -210,7 +210,8 @@ void GpuEngine::Impl::evaluate_cells(const GpuOptions& o, const Grid& g, const S
   record(kTraversed);
 
   cuda::sum_slots<Accum>(as<Accum>(force_slots), req.energy ? as<Accum>(energy_slots) : nullptr,
-                         g.dim, n, copies, forces.data(), req.energy ? energies.data() : nullptr,
+                         g.dim, n, copies, forces_out ? forces_out : forces.data(),
+                         req.energy ? (energies_out ? energies_out : energies.data()) : nullptr,
                          stream);
   if (observables)
     cuda::sum_cells<Accum>(as<Accum>(cell_sums), tiles ? tile_start.data() + max_cells : &counts.data()->cell_range[1],

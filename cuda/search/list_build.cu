@@ -115,7 +115,7 @@ class ListBuilder {
     if (early) walk<ListPass::kFill>(list_.group_chunks.data() + groups_, chunks_held);
     if (list_.overflow) {  // a build the device decided: no wait, the host settles from the post later
       flag_overflow<<<1, 32, 0, stream_>>>(list_.group_chunks.data() + groups_, early ? chunks_held : 0,
-                                           list_.overflow);
+                                           list_.sizes.data(), n_, list_.overflow);
       CF_CUDA_CHECK_LAUNCH();
       return true;
     }

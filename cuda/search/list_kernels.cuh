@@ -553,11 +553,14 @@ __global__ void gather_sizes(const unsigned long long* __restrict__ sizes,
 }
 
 // A build the device decided (PairList::overflow): whether the early fill found the list longer
-// than the array (it then wrote nothing).
+// than the array (it then wrote nothing), or the list so crowded that the host would decline it
+// (plan_list_room: a layout of more than twice the pairs and 64 slots a particle; the cells serve).
 __global__ void flag_overflow(const unsigned long long* __restrict__ chunks_end, unsigned long long chunks_held,
+                              const unsigned long long* __restrict__ sizes, unsigned long long n,
                               unsigned long long* overflow) {
   if (threadIdx.x != 0) return;
-  const unsigned long long over = *chunks_end > chunks_held ? 1ull : 0ull;
+  const unsigned long long chunks = *chunks_end, slots = chunks * kGroup * kChunk;
+  const unsigned long long over = chunks > chunks_held || slots > 2 * sizes[1] + 64 * n ? 1ull : 0ull;
   overflow[0] = over;
   overflow[1] += over;
 }

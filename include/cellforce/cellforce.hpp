@@ -258,10 +258,10 @@ class CELLFORCE_API Context {
   // while no particle has moved more than skin / 2; 0 rebuilds on every call. The default is auto
   // (option skin = auto): the MD state (set_state, step, minimize) on CUDA with Jacobi accumulation
   // gets pair lists with a skin of 0.24 rc (0.18 rc where the lists run in lean memory: option
-  // memory) where rc + skin fits in half of every periodic edge; otherwise (the CPU, and the force
-  // calls compute and compute_device, which then never wait for a displacement check) no skin. A
-  // rule of the backend, the box, the particle count and the device's memory, not a timing: skin()
-  // and neighbor() say what it chose.
+  // memory) where rc + skin fits in half of every periodic edge, and so do the force calls compute
+  // and compute_device (whose rebuilds the device decides: see compute_device); otherwise (the
+  // CPU) no skin. A rule of the backend, the box, the particle count and the device's memory, not a
+  // timing: skin() and neighbor() say what it chose.
   void set_skin(double skin);
   // Every choice by name, as the C API and scene files write them (keys as written here, names in
   // any letter case: "CUDA" is "cuda"):
@@ -311,11 +311,16 @@ class CELLFORCE_API Context {
   // returns. The arrays are checked on the device; a coordinate that is not finite, a type index
   // out of range or a pair whose force is not finite is raised as cellforce::Error by the next
   // synchronize() (or the next compute() or count_pairs(), which synchronise first), and the
-  // outputs of the calls since the last synchronize() are then not to be used. The host waits
-  // here only with an open axis (2 x dim numbers, the particles' bounds, when the neighbour
-  // structure is built), with a skin and the displacement check (8 bytes per call), with
-  // neighbor-list when the structure is built (the longest list and the pair count, 16 bytes, size
-  // the list), and with the neighbour audit. Results are bitwise those of compute() on the same input and backend.
+  // outputs of the calls since the last synchronize() are then not to be used. With a skin and pair
+  // lists (the default on CUDA) and every axis periodic, the device decides each call's rebuild
+  // (one CUDA graph a call, run on `stream`) and the host waits for nothing, once the first calls
+  // have built the structure; until then, and with an open axis, lean memory, neighbor-every or
+  // the audit, the host decides: it waits for the displacement check (8 bytes a call), for the
+  // particles' bounds with an open axis and for the list's size when the structure is built.
+  // Results are bitwise those of compute() on the same input and backend, call by call, where the
+  // calls bring the same positions in the same order (the same rebuilds), until a pair list
+  // outgrows the room kept for it (1/4 more than the last list); from there on they are exact
+  // (the cells serve until the list is built again into a larger array) but not bitwise.
   void compute_device(std::size_t n, const double* positions, const uint32_t* types, const Outputs& out,
                       void* stream = nullptr);
   // compute() and compute_device() for arrays as the caller holds them (Positions, Types: float32

@@ -73,8 +73,16 @@ void Context::Impl::set_physics(const Box& b, const ForceField& f, const std::st
   if (md) {
     carry(b, f, choice, false, setting);  // takes b and f
   } else {
+    // An automatic skin was resolved for the engine's box and cutoff: where the new ones resolve
+    // to another, the engine is made again (after what its pending calls found is raised).
+    const ReuseOptions before = engine ? resolved(box, false).reuse : ReuseOptions{};
     box = b;
     ff = f;
+    const ReuseOptions after = engine ? resolved(box, false).reuse : ReuseOptions{};
+    if (engine && choice.reuse.automatic && (before.skin != after.skin || before.list != after.list)) {
+      synchronize();
+      engine.reset();
+    }
   }
 }
 

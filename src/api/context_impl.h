@@ -107,7 +107,8 @@ struct Context::Impl {
     return nb;
   }
 
-  // The force engine (force calls: an automatic skin resolves to none whatever the box).
+  // The force engine (force calls: an automatic skin resolved as for steps, for the box and cutoff
+  // set when it is made; set_physics makes it again where they resolve to another).
   ForceEngine& get_engine() {
     if (!engine) engine = make_force_engine(with_stream(resolved(box, false)));
     return *engine;
