@@ -3,7 +3,8 @@
 # and carried in one folder (cellforce, cellforce_tests, cellforce_gpu_tests): the whole GoogleTest
 # suite in 8 shards side by side (the stability checks logged as JSON lines for
 # validation/stability_report.py), the GPU unit tests, and compute-sanitizer memcheck of a short
-# in.lj bench with pair lists and without. Logs and the stability log go to $OUT.
+# in.lj bench with pair lists and without, and of the embedding loop (bench --embed). Logs and the
+# stability log go to $OUT.
 #   bash validation/device/suite.sh BIN-DIR [shards]
 set -uo pipefail
 bin=${1:?the folder of the carried binaries}
@@ -29,3 +30,9 @@ for skin in auto 0; do
   echo "memcheck skin $skin: exit $? ($(grep -c 'ERROR SUMMARY: 0 errors' "$out/memcheck-skin-$skin.log") clean summaries)" \
     | tee -a "$out/summary.txt"
 done
+# compute_device's decided calls (a CUDA graph a call with the build in a conditional node): an
+# embedding code's loop around it (bench --embed).
+compute-sanitizer --tool memcheck --error-exitcode 9 "$bin/cellforce" bench --embed --sizes 32000 --precision mixed \
+  --steps 200 --warmup 10 --samples 2 --no-reference > "$out/memcheck-embed.log" 2>&1
+echo "memcheck embed: exit $? ($(grep -c 'ERROR SUMMARY: 0 errors' "$out/memcheck-embed.log") clean summaries)" \
+  | tee -a "$out/summary.txt"
