@@ -53,7 +53,7 @@ struct Outputs {
 // forces null, an energy-only call). Every array is for the locals only, in the caller's order.
 struct LocalOutputs {
   double* forces = nullptr;    // n_local x dim: the force on each local from every partner, locals
-                               // and ghosts (a ghost's own force is not computed)
+                               // and ghosts (the ghosts' forces are not given)
   double* energies = nullptr;  // n_local: each local's share, half of each of its pairs' energies
   double* energy = nullptr;    // 1: the locals' shares summed (a pair of two locals whole, a pair of
                                // a local and a ghost half: LAMMPS's newton off, so that the ranks
