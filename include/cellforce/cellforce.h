@@ -114,6 +114,27 @@ CELLFORCE_API cf_status cf_compute(cf_context* ctx, size_t n, const double* posi
 CELLFORCE_API cf_status cf_compute_energies(cf_context* ctx, size_t n, const double* positions, const uint32_t* types,
                               double* forces, double* energies, double* energy, double* virial);
 
+/* A rank's own particles with its ghosts, for domain-decomposed codes (host arrays; CPU backend:
+ * the cuda backend is CF_ERROR_INPUT naming it). positions: (n_local + n_ghost) * dim, the locals
+ * first, then the ghosts the caller places (other ranks' particles, or periodic images at their
+ * image positions); types: as many, or NULL for all type 0. Outputs for the locals only, each
+ * optional (forces NULL: an energy-only call): forces n_local * dim; energy 1, the locals' shares
+ * (a pair of two locals whole, a pair of a local and a ghost half: LAMMPS's newton off); virial
+ * dim * dim row-major, summed as the energy. A pair of two ghosts is never evaluated. An axis the
+ * ghosts stand in for is open in the box (cf_set_box); ghosts with every axis periodic are
+ * CF_ERROR_INPUT (the minimum image already finds every neighbour there, and a ghost that is an
+ * image would count its pairs twice). cellforce.hpp Context::compute_local says more. */
+CELLFORCE_API cf_status cf_compute_local(cf_context* ctx, size_t n_local, size_t n_ghost, const double* positions,
+                                         const uint32_t* types, double* forces, double* energy, double* virial);
+/* As cf_compute_local, with energies: n_local per-particle energies (half of each of a local's
+ * pairs), virials: n_local * dim * dim per-particle virials (half of each pair's r_ij (x) f_ij, each
+ * dim * dim row-major), each or NULL; with accumulate non-zero every output given is added to
+ * instead of overwritten. */
+CELLFORCE_API cf_status cf_compute_local_full(cf_context* ctx, size_t n_local, size_t n_ghost,
+                                              const double* positions, const uint32_t* types, double* forces,
+                                              double* energies, double* energy, double* virial, double* virials,
+                                              int accumulate);
+
 /* As cf_compute, with every pointer a device pointer on the context's CUDA device (the cuda
  * backend, or auto with a device) and the work ordered on `stream` (a cudaStream_t; NULL: the
  * legacy default stream): the results are ready when the stream reaches this call's point. The

@@ -49,6 +49,22 @@ struct Outputs {
                                // r_ij = x_i - x_j by minimum image and f_ij the force on i from j
 };
 
+// Where compute_local writes: host pointers, each computed only when given (any may be null: with
+// forces null, an energy-only call). Every array is for the locals only, in the caller's order.
+struct LocalOutputs {
+  double* forces = nullptr;    // n_local x dim: the force on each local from every partner, locals
+                               // and ghosts (the ghosts' forces are not given)
+  double* energies = nullptr;  // n_local: each local's share, half of each of its pairs' energies
+  double* energy = nullptr;    // 1: the locals' shares summed (a pair of two locals whole, a pair of
+                               // a local and a ghost half: LAMMPS's newton off, so that the ranks
+                               // owning either side of a pair count it once between them)
+  double* virial = nullptr;    // dim x dim, row-major: the locals' virial shares summed, as energy
+  double* virials = nullptr;   // n_local x dim x dim, each row-major: each local's share, half of
+                               // r_ij (x) f_ij of each of its pairs; they sum to *virial
+  bool accumulate = false;     // add into the arrays (all of them, energy and virial too) instead
+                               // of overwriting them: sums over calls, e.g. over a rank's regions
+};
+
 // A caller's particle arrays as it holds them, for the compute calls that take a layout: positions
 // in float64 or float32, each particle's row `stride` elements after the last (dim for packed xyz;
 // 4 for xyz padded to four, as OpenMM and many GPU codes store them; 0 means dim), and types as
@@ -333,6 +349,25 @@ class CELLFORCE_API Context {
   void compute(std::size_t n, const Positions& positions, const Types& types, const Outputs& out);
   void compute_device(std::size_t n, const Positions& positions, const Types& types, const Outputs& out,
                       void* stream = nullptr);
+  // Forces, energies and virials of a rank's own particles with its ghosts, for domain-decomposed
+  // codes (host arrays, CPU backend). positions: (n_local + n_ghost) x dim, the locals first
+  // (particles 0 .. n_local - 1), then the ghosts, which the caller places: other ranks' particles,
+  // or periodic images at their image positions. types: as many, or null for all type 0. Outputs
+  // (LocalOutputs) are for the locals only; a pair of two ghosts is never evaluated.
+  // The box: an axis the ghosts stand in for (the caller's decomposition, or the periodic images
+  // it places itself) is given as open (set_box with periodic false); on an axis left periodic the
+  // pairs, ghosts' too, take the minimum image, so a ghost must not be an image of a particle
+  // across it (its pairs would count twice). Ghosts with every axis periodic are refused: each
+  // local then finds every neighbour by the minimum image already. Beside compute()'s checks
+  // (null positions, a non-finite coordinate, a type out of range: each named by particle, index
+  // into the whole array), a ghost count with every axis periodic is named. The cuda backend does
+  // not take ghosts yet (cellforce::Error naming it).
+  void compute_local(std::size_t n_local, std::size_t n_ghost, const double* positions, const uint32_t* types,
+                     const LocalOutputs& out);
+  // count_pairs() for a compute_local call: the pairs tested and within the cutoff, no pair of two
+  // ghosts among them.
+  PairCounts count_pairs_local(std::size_t n_local, std::size_t n_ghost, const double* positions,
+                               const uint32_t* types);
   // Waits for the compute_device calls queued so far and throws cellforce::Error for the first
   // problem their kernels found (naming the particle, or both particles of a pair); afterwards
   // statistics() describes the last of them. Returns at once when none is pending. Changing the

@@ -155,6 +155,26 @@ cf_status cf_compute_energies(cf_context* ctx, size_t n, const double* positions
   });
 }
 
+cf_status cf_compute_local(cf_context* ctx, size_t n_local, size_t n_ghost, const double* positions,
+                           const uint32_t* types, double* forces, double* energy, double* virial) {
+  return on(ctx, [&](cellforce::Context& c) {
+    cellforce::LocalOutputs out;
+    out.forces = forces;
+    out.energy = energy;
+    out.virial = virial;
+    c.compute_local(n_local, n_ghost, positions, types, out);
+  });
+}
+
+cf_status cf_compute_local_full(cf_context* ctx, size_t n_local, size_t n_ghost, const double* positions,
+                                const uint32_t* types, double* forces, double* energies, double* energy,
+                                double* virial, double* virials, int accumulate) {
+  return on(ctx, [&](cellforce::Context& c) {
+    c.compute_local(n_local, n_ghost, positions, types,
+                    cellforce::LocalOutputs{forces, energies, energy, virial, virials, accumulate != 0});
+  });
+}
+
 cf_status cf_compute_device(cf_context* ctx, size_t n, const double* positions, const uint32_t* types,
                             double* forces, double* energy, double* virial, void* stream) {
   return on(ctx, [&](cellforce::Context& c) {

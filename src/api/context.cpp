@@ -407,20 +407,7 @@ PairCounts Context::count_pairs(std::size_t n, const double* positions, const ui
     ForceResult scratch;
     engine.evaluate(system, s.ff, Request{false, false}, scratch);
   }
-  const PipelineStats stats = engine.stats(system, s.ff, true);
-  PairCounts counts;
-  counts.tested = stats.candidate_pairs;
-  counts.within_cutoff = stats.interacting_pairs;
-  for (int a = 0; a < kMaxDim; ++a) {
-    counts.grid_cells[a] = stats.grid.n[a];
-    counts.cell_edge[a] = a < stats.grid.dim ? stats.grid.cell[a] : 0.0;
-  }
-  counts.half_width = stats.grid.half_width;
-  counts.entries = stats.entries;
-  counts.valid_entries = stats.valid_entries;
-  counts.collision_cells = stats.collision_cells;
-  counts.max_occupancy = stats.max_occupancy;
-  return counts;
+  return pair_counts(engine.stats(system, s.ff, true));
 }
 
 Statistics Context::statistics() const { return self().statistics; }

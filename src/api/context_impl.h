@@ -1,6 +1,7 @@
-// cellforce::Context's state (include/cellforce/cellforce.hpp), shared by its two source files:
-// context.cpp (the physics, the engine choices and the force calls) and context_md.cpp (the MD
-// state and the changes of physics or engine carried into it).
+// cellforce::Context's state (include/cellforce/cellforce.hpp), shared by its source files:
+// context.cpp (the physics, the engine choices and the force calls), context_local.cpp (the force
+// calls of local and ghost particles) and context_md.cpp (the MD state and the changes of physics
+// or engine carried into it).
 #pragma once
 
 #include <cellforce/cellforce.hpp>
@@ -21,6 +22,23 @@ namespace cellforce {
 inline void check_output(const void* p, const char* what, std::size_t n) {
   if (n > 0 && p == nullptr)
     throw Error(std::string(what) + " is a null pointer (" + std::to_string(n) + " particles)");
+}
+
+// The pair counts and search structure of an engine's statistics, as count_pairs() reports them.
+inline PairCounts pair_counts(const PipelineStats& stats) {
+  PairCounts counts;
+  counts.tested = stats.candidate_pairs;
+  counts.within_cutoff = stats.interacting_pairs;
+  for (int a = 0; a < kMaxDim; ++a) {
+    counts.grid_cells[a] = stats.grid.n[a];
+    counts.cell_edge[a] = a < stats.grid.dim ? stats.grid.cell[a] : 0.0;
+  }
+  counts.half_width = stats.grid.half_width;
+  counts.entries = stats.entries;
+  counts.valid_entries = stats.valid_entries;
+  counts.collision_cells = stats.collision_cells;
+  counts.max_occupancy = stats.max_occupancy;
+  return counts;
 }
 
 struct Context::Impl {

@@ -14,6 +14,10 @@ class CpuForceEngine final : public ForceEngine {
                 ForceResult& result) override {
     engine_.evaluate(system, ff, request, result);
   }
+  void evaluate_local(const SystemView& system, std::size_t n_local, const ForceField& ff, const Request& request,
+                      ForceResult& result) override {
+    engine_.evaluate_local(system, n_local, ff, request, result);
+  }
   void evaluate_device(const DeviceInput&, const ForceField&, const DeviceOutputs&, void*) override {
     throw Error("device arrays need the cuda backend; this context runs on the CPU (backend cpu)");
   }

@@ -51,6 +51,17 @@ class ForceEngine {
   virtual void evaluate(const SystemView& system, const ForceField& ff, const Request& request,
                         ForceResult& result) = 0;
 
+  // Local and ghost particles (Context::compute_local): particles 0 .. n_local - 1 of `system` are
+  // the caller's own, n_local .. n - 1 its ghosts. `result` holds the locals only: forces n_local x
+  // dim, energies n_local (request.energy), virials n_local x dim x dim (request.virial), each a
+  // local's share (half of each of its pairs); energy and virial are the sums of those shares, so
+  // a pair of two locals counts whole and a pair of a local and a ghost half (LAMMPS's newton off).
+  // A pair of two ghosts is never evaluated (nor counted in stats()' pair counts). The caller has
+  // checked n_local <= n. The default throws cellforce::Error naming the backend: a backend that
+  // takes ghosts overrides it.
+  virtual void evaluate_local(const SystemView& system, std::size_t n_local, const ForceField& ff,
+                              const Request& request, ForceResult& result);
+
   // Device arrays in and out, work ordered after what `stream` (a cudaStream_t; null: the legacy
   // default stream) already holds, results ready when the stream reaches the point of the call.
   // Throws cellforce::Error on a backend without a device. The host need not wait for the device:

@@ -68,6 +68,9 @@ struct ForceResult {
   double virial[kMaxDim][kMaxDim] = {};  // sum over pairs of r_ij (x) f_ij, r_ij = x_i - x_j
                                          // (minimum image), f_ij the force on i from j; the
                                          // dim x dim block is used; 0 unless requested
+  // Local evaluations (ForceEngine::evaluate_local) only: each local's half of its pairs' virials,
+  // n_local x dim x dim row-major; empty unless virial requested.
+  std::vector<double> virials;
 };
 
 // Stores the six virial components w = (xx, yy, zz, xy, xz, yz) as the symmetric dim x dim block

@@ -31,6 +31,7 @@ struct CpuEngine::Scratch {
     add("Jacobi slots: forces (float)", acc_float.force), add("Jacobi slots: energies (float)", acc_float.energy);
     add("cell sums: energies (float)", acc_float.cell_energy), add("cell sums: virials (float)", acc_float.cell_virial);
     add("Jacobi slots: forces (double)", acc_double.force), add("Jacobi slots: energies (double)", acc_double.energy);
+    add("Jacobi slots: virials (float)", acc_float.virial), add("Jacobi slots: virials (double)", acc_double.virial);
     add("cell sums: energies (double)", acc_double.cell_energy), add("cell sums: virials (double)", acc_double.cell_virial);
     add("build positions", build_positions), add("audit: build keys", build_keys);
   }
@@ -171,13 +172,27 @@ void CpuEngine::audit(const SystemView& system, const ForceField& ff) {
 
 void CpuEngine::evaluate(const SystemView& system, const ForceField& ff, const Request& request,
                          ForceResult& result) {
+  run(system, ff, request, result, std::nullopt);
+}
+
+void CpuEngine::evaluate_local(const SystemView& system, std::size_t n_local, const ForceField& ff,
+                               const Request& request, ForceResult& result) {
+  if (n_local > system.n)
+    throw Error("internal error: " + std::to_string(n_local) + " locals of " + std::to_string(system.n) + " particles");
+  run(system, ff, request, result, n_local);
+}
+
+void CpuEngine::run(const SystemView& system, const ForceField& ff, const Request& request, ForceResult& result,
+                    std::optional<std::size_t> n_local) {
   const auto t0 = Clock::now();
   const ThreadCount threads(options_.threads);
   Scratch& s = *scratch_;
   prepare(system, ff);
 
-  const cpu::TraversalInput in{stats_.grid, system,        ff,         s.ids.object_ids.data(),
-                               s.ids.control.data(), s.cells, s.type_start};
+  const bool local = n_local.has_value();
+  const cpu::TraversalInput in{stats_.grid,          system,  ff,           s.ids.object_ids.data(),
+                               s.ids.control.data(), s.cells, s.type_start, local,
+                               local ? *n_local : system.n};
   auto t = Clock::now();
   cpu::TraversalReport report;
   switch (options_.precision) {
@@ -198,24 +213,33 @@ void CpuEngine::evaluate(const SystemView& system, const ForceField& ff, const R
   if (report.bad) throw_close_pair(system, report.bad_i, report.bad_j, report.bad_r2, &ff, options_.precision);
 
   t = Clock::now();
-  if (options_.precision == Precision::kSingle)
-    cpu::accumulate(s.acc_float, options_.accumulation, system.box.dim, system.n, request, result);
-  else
-    cpu::accumulate(s.acc_double, options_.accumulation, system.box.dim, system.n, request, result);
+  auto sum = [&](const auto& acc) {
+    if (local)
+      cpu::accumulate_local(acc, options_.accumulation, system.box.dim, system.n, *n_local, request, result);
+    else
+      cpu::accumulate(acc, options_.accumulation, system.box.dim, system.n, request, result);
+  };
+  if (options_.precision == Precision::kSingle) sum(s.acc_float);
+  else sum(s.acc_double);
+  if (!local) result.virials.clear();
   stats_.t_accumulate = seconds_since(t);
   stats_.buffer_bytes = s.bytes();
   stats_.t_total = seconds_since(t0);
-  audit(system, ff);  // after the total: its host search is no part of the engine's time
+  if (!local) audit(system, ff);  // after the total: its host search is no part of the engine's time
 }
 
 std::vector<std::pair<uint32_t, uint32_t>> CpuEngine::visited_pairs(const SystemView& system,
-                                                                    const ForceField& ff) {
+                                                                    const ForceField& ff,
+                                                                    std::optional<std::size_t> n_local) {
   const ThreadCount threads(options_.threads);
   Scratch& s = *scratch_;
+  if (n_local && *n_local > system.n)
+    throw Error("internal error: " + std::to_string(*n_local) + " locals of " + std::to_string(system.n) + " particles");
   prepare(system, ff);
-  audit(system, ff);
-  const cpu::TraversalInput in{stats_.grid, system,        ff,         s.ids.object_ids.data(),
-                               s.ids.control.data(), s.cells, s.type_start};
+  if (!n_local) audit(system, ff);
+  const cpu::TraversalInput in{stats_.grid,          system,  ff,           s.ids.object_ids.data(),
+                               s.ids.control.data(), s.cells, s.type_start, n_local.has_value(),
+                               n_local.value_or(system.n)};
   return cpu::traverse_pairs(in);
 }
 

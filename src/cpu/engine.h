@@ -40,12 +40,19 @@ class CpuEngine {
   // cellforce::Error on bad input, or naming both particles of a coincident or overflowing pair.
   void evaluate(const SystemView& system, const ForceField& ff, const Request& request,
                 ForceResult& result);
+  // As evaluate() for particles 0 .. n_local - 1 of the system with n_local .. n - 1 as their ghosts
+  // (ForceEngine::evaluate_local): results for the locals only, their per-particle virials with
+  // the virial, no pair of two ghosts evaluated or counted. The audit (neighbor-audit) is not run.
+  void evaluate_local(const SystemView& system, std::size_t n_local, const ForceField& ff,
+                      const Request& request, ForceResult& result);
 
   // Every pair the traversal evaluates with r < rc, once per evaluation (a pair evaluated twice
   // appears twice), as (min index, max index), in no particular order. With a skin, the structure
   // is rebuilt or reused as for evaluate() (so the pairs show what reuse finds).
+  // With n_local, particles n_local .. n - 1 are ghosts (as evaluate_local): no pair of two.
   std::vector<std::pair<uint32_t, uint32_t>> visited_pairs(const SystemView& system,
-                                                           const ForceField& ff);
+                                                           const ForceField& ff,
+                                                           std::optional<std::size_t> n_local = {});
 
   // Reuse across a restart (core/reuse.h): the structure in use, and building it again from the
   // positions it was built from, with the count of evaluations it had served.
@@ -64,6 +71,9 @@ class CpuEngine {
 
  private:
   void prepare(const SystemView& system, const ForceField& ff);
+  // evaluate() and evaluate_local() (n_local given: ghosts from there on).
+  void run(const SystemView& system, const ForceField& ff, const Request& request, ForceResult& result,
+           std::optional<std::size_t> n_local);
   void build(const SystemView& system, const ForceField& ff);
   void audit(const SystemView& system, const ForceField& ff);
   CpuOptions options_;

@@ -23,6 +23,8 @@ struct Accumulators {
   // one collision cell of type T that i occupies. Gauss-Seidel: n x dim, added to pass by pass.
   std::vector<Accum> force;
   std::vector<Accum> energy;       // same layout with one component; empty unless energy
+  std::vector<Accum> virial;       // local: same layout with kVirialComponents, each particle's half
+                                   // of its pairs' virials; empty unless virial and local
   std::vector<Accum> cell_energy;  // per collision cell: sum of its pair energies
   std::vector<Accum> cell_virial;  // per collision cell x kVirialComponents
 };
@@ -35,6 +37,10 @@ struct TraversalInput {
   const Control* control;           // per particle, user order
   const std::vector<CollisionCell>& cells;
   const std::vector<std::size_t>& type_start;  // Gauss-Seidel: start of each type's cells
+  // compute_local: particles n_local .. n - 1 are ghosts (pairs of two are skipped), and energy and
+  // virial are summed per particle instead of per cell. Without: n_local is n.
+  bool local = false;
+  std::size_t n_local = 0;
 };
 
 struct TraversalReport {
@@ -51,7 +57,7 @@ TraversalReport traverse(const TraversalInput& in, const Request& request, Accum
                          Accumulators<Accum>& out);
 
 // The same candidate loop in double, recording each pair with r < rc as (min, max) instead of
-// evaluating it.
+// evaluating it (with in.local, no pair of two ghosts).
 std::vector<std::pair<uint32_t, uint32_t>> traverse_pairs(const TraversalInput& in);
 
 // Stage 5: sums the 2^d slots of each particle in slot order (Jacobi) or copies the single
@@ -59,5 +65,12 @@ std::vector<std::pair<uint32_t, uint32_t>> traverse_pairs(const TraversalInput& 
 template <class Accum>
 void accumulate(const Accumulators<Accum>& acc, Accumulation mode, int dim, std::size_t n,
                 const Request& request, ForceResult& result);
+
+// Stage 5 of a local traversal: the slots of particles 0 .. n_local - 1 (of n) only, summed as
+// accumulate() does, into result sized for them (forces, energies, per-particle virials n_local x
+// dim x dim); the totals are the sums of the locals' energies and virials in index order.
+template <class Accum>
+void accumulate_local(const Accumulators<Accum>& acc, Accumulation mode, int dim, std::size_t n,
+                      std::size_t n_local, const Request& request, ForceResult& result);
 
 }  // namespace cellforce::cpu

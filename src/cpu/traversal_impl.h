@@ -6,8 +6,12 @@
 // with two or more cells per periodic axis the staged images are already the nearest ones, so the
 // pair loop wraps only along a periodic axis that has a single cell.
 //
-// Everything a scene may leave out (2D vs 3D, wrap, multiple types, cutoff mode, energy, virial)
-// is a template parameter, chosen once per evaluation by dispatch().
+// Everything a scene may leave out (2D vs 3D, wrap, multiple types, cutoff mode, energy, virial,
+// ghost particles) is a template parameter, chosen once per evaluation by dispatch(). With ghosts
+// (Local: compute_local), entries whose particle index is n_local or more are ghosts: a pair of
+// two ghosts is skipped before it is tested, a cell holding only ghosts is not staged, and energy
+// and virial go to per-particle slots (half of each pair to each side) instead of the cells'
+// totals, so that the totals are the locals' sums (accumulate_local).
 //
 // This header holds the templates; traversal_{single,mixed,double}.cpp instantiate them, one
 // precision per file so that the builds run in parallel.
@@ -27,7 +31,7 @@
 namespace cellforce::cpu {
 namespace detail {
 
-template <int D, bool Wrap, bool MultiType, CutoffMode Mode, bool Energy, bool Virial>
+template <int D, bool Wrap, bool MultiType, CutoffMode Mode, bool Energy, bool Virial, bool Local>
 struct Traits {
   static constexpr int kDim = D;
   static constexpr bool kWrap = Wrap;
@@ -35,6 +39,7 @@ struct Traits {
   static constexpr CutoffMode kMode = Mode;
   static constexpr bool kEnergy = Energy;
   static constexpr bool kVirial = Virial;
+  static constexpr bool kLocal = Local;
 };
 
 template <class F>
@@ -45,13 +50,15 @@ void with_bool(bool b, F&& f) {
 
 // Turns the run-time choices into one Traits instantiation.
 template <class F>
-void dispatch(int dim, bool wrap, bool multi, CutoffMode mode, bool energy, bool virial, F&& f) {
+void dispatch(int dim, bool wrap, bool multi, CutoffMode mode, bool energy, bool virial, bool local, F&& f) {
   auto with_mode = [&](auto d, auto w, auto m) {
     auto go = [&](auto cm) {
       with_bool(energy, [&](auto e) {
         with_bool(virial, [&](auto v) {
-          f(Traits<decltype(d)::value, decltype(w)::value, decltype(m)::value, decltype(cm)::value,
-                   decltype(e)::value, decltype(v)::value>{});
+          with_bool(local, [&](auto l) {
+            f(Traits<decltype(d)::value, decltype(w)::value, decltype(m)::value, decltype(cm)::value,
+                     decltype(e)::value, decltype(v)::value, decltype(l)::value>{});
+          });
         });
       });
     };
@@ -78,6 +85,7 @@ struct CellStage {
   std::vector<Real> low[kMaxDim];   // float pairs: the lo part (StagedCoordinate)
   std::vector<Accum> force[kMaxDim];
   std::vector<Accum> energy;
+  std::vector<Accum> virial[kVirialComponents];  // Local: each occupant's half of its pairs' virials
 
   // P entries, grouped by home type: group t is entries group[t] .. group[t + 1] - 1.
   uint32_t group[kMaxCellTypes + 1];
@@ -94,6 +102,7 @@ struct CellStage {
         force[a].resize(m);
       }
       energy.resize(m);
+      for (auto& w : virial) w.resize(m);
     }
     int k[kMaxDim];
     cell_coords(in.grid, cell.cell, k);
@@ -130,9 +139,11 @@ struct CellStage {
 // For an H occupant a, skip_pair depends on a P occupant b only through b's home type (a's home
 // type is the cell's type, and b's mask always holds b's home type), so the rule is applied once
 // per group of P occupants with one home type, with a stand-in control word for the group.
-template <int D, bool Wrap, class Real, class Stage, class Visit>
+// Local: occupants whose index is n_local or more are ghosts, and a pair of two is never tested.
+template <int D, bool Wrap, bool Local, class Real, class Stage, class Visit>
 inline void for_each_candidate(const Stage& s, const CollisionCell& cell, unsigned cell_type,
-                               const Real* length, const Real* inv_length, Visit&& visit) {
+                               const Real* length, const Real* inv_length, std::size_t n_local,
+                               Visit&& visit) {
   const uint32_t h = cell.h;
   auto test = [&](uint32_t a, uint32_t b) {
     Real d[D];
@@ -147,11 +158,69 @@ inline void for_each_candidate(const Stage& s, const CollisionCell& cell, unsign
     visit(a, b, d, r2);
   };
   for (uint32_t a = 0; a < h; ++a) {
-    for (uint32_t b = a + 1; b < h; ++b) test(a, b);  // both at home: same type, never skipped
+    // Local: with a ghost at a, the partners b that are ghosts too are left out.
+    const bool ghost_a = Local && s.index[a] >= n_local;
+    auto partner = [&](uint32_t b) {
+      if constexpr (Local)
+        if (ghost_a && s.index[b] >= n_local) return;
+      test(a, b);
+    };
+    for (uint32_t b = a + 1; b < h; ++b) partner(b);  // both at home: same type, never skipped
     for (unsigned t = 0; t < (1u << D); ++t) {
       if (skip_pair(cell_type, s.control[a], make_control(t, 1u << t))) continue;
-      for (uint32_t b = s.group[t]; b < s.group[t + 1]; ++b) test(a, b);
+      for (uint32_t b = s.group[t]; b < s.group[t + 1]; ++b) partner(b);
     }
+  }
+}
+
+// Local: whether every occupant of `cell` is a ghost (the cell then has no pair to evaluate).
+inline bool only_ghosts(const TraversalInput& in, const CollisionCell& cell) {
+  const std::size_t m = std::size_t(cell.h) + cell.p;
+  for (std::size_t e = 0; e < m; ++e)
+    if (in.sorted_ids[cell.start + e] < in.n_local) return false;
+  return true;
+}
+
+// Writes one cell's staged sums to the occupants' slots (Jacobi: slot `type`, written by this cell
+// only, condition 1; Gauss-Seidel: added to the single accumulator) and its totals to cell ci.
+template <class T, class Real, class Accum, class Totals>
+void store_cell(const CellStage<Real, Accum>& s, uint32_t m, std::size_t ci, unsigned type, std::size_t n,
+                bool jacobi, const Totals& totals, Accumulators<Accum>& out) {
+  constexpr int D = T::kDim;
+  constexpr bool kVirials = T::kLocal && T::kVirial;  // per particle, in Local mode
+  Accum* force = out.force.data() + (jacobi ? std::size_t(type) * n * D : 0);
+  Accum* energy = T::kEnergy ? out.energy.data() + (jacobi ? std::size_t(type) * n : 0) : nullptr;
+  Accum* virial = kVirials ? out.virial.data() + (jacobi ? std::size_t(type) * n * kVirialComponents : 0) : nullptr;
+  auto put = [jacobi](Accum& slot, Accum v) {
+    if (jacobi) slot = v;
+    else slot += v;
+  };
+  for (uint32_t e = 0; e < m; ++e) {
+    const std::size_t i = s.index[e];
+    for (int c = 0; c < D; ++c) put(force[i * D + c], s.force[c][e]);
+    if constexpr (T::kEnergy) put(energy[i], s.energy[e]);
+    if constexpr (kVirials)
+      for (int k = 0; k < kVirialComponents; ++k) put(virial[i * kVirialComponents + k], s.virial[k][e]);
+  }
+  if constexpr (T::kEnergy && !T::kLocal) out.cell_energy[ci] = totals.v[0];
+  if constexpr (T::kVirial && !T::kLocal)
+    for (int k = 0; k < kVirialComponents; ++k) out.cell_virial[ci * kVirialComponents + k] = totals.v[1 + k];
+}
+
+// Adds a pair's virial r_ab (x) f_ab = fr d (x) d, half to each side, to a and b's staged slots
+// (components as kVirialComponents orders them).
+template <int D, class Real, class Accum>
+inline void add_pair_virial(CellStage<Real, Accum>& s, uint32_t a, uint32_t b, Real fr, const Real* d) {
+  const Real h = Real(0.5) * fr;
+  Real w[kVirialComponents] = {h * d[0] * d[0], h * d[1] * d[1], 0, h * d[0] * d[1], 0, 0};
+  if constexpr (D == 3) {
+    w[2] = h * d[2] * d[2];
+    w[4] = h * d[0] * d[2];
+    w[5] = h * d[1] * d[2];
+  }
+  for (int k = 0; k < kVirialComponents; ++k) {
+    s.virial[k][a] += Accum(w[k]);
+    s.virial[k][b] += Accum(w[k]);
   }
 }
 
@@ -182,16 +251,20 @@ TraversalReport run(const TraversalInput& in, Accumulation mode, Accumulators<Ac
 #pragma omp for schedule(dynamic, 1)
       for (std::size_t ci = lo; ci < hi; ++ci) {
         const CollisionCell& cell = in.cells[ci];
+        if constexpr (T::kLocal)
+          if (only_ghosts(in, cell)) continue;  // its slots keep the zeros traverse() gave them
         const uint32_t m = cell.h + cell.p;
         s.load(in, cell, D);
         for (int a = 0; a < D; ++a) std::fill_n(s.force[a].begin(), m, Accum(0));
         if constexpr (T::kEnergy) std::fill_n(s.energy.begin(), m, Accum(0));
-        CellTotals<Accum, T::kEnergy, T::kVirial> totals;  // core/cell_totals.h
+        if constexpr (T::kLocal && T::kVirial)
+          for (auto& w : s.virial) std::fill_n(w.begin(), m, Accum(0));
+        CellTotals<Accum, T::kEnergy && !T::kLocal, T::kVirial && !T::kLocal> totals;  // core/cell_totals.h
         const unsigned type = cell_type_of_id(g, cell.cell);
         local.max_occupancy = std::max<std::size_t>(local.max_occupancy, m);
 
-        for_each_candidate<D, T::kWrap>(
-            s, cell, type, length, inv_length,
+        for_each_candidate<D, T::kWrap, T::kLocal>(
+            s, cell, type, length, inv_length, in.n_local,
             [&](uint32_t a, uint32_t b, const Real* d, Real r2) {
               ++local.candidates;
               const LJParams<Real>& p = T::kMultiType ? table[s.type[a] * nt + s.type[b]] : table[0];
@@ -217,27 +290,11 @@ TraversalReport run(const TraversalInput& in, Accumulation mode, Accumulators<Ac
                 s.energy[a] += half;
                 s.energy[b] += half;
               }
-              totals.template add<D>(e, fr, d);
+              if constexpr (T::kLocal && T::kVirial) add_pair_virial<D>(s, a, b, fr, d);
+              if constexpr (!T::kLocal) totals.template add<D>(e, fr, d);
             });
         totals.finish();
-
-        // Jacobi: slot `type` of each occupant is written by this cell only (condition 1).
-        Accum* force = out.force.data() + (jacobi ? std::size_t(type) * n * D : 0);
-        Accum* energy = T::kEnergy ? out.energy.data() + (jacobi ? std::size_t(type) * n : 0) : nullptr;
-        for (uint32_t e = 0; e < m; ++e) {
-          const std::size_t i = s.index[e];
-          for (int c = 0; c < D; ++c) {
-            if (jacobi) force[i * D + c] = s.force[c][e];
-            else force[i * D + c] += s.force[c][e];
-          }
-          if constexpr (T::kEnergy) {
-            if (jacobi) energy[i] = s.energy[e];
-            else energy[i] += s.energy[e];
-          }
-        }
-        if constexpr (T::kEnergy) out.cell_energy[ci] = totals.v[0];
-        if constexpr (T::kVirial)
-          for (int k = 0; k < kVirialComponents; ++k) out.cell_virial[ci * kVirialComponents + k] = totals.v[1 + k];
+        store_cell<T>(s, m, ci, type, n, jacobi, totals, out);
       }
     }
 #pragma omp critical(cellforce_traversal_report)
@@ -265,13 +322,17 @@ TraversalReport traverse(const TraversalInput& in, const Request& request, Accum
   const Grid& g = in.grid;
   const std::size_t n = in.system.n, dim = std::size_t(g.dim);
   const std::size_t copies = mode == Accumulation::kJacobi ? std::size_t(g.num_types()) : 1;
+  // Local: energies and virials per particle (the totals are the locals' sums), none per cell.
+  const bool cells = !in.local;
   out.force.assign(copies * n * dim, Accum(0));
   out.energy.assign(request.energy ? copies * n : 0, Accum(0));
-  out.cell_energy.assign(request.energy ? in.cells.size() : 0, Accum(0));
-  out.cell_virial.assign(request.virial ? in.cells.size() * kVirialComponents : 0, Accum(0));
+  out.virial.assign(in.local && request.virial ? copies * n * kVirialComponents : 0, Accum(0));
+  out.cell_energy.assign(cells && request.energy ? in.cells.size() : 0, Accum(0));
+  out.cell_virial.assign(cells && request.virial ? in.cells.size() * kVirialComponents : 0, Accum(0));
   TraversalReport report;
   detail::dispatch(g.dim, g.any_wrap_inside_cell(), in.ff.num_types() > 1, in.ff.mode, request.energy,
-           request.virial, [&](auto traits) { report = detail::run<decltype(traits), Real, Accum>(in, mode, out); });
+                   request.virial, in.local,
+                   [&](auto traits) { report = detail::run<decltype(traits), Real, Accum>(in, mode, out); });
   return report;
 }
 

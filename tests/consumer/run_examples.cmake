@@ -4,6 +4,7 @@
 # and momentum conservation); here c_forces_md (C API) and cpp_forces_md (C++ API) must also print
 # the same text, thermo row for row. cuda_own_integrator, where a CUDA compiler built it, must
 # succeed too: on a GPU it checks its own energy conservation, elsewhere it prints a "skipped" line.
+# ghost_particles checks that two slabs computed with their ghosts sum to the whole periodic box.
 # Run by ctest as package_examples:
 #   cmake -DBUILD_DIR=... -DSOURCE_DIR=examples -DWORK_DIR=... -P run_examples.cmake
 include(${CMAKE_CURRENT_LIST_DIR}/package_build.cmake)
@@ -34,6 +35,13 @@ foreach(line "\n +500 " "lattice energy/particle " "energy conserved: " "momentu
 endforeach()
 string(REGEX MATCH "energy conserved: [^\n]*" conserved "${c_forces_md_out}")
 message(STATUS "examples: C and C++ agree line for line; ${conserved}")
+
+# ghost_particles: two slabs with their ghosts (cf_compute_local) sum to the whole box's call.
+run_example(ghost_particles)
+if(NOT ghost_particles_out MATCHES "check: [^\n]*")
+  message(FATAL_ERROR "ghost_particles printed no check line:\n${ghost_particles_out}")
+endif()
+message(STATUS "examples: ghost_particles: ${CMAKE_MATCH_0}")
 
 if(EXISTS ${WORK_DIR}/build/cuda_own_integrator)
   run_example(cuda_own_integrator)
