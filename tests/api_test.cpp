@@ -282,6 +282,28 @@ TEST(Api, PairCountsDescribeTheSearchStructure) {
   }
 }
 
+// The automatic skin of force calls follows the cutoff and the box (CUDA: 0.24 rc): a new cutoff
+// after the first call makes the engine again, whose structure is then built for rc + 0.24 rc
+// (count_pairs' half width (rc + skin) / sqrt(2)), and a box too small for lists leaves no skin.
+TEST(Api, ForceCallsSkinFollowsTheCutoffAndTheBox) {
+  if (!cf::GpuEngine::unavailable().empty()) GTEST_SKIP() << cf::GpuEngine::unavailable();
+  const Binary b = binary_liquid(3, 2000, 41);  // edge 13.6
+  cf::Context ctx = context_for(b, cf::Backend::kCuda, cf::Precision::kDouble);
+  const std::size_t n = b.config.size();
+  std::vector<double> f(n * 3);
+  auto half_width = [&] {
+    ctx.compute(n, b.config.positions.data(), b.config.types.data(), {f.data()});
+    return ctx.count_pairs(n, b.config.positions.data(), b.config.types.data()).half_width;
+  };
+  EXPECT_NEAR(half_width(), (2.5 + 0.6) * std::sqrt(0.5), 1e-5);
+  ctx.set_cutoff(3.0);
+  EXPECT_DOUBLE_EQ(ctx.skin(), 0.24 * 3.0);
+  EXPECT_NEAR(half_width(), (3.0 + 0.72) * std::sqrt(0.5), 1e-5);
+  ctx.set_cutoff(6.0);  // 2 (6 + 1.44) > 13.6: no lists, no skin
+  EXPECT_EQ(ctx.skin(), 0.0);
+  EXPECT_NEAR(half_width(), 6.0 * std::sqrt(0.5), 1e-5);
+}
+
 // Two particles at r = 1.5 (sigma 1.1, epsilon 0.7), truncated: the analytic force, energy and
 // virial, through the C++ and the C API alike.
 TEST(Api, TwoParticlesGiveTheAnalyticPairValues) {

@@ -74,15 +74,17 @@ void Context::Impl::set_physics(const Box& b, const ForceField& f, const std::st
     carry(b, f, choice, false, setting);  // takes b and f
   } else {
     // An automatic skin was resolved for the engine's box and cutoff: where the new ones resolve
-    // to another, the engine is made again (after what its pending calls found is raised).
-    const ReuseOptions before = engine ? resolved(box, false).reuse : ReuseOptions{};
+    // to another, the engine is made again, after what its pending calls found is raised (which
+    // leaves the context as it was).
+    if (engine && choice.reuse.automatic) {
+      const ReuseOptions before = resolved(box, false).reuse, after = resolved(choice, b, f.cutoff, false).reuse;
+      if (before.skin != after.skin || before.list != after.list) {
+        synchronize();
+        engine.reset();
+      }
+    }
     box = b;
     ff = f;
-    const ReuseOptions after = engine ? resolved(box, false).reuse : ReuseOptions{};
-    if (engine && choice.reuse.automatic && (before.skin != after.skin || before.list != after.list)) {
-      synchronize();
-      engine.reset();
-    }
   }
 }
 
