@@ -205,6 +205,65 @@ TEST_P(DeviceCalls, ListThatOutgrowsItsArrayIsServedByTheCells) {
   }
 }
 
+// Calls as an embedding code may make them: float32 rows padded to four (x, y, z, w), int32 types,
+// the calls alternating between two streams of the caller's, queued back to back: bitwise the
+// host-decided calls on float64 rows of the same values (a float32 converts exactly), with the
+// same builds.
+TEST_P(DeviceCalls, CallersArraysAndStreamsAreTheHostDecidedCalls) {
+  const Trajectory t;
+  const std::size_t n = t.n(), nd = 3 * n;
+  const int calls = 24;
+  GpuEngine device(call_options(GetParam(), true)), host(call_options(GetParam(), false));
+  cudaStream_t streams[2] = {};
+  for (cudaStream_t& st : streams) ASSERT_EQ(cudaStreamCreateWithFlags(&st, cudaStreamNonBlocking), cudaSuccess);
+  int32_t* types = device_array<int32_t>(n);
+  std::vector<int32_t> types32(t.start.types.begin(), t.start.types.end());
+  ASSERT_EQ(cudaMemcpy(types, types32.data(), n * sizeof(int32_t), cudaMemcpyHostToDevice), cudaSuccess);
+  std::vector<float*> rows(calls);
+  std::vector<double*> packed(calls), fx(calls), fy(calls);
+  for (int k = 0; k < calls; ++k) {
+    const std::vector<double> p = t.at(k);
+    std::vector<float> padded(4 * n, 0.0f);
+    std::vector<double> same(nd);
+    for (std::size_t i = 0; i < n; ++i)
+      for (int a = 0; a < 3; ++a) {
+        padded[4 * i + a] = float(p[3 * i + a]);
+        same[3 * i + a] = double(padded[4 * i + a]);
+      }
+    rows[k] = device_array<float>(4 * n);
+    packed[k] = device_array<double>(nd);
+    fx[k] = device_array<double>(nd);
+    fy[k] = device_array<double>(nd);
+    ASSERT_EQ(cudaMemcpy(rows[k], padded.data(), 4 * n * sizeof(float), cudaMemcpyHostToDevice), cudaSuccess);
+    ASSERT_EQ(cudaMemcpy(packed[k], same.data(), nd * sizeof(double), cudaMemcpyHostToDevice), cudaSuccess);
+  }
+  ASSERT_EQ(cudaDeviceSynchronize(), cudaSuccess);
+  const auto* typed = reinterpret_cast<const uint32_t*>(types);  // int32 passes as uint32 (DeviceInput)
+  for (int k = 0; k < calls; ++k) {
+    device.evaluate_device(cellforce::DeviceInput{t.start.box, n, rows[k], cellforce::Scalar::kFloat32, 4, typed},
+                           t.scene.force_field, cellforce::DeviceOutputs{fx[k], nullptr, nullptr, nullptr},
+                           streams[k % 2]);
+    host.evaluate_device(cellforce::DeviceInput{t.start.box, n, packed[k], cellforce::Scalar::kFloat64, 0, typed},
+                         t.scene.force_field, cellforce::DeviceOutputs{fy[k], nullptr, nullptr, nullptr}, nullptr);
+  }
+  device.synchronize(t.scene.force_field);
+  host.synchronize(t.scene.force_field);
+  for (cudaStream_t st : streams) ASSERT_EQ(cudaStreamSynchronize(st), cudaSuccess);
+  for (int k = 0; k < calls; ++k) {
+    SCOPED_TRACE("call " + std::to_string(k));
+    EXPECT_TRUE(to_host(fx[k], nd) == to_host(fy[k], nd));
+  }
+  EXPECT_EQ(device.stats().builds, host.stats().builds);
+  EXPECT_GE(device.device_builds(), 2u) << "the device decided too few of the builds";
+  EXPECT_GE(device.device_calls(), std::size_t(calls) - 6);
+  for (int k = 0; k < calls; ++k)
+    for (void* p : {static_cast<void*>(rows[k]), static_cast<void*>(packed[k]), static_cast<void*>(fx[k]),
+                    static_cast<void*>(fy[k])})
+      cudaFree(p);
+  cudaFree(types);
+  for (cudaStream_t st : streams) cudaStreamDestroy(st);
+}
+
 INSTANTIATE_TEST_SUITE_P(Precisions, DeviceCalls,
                          ::testing::Values(Precision::kSingle, Precision::kMixed, Precision::kDouble),
                          [](const ::testing::TestParamInfo<Precision>& p) { return cellforce::to_string(p.param); });
