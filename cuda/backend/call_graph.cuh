@@ -8,11 +8,13 @@
 //
 // `decide` compares the call's largest squared displacement since the build (take_call_input,
 // queued before the graph) with (skin / 2)^2, as the host's ReusePolicy does, and sets the first
-// condition; `select` reads whether the last build's list fitted its array (the early fill's guard
-// wrote nothing where it did not) and sets the second. So the device rebuilds on exactly the calls
-// the host-decided path would, with the same list, and the results are bitwise that path's; only a
-// list that outgrew its array departs from it (the cells serve, exact, until the next build; the
-// host grows the array when it reads the posted sizes). The host reads the CallState only when it
+// condition (or rebuilds where the host asked it to: `force`); `select` reads whether the last
+// build's list fitted its array (the early fill's guard wrote nothing where it did not; a list the
+// host would decline as crowded counts as not fitting) and sets the second. So the device rebuilds
+// on exactly the calls the host-decided path would, with the same list, and the results are
+// bitwise that path's until a list outgrows its array: the cells serve that call, exact; the host
+// grows the array when it reads the posted sizes and asks for a build at the next call, from where
+// the results are exact but depend on when it read them. The host reads the CallState only when it
 // synchronises (statistics) or leaves the graph for its own path.
 //
 // The bodies are captured from the ordinary code (cudaStreamBeginCaptureToGraph) under
