@@ -382,6 +382,22 @@ TEST(CApiStatistics, JsonHoldsEveryStatistic) {
   for (const nlohmann::json& m : run["memory"]) memory += m["bytes"].get<std::size_t>();
   EXPECT_EQ(memory, run["buffer_bytes"].get<std::size_t>() + run["state_bytes"].get<std::size_t>());
   EXPECT_TRUE(run["stage_seconds"].contains("traversal"));
+  // Every statistic by name: RunStatistics' fields and the engine's own, which no public struct
+  // carries (keys are added, never removed, within a major version).
+  std::vector<std::string> keys;
+  for (const auto& [key, value] : run.items()) keys.push_back(key);
+  EXPECT_THAT(keys, ::testing::UnorderedElementsAre(
+                        "steps", "evaluations", "force_seconds", "integration_seconds", "step_call_seconds",
+                        "bytes_to_host", "bytes_to_device", "stage_samples", "stage_seconds", "builds",
+                        "largest_served_displacement", "dangerous_builds", "gated_steps", "list_evaluations",
+                        "buffer_bytes", "state_bytes", "memory", "list_pairs", "list_slots", "missed_pairs",
+                        "repeated_pairs", "list_mask_words", "list_mask_words_held", "graph_builds", "list_block",
+                        "gate_closings", "gate_closings_early"));
+  std::vector<std::string> stages;
+  for (const auto& [key, value] : run["stage_seconds"].items()) stages.push_back(key);
+  EXPECT_THAT(stages, ::testing::UnorderedElementsAre("cell_ids", "sort", "collision_cells", "traversal", "accumulate",
+                                                      "check", "total"));
+  EXPECT_EQ(run["stage_samples"].get<int64_t>(), 13);  // every CPU evaluation is sampled
 
   std::size_t length = 0;
   char small[8] = "unset";

@@ -9,6 +9,7 @@
 #include <gtest/gtest.h>
 
 #include <cellforce/cellforce.hpp>
+#include <nlohmann/json.hpp>
 
 #include <algorithm>
 #include <cmath>
@@ -52,6 +53,9 @@ std::string unavailable(cf::Backend backend) {
   return backend == cf::Backend::kCuda ? "this build has no CUDA" : "";
 #endif
 }
+
+// The MD engine's own statistics (the "run" object of statistics_json(), beside RunStatistics').
+nlohmann::json engine_statistics(const cf::Context& ctx) { return nlohmann::json::parse(ctx.statistics_json()).at("run"); }
 
 // A context holding the force-shifted LJ liquid of md_test.cpp with T0 = 1.44 velocities.
 cf::Context liquid(const RunSetup& s, std::size_t* n_out = nullptr) {
@@ -295,7 +299,7 @@ TEST_P(MdApi, GatedStepsEqualStepByStep) {
                        Case{cf::Precision::kDouble, "7", true}}) {
     SCOPED_TRACE(std::string(cf::to_string(c.precision)) + ", neighbor-every " + c.every +
                  (c.langevin ? ", Langevin" : ", Verlet"));
-    auto run = [&](bool one_call, cf::RunStatistics* st) {
+    auto run = [&](bool one_call, cf::RunStatistics* st, nlohmann::json* engine) {
       RunSetup s;
       s.backend = GetParam();
       s.precision = c.precision;
@@ -316,6 +320,7 @@ TEST_P(MdApi, GatedStepsEqualStepByStep) {
         for (int k = 0; k < 300; ++k) ctx.step(1, false);
       }
       *st = ctx.run_statistics();
+      *engine = engine_statistics(ctx);
       std::vector<double> x(3 * n), v(3 * n), f(3 * n);
       ctx.get_state(x.data(), v.data(), f.data());
       x.insert(x.end(), v.begin(), v.end());
@@ -323,18 +328,21 @@ TEST_P(MdApi, GatedStepsEqualStepByStep) {
       return x;
     };
     cf::RunStatistics gated, stepwise;
-    const std::vector<double> a = run(true, &gated), b = run(false, &stepwise);
+    nlohmann::json gated_engine, stepwise_engine;
+    const std::vector<double> a = run(true, &gated, &gated_engine), b = run(false, &stepwise, &stepwise_engine);
     EXPECT_TRUE(a == b) << "the gated run differs from the step-by-step run";
     EXPECT_EQ(gated.builds, stepwise.builds);
     EXPECT_GE(gated.builds, 5) << "too few rebuilds to exercise the gate's closing";
-    EXPECT_EQ(stepwise.gated_steps, 0);
-    EXPECT_GT(gated.gated_steps, 200) << "the gate served few steps";
-    EXPECT_LE(gated.gated_steps, 299);
+    EXPECT_EQ(stepwise_engine.at("gated_steps"), 0);
+    const int64_t gated_steps = gated_engine.at("gated_steps");
+    EXPECT_GT(gated_steps, 200) << "the gate served few steps";
+    EXPECT_LE(gated_steps, 299);
     EXPECT_EQ(gated.largest_served_displacement, stepwise.largest_served_displacement);
     // Both runs' builds but the first few of the system replayed the build's graph.
-    EXPECT_GE(gated.graph_builds, gated.builds - 4);
-    EXPECT_GE(stepwise.graph_builds, stepwise.builds - 4);
-    EXPECT_LE(gated.graph_builds, gated.builds);
+    const int64_t gated_graphs = gated_engine.at("graph_builds"), stepwise_graphs = stepwise_engine.at("graph_builds");
+    EXPECT_GE(gated_graphs, gated.builds - 4);
+    EXPECT_GE(stepwise_graphs, stepwise.builds - 4);
+    EXPECT_LE(gated_graphs, gated.builds);
   }
 }
 
@@ -366,7 +374,7 @@ TEST_P(MdApi, SkinAutoIsTheBackendsRule) {
   ctx.step(50);
   ref.step(50);
   const cf::RunStatistics st = ctx.run_statistics();
-  EXPECT_EQ(st.list_evaluations, cuda ? st.evaluations : 0);
+  EXPECT_EQ(engine_statistics(ctx).at("list_evaluations"), cuda ? st.evaluations : 0);
   if (cuda) {
     EXPECT_GE(st.builds, 1);
     EXPECT_LT(st.builds, st.evaluations) << "the lists were never reused";
@@ -397,7 +405,7 @@ TEST_P(MdApi, SkinAutoIsTheBackendsRule) {
   EXPECT_EQ(forces.skin(), rule);
 }
 
-// RunStatistics::memory: the engine's stage buffers and the MD state's arrays, by buffer, largest
+// statistics_json()'s run memory: the engine's stage buffers and the MD state's arrays, by buffer, largest
 // first, adding up to buffer_bytes + state_bytes (a consistency check: both come from the same
 // buffers; a buffer the engine leaves out of its list is missing from both). The oracle for the
 // sizes: the state's positions and velocities hold n x 3 doubles (exactly on the CPU, where they are
@@ -413,14 +421,17 @@ TEST_P(MdApi, MemoryByBufferAddsUp) {
   cf::Context ctx = liquid(s, &n);
   ctx.step(20);
   const cf::RunStatistics st = ctx.run_statistics();
-  ASSERT_FALSE(st.memory.empty());
+  const nlohmann::json engine = engine_statistics(ctx);
+  std::vector<std::pair<std::string, std::size_t>> memory;
+  for (const nlohmann::json& buffer : engine.at("memory")) memory.emplace_back(buffer.at("name"), buffer.at("bytes"));
+  ASSERT_FALSE(memory.empty());
   std::size_t sum = 0;
   std::vector<std::string> names;
-  for (std::size_t k = 0; k < st.memory.size(); ++k) {
-    const auto& [name, bytes] = st.memory[k];
+  for (std::size_t k = 0; k < memory.size(); ++k) {
+    const auto& [name, bytes] = memory[k];
     SCOPED_TRACE(name);
     EXPECT_GT(bytes, 0u);
-    if (k) EXPECT_LE(bytes, st.memory[k - 1].second) << "not largest first";
+    if (k) EXPECT_LE(bytes, memory[k - 1].second) << "not largest first";
     sum += bytes;
     names.push_back(name);
   }
@@ -428,7 +439,7 @@ TEST_P(MdApi, MemoryByBufferAddsUp) {
   std::sort(names.begin(), names.end());
   EXPECT_EQ(std::adjacent_find(names.begin(), names.end()), names.end()) << "a name twice";
   auto bytes_of = [&](const std::string& name) -> std::size_t {
-    for (const auto& [buffer, bytes] : st.memory)
+    for (const auto& [buffer, bytes] : memory)
       if (buffer == name) return bytes;
     ADD_FAILURE() << "no buffer named " << name;
     return 0;
@@ -437,8 +448,9 @@ TEST_P(MdApi, MemoryByBufferAddsUp) {
   if (cuda) {
     EXPECT_GE(bytes_of("md: positions"), coordinates);
     EXPECT_GE(bytes_of("md: velocities"), coordinates);
-    ASSERT_GT(st.list_slots, 0u) << "skin auto gives CUDA pair lists";
-    EXPECT_GE(bytes_of("list: entries"), 4 * st.list_slots);
+    const std::size_t list_slots = engine.at("list_slots");
+    ASSERT_GT(list_slots, 0u) << "skin auto gives CUDA pair lists";
+    EXPECT_GE(bytes_of("list: entries"), 4 * list_slots);
     EXPECT_GE(bytes_of("list: lengths"), 4 * n);
   } else {
     EXPECT_EQ(bytes_of("md: positions"), coordinates);

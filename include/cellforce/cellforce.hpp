@@ -16,6 +16,13 @@
 // positions[i * dim + a]. Every failing call throws cellforce::Error, whose message names the
 // parameter, particle or option at fault; a failed call leaves the outputs unwritten and the
 // context as it was. A Context is not thread-safe: one thread at a time.
+//
+// ABI: every name here lies in the inline namespace cellforce::v<MAJOR> (CELLFORCE_ABI_NAMESPACE,
+// version.h), which a program writes as cellforce::; a program built against another major version
+// fails to link. No function the library exports takes or returns a standard type whose layout
+// _GLIBCXX_USE_CXX11_ABI decides: the calls that take or return std::string are inline here, over
+// calls that take std::string_view or return the library's const char*, so that programs built with
+// either string ABI use the library.
 #pragma once
 
 #include <cstddef>
@@ -32,6 +39,7 @@
 #include <cellforce/version.h>
 
 namespace cellforce {
+inline namespace CELLFORCE_ABI_NAMESPACE {
 
 // The library's version, "MAJOR.MINOR.PATCH": that of the library loaded, which a program built
 // against this header finds in CELLFORCE_VERSION_MAJOR, _MINOR and _PATCH (cellforce/version.h).
@@ -152,7 +160,8 @@ struct MinimizeResult {
 };
 
 // Where the time of the steps went, and what crossed between host and device, since the state was
-// set or reset_run_statistics() ran.
+// set or reset_run_statistics() ran. The engine's own statistics (stage times per evaluation, pair
+// lists, the step gate, memory by buffer) are in statistics_json()'s "run" object, beside these.
 struct RunStatistics {
   int64_t steps = 0, evaluations = 0;
   double force_seconds = 0;        // force evaluations (CUDA: device time, with the step gate's
@@ -161,10 +170,6 @@ struct RunStatistics {
                                    // idle while the host reads the step gate is in neither)
   double step_call_seconds = 0;    // wall time inside step()
   std::size_t bytes_to_host = 0, bytes_to_device = 0;  // particle data and results (CUDA)
-  // Per evaluation, averaged over `stage_samples` evaluations (CUDA: the last of each step() call):
-  // stage times in seconds.
-  int64_t stage_samples = 0;
-  double cell_ids = 0, sort = 0, collision_cells = 0, traversal = 0, accumulate = 0, check = 0, total = 0;
   // Neighbour structure (skin > 0): builds over all evaluations, the largest displacement a reused
   // structure served.
   int64_t builds = 0;
@@ -174,43 +179,12 @@ struct RunStatistics {
   // have missed pairs. Possible only with neighbor-check false; a rebuild for a changed box, count
   // or cutoff is not measured. Always 0 with the check on.
   int64_t dangerous_builds = 0;
-  // CUDA with neighbor-list: the steps run behind the step gate (queued in chunks, the rebuild
-  // decided on the device: no host wait per step for the displacement check).
-  int64_t gated_steps = 0;
-  // CUDA: evaluations that walked pair lists (skin with lists, auto's choice on CUDA), not the cells.
-  int64_t list_evaluations = 0;
+  // With neighbor-audit: pairs within the cutoff that a reused structure missed or repeated.
+  std::size_t missed_pairs = 0, repeated_pairs = 0;
   // Memory held now (device memory with cuda, host memory on the CPU): the force engine's stage
   // buffers (as of the last sampled evaluation) and the MD state (positions, velocities, masses,
   // types and the integrator's and minimiser's working arrays).
   std::size_t buffer_bytes = 0, state_bytes = 0;
-  // The same memory by buffer, held when run_statistics() is called: the force engine's stage
-  // buffers and the MD state's arrays (named "md: ..."), those that hold any, largest first, as
-  // (name, bytes). After a run they add up to buffer_bytes + state_bytes.
-  std::vector<std::pair<std::string, std::size_t>> memory;
-  // CUDA pair lists, as of the last sampled evaluation: the listed pairs (within rc + skin, once
-  // from each side) and the entries their layout holds, padding included (the force kernel walks
-  // each warp's lists as long as its longest); 0 without lists.
-  std::size_t list_pairs = 0, list_slots = 0;
-  // With neighbor-audit: pairs within the cutoff that a reused structure missed or repeated.
-  std::size_t missed_pairs = 0, repeated_pairs = 0;
-  // CUDA pair lists, as of the last sampled evaluation: its build's masks (each work unit's
-  // count-pass decisions, read by the fill instead of testing its pairs again), the words every
-  // unit's take and the room the device had for them (lean memory keeps as much as its free memory
-  // holds; the units whose words end within it read them, the rest test their pairs again); 0
-  // without lists or masks (held: also where the build had no room, e.g. while a list grows).
-  std::size_t list_mask_words = 0, list_mask_words_held = 0;
-  // CUDA pair lists: builds over all evaluations whose fixed part (cell IDs to the list's count
-  // pass) the device ran as one replayed CUDA graph instead of operation by operation (once a system's
-  // builds take nothing anew: from about its third build).
-  int64_t graph_builds = 0;
-  // CUDA pair lists: threads a block of the force kernels that ran the next step's kick-drift in
-  // the steps since the statistics were reset (128, or 256 where those fill its last wave better,
-  // from the device's occupancy); 0 where none ran (lean memory, Langevin, no pair lists).
-  int list_block = 0;
-  // CUDA pair lists: runs of steps queued behind the step gate that ended in a rebuild, and of those
-  // the ones whose rebuild the host queued before the run's end, told by the first kernel that found
-  // the gate shut (the rest it queued once the run had ended).
-  int64_t gate_closings = 0, gate_closings_early = 0;
 };
 
 // The neighbour structure in use (skin > 0), for a bitwise restart: the positions it was built
@@ -254,7 +228,7 @@ class CELLFORCE_API Context {
   void set_mixing(Mixing mixing);
   // A particle type; returns its index (0, 1, ... in the order added). sigma and epsilon finite
   // and >= 0; names printable and unique.
-  uint32_t add_type(const std::string& name, double sigma, double epsilon);
+  uint32_t add_type(std::string_view name, double sigma, double epsilon);
   // An explicit pair value that replaces the mixing rule for types a and b (either order).
   void set_pair(uint32_t a, uint32_t b, double sigma, double epsilon);
 
@@ -431,12 +405,25 @@ class CELLFORCE_API Context {
   void restore_neighbor_state(const NeighborState& state);
   RunStatistics run_statistics() const;
   void reset_run_statistics();
-  // Every statistic above as one JSON object (the C API's cf_statistics_json): {"version": ...,
-  // "call": statistics() by the names of Statistics' fields, "run": run_statistics() by the names
-  // of RunStatistics' fields (the per-evaluation stage times under "stage_seconds", the memory as
-  // [{"name", "bytes"}]) or null without an MD state}. Keys are added, never renamed, within a
-  // major version.
-  std::string statistics_json() const;
+  // Every statistic as one JSON object (the C API's cf_statistics_json): {"version": ...,
+  // "call": statistics() by the names of Statistics' fields, "run": null without an MD state, else
+  // run_statistics() by the names of RunStatistics' fields and the engine's own:
+  //   stage_samples, stage_seconds {cell_ids, sort, collision_cells, traversal, accumulate, check,
+  //     total}: per evaluation, averaged over stage_samples evaluations (CUDA: the last of each
+  //     step() call), in seconds;
+  //   memory [{"name", "bytes"}]: buffer_bytes + state_bytes by buffer (the MD state's arrays named
+  //     "md: ..."), those that hold any, largest first;
+  //   gated_steps: CUDA steps run behind the step gate (queued in chunks, the rebuild decided on the
+  //     device); gate_closings, gate_closings_early: runs of gated steps that ended in a rebuild, and
+  //     of those the ones whose rebuild the host queued before the run's end;
+  //   list_evaluations: evaluations that walked CUDA pair lists, not the cells; list_pairs,
+  //     list_slots: the last sampled list's pairs (within rc + skin, once from each side) and the
+  //     entries its layout holds, padding included; list_mask_words, list_mask_words_held: its
+  //     build's count-pass masks, the words all units take and those the device had room for;
+  //     graph_builds: builds whose fixed part ran as one replayed CUDA graph; list_block: threads a
+  //     block of the force kernels that ran the next step's kick-drift (0: none ran).
+  // Keys are added, never renamed or removed, within a major version.
+  std::string statistics_json() const { return text(Text::kStatisticsJson); }
 
   // ---- what the context is ----
   // A Context that was moved from (std::move) holds nothing: every call on it but assignment and
@@ -445,17 +432,17 @@ class CELLFORCE_API Context {
   std::size_t num_types() const;
   // The backend in use, "cpu" or "cuda" (auto resolved; this creates the engine when needed), a
   // description (device or threads, algorithm), and the CUDA traversal and sort ("-" on the CPU).
-  std::string backend_name();
-  std::string description();
-  std::string traversal();
-  std::string sort();
+  std::string backend_name() { return text(Text::kBackendName); }
+  std::string description() { return text(Text::kDescription); }
+  std::string traversal() { return text(Text::kTraversal); }
+  std::string sort() { return text(Text::kSort); }
   // The skin in effect (the automatic one resolved for the box, backend and lists' memory mode; 0:
   // none) and the neighbour structure in words, e.g. "skin 0.6 (auto: 0.24 rc), pair lists",
   // "skin 0.45 (auto: 0.18 rc, lean memory), pair lists" or "none, stages 1-3 every evaluation
   // (auto: no skin on the cpu)". For the MD state when there is one (as set_state resolved it),
   // else for force calls on the current box (auto: none).
   double skin();
-  std::string neighbor();
+  std::string neighbor() { return text(Text::kNeighbor); }
   // Whether the evaluations walk pair lists (CUDA, a skin with lists, Jacobi accumulation, rc + skin
   // within half of every periodic edge); a list the engine declines at a build (too crowded for the
   // device's memory) is counted by RunStatistics::list_evaluations, not here.
@@ -464,8 +451,30 @@ class CELLFORCE_API Context {
   struct Impl;  // the engine and the physics it is given
 
  private:
+  // The library's side of the calls that return text: the text, held by the context until the next
+  // such call. (The exported functions return no std::string: its layout is the caller's
+  // _GLIBCXX_USE_CXX11_ABI's.)
+  enum class Text : uint8_t { kBackendName, kDescription, kTraversal, kSort, kNeighbor, kStatisticsJson };
+  const char* text(Text which) const;
+  // The library's side of neighbor_state() and restore_neighbor_state(): the build positions
+  // (`coordinates` doubles, held by the context until the next call) and the evaluations served.
+  const double* held_neighbor_state(std::size_t* coordinates, int64_t* served);
+  void restore_neighbor_arrays(const double* build_positions, std::size_t coordinates, int64_t served);
+
   Impl& self() const;  // *impl_, or cellforce::Error for a Context moved from
   std::unique_ptr<Impl> impl_;
 };
 
+inline NeighborState Context::neighbor_state() {
+  NeighborState state;
+  std::size_t coordinates = 0;
+  const double* positions = held_neighbor_state(&coordinates, &state.served);
+  state.build_positions.assign(positions, positions + coordinates);
+  return state;
+}
+inline void Context::restore_neighbor_state(const NeighborState& state) {
+  restore_neighbor_arrays(state.build_positions.data(), state.build_positions.size(), state.served);
+}
+
+}  // namespace CELLFORCE_ABI_NAMESPACE
 }  // namespace cellforce

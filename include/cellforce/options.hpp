@@ -4,7 +4,10 @@
 
 #include <cstdint>
 
+#include <cellforce/version.h>
+
 namespace cellforce {
+inline namespace CELLFORCE_ABI_NAMESPACE {  // v<MAJOR>: version.h
 
 // Arithmetic of the pair interactions / accumulation of their results.
 enum class Precision : uint8_t {
@@ -63,4 +66,5 @@ enum class ListMemory : uint8_t { kAuto, kFast, kLean };
 enum class Scalar : uint8_t { kFloat64, kFloat32 };
 enum class Index : uint8_t { kUInt32, kInt32 };
 
+}  // namespace CELLFORCE_ABI_NAMESPACE
 }  // namespace cellforce

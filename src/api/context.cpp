@@ -21,7 +21,9 @@
 
 namespace cellforce {
 
+inline namespace CELLFORCE_ABI_NAMESPACE {
 const char* version() { return CELLFORCE_VERSION_STRING; }
+}  // namespace CELLFORCE_ABI_NAMESPACE
 
 namespace {
 
@@ -163,8 +165,9 @@ void Context::set_mixing(Mixing mixing) {
   s.set_physics(s.box, ff, std::string("set_mixing ") + name_of(mixing, kMixingNames));
 }
 
-uint32_t Context::add_type(const std::string& name, double sigma, double epsilon) {
+uint32_t Context::add_type(std::string_view name_view, double sigma, double epsilon) {
   Impl& s = self();
+  const std::string name(name_view);
   for (const ParticleType& t : s.ff.types)
     if (t.name == name) throw Error("type " + quote_excerpt(name) + " is already added");
   ForceField trial = s.ff;
@@ -444,16 +447,25 @@ bool Context::neighbor_lists() {
          pair_lists_serve(nb.choice.reuse, nb.choice.accumulation, nb.box, nb.cutoff);
 }
 
-std::string Context::neighbor() {
-  const Impl::Neighbor nb = self().neighbor();
-  return describe_reuse(self().choice.reuse, nb.choice.reuse, nb.choice.backend, nb.choice.accumulation, nb.md,
-                        nb.box, nb.cutoff, nb.memory);
+// The engine named is the MD engine's force engine when there is one (no second engine is built just
+// to be named).
+const char* Context::text(Text which) const {
+  Impl& s = self();
+  switch (which) {
+    case Text::kBackendName: s.held_text = to_string(s.named_engine().backend()); break;
+    case Text::kDescription: s.held_text = s.named_engine().description(); break;
+    case Text::kTraversal: s.held_text = s.named_engine().traversal(); break;
+    case Text::kSort: s.held_text = s.named_engine().sort(); break;
+    case Text::kNeighbor: {
+      const Impl::Neighbor nb = s.neighbor();
+      s.held_text = describe_reuse(s.choice.reuse, nb.choice.reuse, nb.choice.backend, nb.choice.accumulation, nb.md,
+                              nb.box, nb.cutoff, nb.memory);
+      break;
+    }
+    case Text::kStatisticsJson: s.held_text = statistics_text(*this, s); break;
+    default: throw Error("internal error: text " + std::to_string(int(which)) + " is not known");
+  }
+  return s.held_text.c_str();
 }
-
-// The MD engine's force engine when there is one (no second engine is built just to be named).
-std::string Context::backend_name() { return to_string(self().named_engine().backend()); }
-std::string Context::description() { return self().named_engine().description(); }
-std::string Context::traversal() { return self().named_engine().traversal(); }
-std::string Context::sort() { return self().named_engine().sort(); }
 
 }  // namespace cellforce

@@ -41,7 +41,8 @@ inline PairCounts pair_counts(const PipelineStats& stats) {
   return counts;
 }
 
-struct Context::Impl {
+// Hidden: the library exports the API alone, not the state behind it (its members take std::string).
+struct [[gnu::visibility("hidden")]] Context::Impl {
   int dim = 3;
   Box box;
   bool has_box = false, has_cutoff = false;
@@ -66,6 +67,9 @@ struct Context::Impl {
   std::vector<uint32_t> types;
   ReuseOptions md_reuse;                     // what `md` was made with
   ListMemory md_memory = ListMemory::kAuto;  // and the lists' memory mode its skin was resolved for
+  // What Context::text and held_neighbor_state returned last (the caller copies it at once).
+  std::string held_text;
+  ReuseState held_neighbor;
 
   explicit Impl(int d) : dim(d) {
     if (d != 2 && d != 3) throw Error("dimension " + std::to_string(d) + ": expected 2 or 3");
@@ -178,5 +182,9 @@ struct Context::Impl {
 
   void record_statistics();
 };
+
+// Context::statistics_json()'s text (statistics_json.cpp): `ctx`'s statistics and those of its MD
+// engine, `s`.
+std::string statistics_text(const Context& ctx, const Context::Impl& s);
 
 }  // namespace cellforce

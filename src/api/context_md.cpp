@@ -272,20 +272,24 @@ MinimizeResult Context::minimize(const MinimizeOptions& options) {
   return out;
 }
 
-NeighborState Context::neighbor_state() {
-  const ReuseState r = self().get_md().forces().reuse_state();
-  return NeighborState{r.build_positions, r.served};
+const double* Context::held_neighbor_state(std::size_t* coordinates, int64_t* served) {
+  Impl& s = self();
+  s.held_neighbor = s.get_md().forces().reuse_state();
+  *coordinates = s.held_neighbor.build_positions.size();
+  *served = s.held_neighbor.served;
+  return s.held_neighbor.build_positions.data();
 }
 
-void Context::restore_neighbor_state(const NeighborState& state) {
+void Context::restore_neighbor_arrays(const double* build_positions, std::size_t coordinates, int64_t served) {
   Impl& s = self();
   MdEngine& md = s.get_md();
   const std::size_t n = s.masses.size();
-  if (state.build_positions.size() != n * std::size_t(s.md_box.dim))
-    throw Error("neighbour state of " + std::to_string(state.build_positions.size()) + " coordinates for " +
-                std::to_string(n) + " particles in " + std::to_string(s.md_box.dim) + "D");
-  const SystemView built{s.md_box, n, state.build_positions.data(), s.types.data()};
-  md.forces().restore_reuse(built, s.md_ff, state.served);
+  if (coordinates != n * std::size_t(s.md_box.dim))
+    throw Error("neighbour state of " + std::to_string(coordinates) + " coordinates for " + std::to_string(n) +
+                " particles in " + std::to_string(s.md_box.dim) + "D");
+  check_output(build_positions, "the neighbour state's build positions", n);
+  const SystemView built{s.md_box, n, build_positions, s.types.data()};
+  md.forces().restore_reuse(built, s.md_ff, served);
   md.reevaluate();  // the current forces from the restored structure, as the uninterrupted run had them
 }
 
@@ -301,36 +305,13 @@ RunStatistics Context::run_statistics() const {
   r.step_call_seconds = c.host_wait_seconds;
   r.bytes_to_host = c.bytes_to_host;
   r.bytes_to_device = c.bytes_to_device;
-  r.stage_samples = c.stage_samples;
-  const double per = c.stage_samples ? 1.0 / double(c.stage_samples) : 0.0;
-  r.cell_ids = per * (c.stages.t_cell_ids + c.stages.t_count);
-  r.sort = per * c.stages.t_sort;
-  r.collision_cells = per * c.stages.t_collision_cells;
-  r.traversal = per * c.stages.t_traversal;
-  r.accumulate = per * c.stages.t_accumulate;
-  r.check = per * c.stages.t_check;
-  r.total = per * c.stages.t_total;
   r.builds = c.builds;
   r.largest_served_displacement = c.served;
   r.dangerous_builds = c.dangerous_builds;
-  r.gated_steps = c.gated_steps;
-  r.list_evaluations = c.list_evaluations;
   r.missed_pairs = c.missed_pairs;
   r.repeated_pairs = c.repeated_pairs;
   r.buffer_bytes = s.md->forces().stats().buffer_bytes;
-  r.list_pairs = s.md->forces().stats().list_pairs;
-  r.list_slots = s.md->forces().stats().list_slots;
-  r.list_mask_words = s.md->forces().stats().list_mask_words;
-  r.list_mask_words_held = s.md->forces().stats().list_mask_words_held;
-  r.graph_builds = c.graph_builds;
-  r.list_block = c.list_block;
-  r.gate_closings = c.gate_closings;
-  r.gate_closings_early = c.gate_closings_early;
   r.state_bytes = s.md->state_bytes();
-  for (const auto& [name, bytes] : s.md->forces().buffers()) r.memory.emplace_back(name, bytes);
-  for (const auto& [name, bytes] : s.md->state_buffers())
-    if (bytes) r.memory.emplace_back(name, bytes);
-  std::stable_sort(r.memory.begin(), r.memory.end(), [](const auto& a, const auto& b) { return a.second > b.second; });
   return r;
 }
 

@@ -240,36 +240,34 @@ void record_chunks(const TimedRun& run, const Chunks& c) {
   row["nve_time_span"] = c.t.back();
 }
 
-// The row's fields from the run statistics of the timed steps.
-void record_run_statistics(nlohmann::json& row, const RunStatistics& st, int64_t steps, std::size_t n) {
+// The row's fields from the run statistics of the timed steps: RunStatistics, and the engine's own
+// from statistics_json()'s "run" object (`engine`).
+void record_run_statistics(nlohmann::json& row, const RunStatistics& st, const nlohmann::json& engine, int64_t steps,
+                           std::size_t n) {
   const double per_step = 1e3 / double(steps);
   row["forces_ms_per_step"] = per_step * st.force_seconds;
   row["integration_ms_per_step"] = per_step * st.integration_seconds;
-  row["stage_ms_per_evaluation"] = {{"cell_ids", 1e3 * st.cell_ids},       {"sort", 1e3 * st.sort},
-                                    {"collision_cells", 1e3 * st.collision_cells},
-                                    {"traversal", 1e3 * st.traversal},   {"accumulate", 1e3 * st.accumulate},
-                                    {"check", 1e3 * st.check},           {"total", 1e3 * st.total},
-                                    {"samples", st.stage_samples}};
+  nlohmann::json stages = nlohmann::json::object();
+  for (const auto& [stage, seconds] : engine.at("stage_seconds").items()) stages[stage] = 1e3 * seconds.get<double>();
+  stages["samples"] = engine.at("stage_samples");
+  row["stage_ms_per_evaluation"] = stages;
   row["builds"] = st.builds;
   row["evaluations"] = st.evaluations;
-  row["gated_steps"] = st.gated_steps;
-  row["list_evaluations"] = st.list_evaluations;
-  row["neighbor_list"] = st.evaluations > 0 && st.list_evaluations == st.evaluations;  // lists served every step
+  const int64_t list_evaluations = engine.at("list_evaluations");
+  row["gated_steps"] = engine.at("gated_steps");
+  row["list_evaluations"] = list_evaluations;
+  row["neighbor_list"] = st.evaluations > 0 && list_evaluations == st.evaluations;  // lists served every step
   row["dangerous_builds"] = st.dangerous_builds;
   row["bytes_per_step_host_device"] = double(st.bytes_to_host + st.bytes_to_device) / double(steps);
   row["buffer_bytes"] = st.buffer_bytes;
-  row["list_pairs"] = st.list_pairs;
-  row["list_slots"] = st.list_slots;
-  row["list_mask_words"] = st.list_mask_words;
-  row["list_mask_words_held"] = st.list_mask_words_held;
-  row["graph_builds"] = st.graph_builds;
-  row["list_block"] = st.list_block;
-  row["gate_closings"] = st.gate_closings;
-  row["gate_closings_early"] = st.gate_closings_early;
+  for (const char* key : {"list_pairs", "list_slots", "list_mask_words", "list_mask_words_held", "graph_builds",
+                          "list_block", "gate_closings", "gate_closings_early"})
+    row[key] = engine.at(key);
   row["state_bytes"] = st.state_bytes;
   row["bytes_per_particle"] = double(st.buffer_bytes + st.state_bytes) / double(n);
   row["memory_by_buffer"] = nlohmann::json::array();  // [name, bytes], largest first
-  for (const auto& [name, bytes] : st.memory) row["memory_by_buffer"].push_back({name, bytes});
+  for (const nlohmann::json& buffer : engine.at("memory"))
+    row["memory_by_buffer"].push_back({buffer.at("name"), buffer.at("bytes")});
 }
 
 // The context's own MD loop (Context::step).
@@ -302,7 +300,8 @@ void time_steps(const TimedRun& run, Context& ctx) {
       },
       [&] { ctx.reset_run_statistics(); });  // the run statistics of the timed chunks
   record_chunks(run, c);
-  record_run_statistics(row, ctx.run_statistics(), c.steps, n);
+  record_run_statistics(row, ctx.run_statistics(), nlohmann::json::parse(ctx.statistics_json()).at("run"), c.steps,
+                        n);
   row["temperature_end"] = th.temperature;
   ctx.get_state(run.final_positions.data(), nullptr, run.final_forces.data());
 }

@@ -14,6 +14,7 @@
 #include <memory>
 
 #include <cellforce/cellforce.hpp>
+#include <nlohmann/json.hpp>
 
 #include "cli/engine_context.h"
 #include "core/error.h"
@@ -387,9 +388,9 @@ void print_header(const Scene& scene, const MdState& state, Context& ctx, const 
 
 // The performance summary of the loop: rates, where a step's time went (forces, integration,
 // output, the host's own), the bytes that crossed between host and device per step, and the
-// force engine's stages.
-void print_summary(const Scene& scene, double skin, bool lists, const RunStatistics& st, std::size_t n,
-                   int64_t steps_done, double loop_seconds, double setup_seconds, double output_seconds,
+// force engine's stages (`engine`: statistics_json()'s "run" object, which holds the engine's own).
+void print_summary(const Scene& scene, double skin, bool lists, const RunStatistics& st, const nlohmann::json& engine,
+                   std::size_t n, int64_t steps_done, double loop_seconds, double setup_seconds, double output_seconds,
                    std::size_t output_bytes) {
   std::printf("\nperformance: %lld steps of %zu particles in %.3f s (setup %.3f s)\n", (long long)steps_done, n,
               loop_seconds, setup_seconds);
@@ -407,12 +408,14 @@ void print_summary(const Scene& scene, double skin, bool lists, const RunStatist
   std::printf("  host <-> device per step: %.4g bytes of state and results (%zu B over the run for output%s)\n",
               double(st.bytes_to_host + st.bytes_to_device - output_bytes) / steps, output_bytes,
               st.bytes_to_host + st.bytes_to_device == 0 ? "; the state lives on the host" : "");
-  if (st.stage_samples > 0)
+  const nlohmann::json& stage = engine.at("stage_seconds");
+  auto ms = [&](const char* name) { return 1e3 * stage.at(name).get<double>(); };
+  if (const int64_t samples = engine.at("stage_samples"); samples > 0)
     std::printf("  per force evaluation (ms, %lld sampled): cell IDs %.4f | sort %.4f | collision cells %.4f | "
                 "traversal %.4f | accumulate %.4f | engine total %.4f\n",
-                (long long)st.stage_samples, 1e3 * st.cell_ids, 1e3 * st.sort, 1e3 * st.collision_cells,
-                1e3 * st.traversal, 1e3 * st.accumulate, 1e3 * st.total);
-  const OptionList& engine = scene.engine;
+                (long long)samples, ms("cell_ids"), ms("sort"), ms("collision_cells"), ms("traversal"),
+                ms("accumulate"), ms("total"));
+  const OptionList& options = scene.engine;
   if (skin > 0)
     std::printf("  neighbour structure: skin %g, %lld builds in %lld evaluations (one per %.1f steps), "
                 "%lld dangerous; largest displacement served %.4g (limit skin/2 = %g%s); check %.4f ms per "
@@ -420,12 +423,13 @@ void print_summary(const Scene& scene, double skin, bool lists, const RunStatist
                 skin, (long long)st.builds, (long long)st.evaluations,
                 steps / double(std::max<int64_t>(st.builds, 1)), (long long)st.dangerous_builds,
                 st.largest_served_displacement, 0.5 * skin,
-                engine.flag(OptionId::kNeighborCheck) ? "" : ", not checked", 1e3 * st.check);
+                options.flag(OptionId::kNeighborCheck) ? "" : ", not checked", ms("check"));
   // A list the engine declined (too crowded for the device's memory) leaves its evaluations to the cells.
   if (lists)
     std::printf("  pair lists served %lld of %lld evaluations (%lld steps behind the step gate)\n",
-                (long long)st.list_evaluations, (long long)st.evaluations, (long long)st.gated_steps);
-  if (skin > 0 && engine.flag(OptionId::kNeighborAudit))
+                engine.at("list_evaluations").get<long long>(), (long long)st.evaluations,
+                engine.at("gated_steps").get<long long>());
+  if (skin > 0 && options.flag(OptionId::kNeighborAudit))
     std::printf("  audit: missed pairs %zu, repeated pairs %zu (%s)\n", st.missed_pairs, st.repeated_pairs,
                 lists ? "of the pair lists" : "of the cell structure");
 }
@@ -584,8 +588,9 @@ int run_md(const RunArgs& args) {
   files.close();
   progress.finish();
   const double loop_seconds = seconds_since(t_loop);
-  print_summary(scene, ctx.skin(), ctx.neighbor_lists(), ctx.run_statistics(), n, last - first, loop_seconds,
-                setup_seconds, t_output, output_bytes);
+  print_summary(scene, ctx.skin(), ctx.neighbor_lists(), ctx.run_statistics(),
+                nlohmann::json::parse(ctx.statistics_json()).at("run"), n, last - first, loop_seconds, setup_seconds,
+                t_output, output_bytes);
   return 0;
 }
 
