@@ -48,13 +48,12 @@ void GpuEngine::wait_decided_calls() {
 bool GpuEngine::ready_device_call(const SystemView& system, const ForceField& ff, const Request& request,
                                   const DeviceOutputs& out, bool typed) {
   Impl& s = *impl_;
-  settle_device_calls(false);  // the sizes the device's builds posted
-  wait_decided_calls();        // what the engine's stream queues below comes after them
+  settle_device_calls(false);  // the sizes the device's builds posted (the engine's stream already
+                               // waits for the decided calls: evaluate_device)
   // Room for lists 1/8 longer than the last one (a liquid's lists grow as it leaves its lattice,
   // and a device build that finds no room for its list leaves the call to the cells): below it,
-  // the array grows to 1/4 more, where the device's memory has it.
-  // A list that did not fit (the cells serve it) is built again at the next call, into the grown
-  // array; a list crowded enough for the host to decline it (the cells serve) takes no more room.
+  // the array grows to 1/4 more, where the device's memory has it, and a list that did not fit is
+  // built again at the next call; a list crowded enough for the host to decline it takes no more.
   const std::size_t n = system.n, dim = std::size_t(system.box.dim);
   if (s.call_state.capacity() == 0) {  // counters from zero
     s.call_state.reserve(1);

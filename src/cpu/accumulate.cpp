@@ -7,6 +7,25 @@
 #include "cpu/traversal.h"
 
 namespace cellforce::cpu {
+namespace {
+
+// Particle i's force and (with `energy`) energy: its `copies` slots summed in slot order.
+template <class Accum>
+void sum_slots(const Accumulators<Accum>& acc, std::size_t copies, std::size_t d, std::size_t n, std::size_t i,
+               bool energy, ForceResult& result) {
+  for (std::size_t c = 0; c < d; ++c) {
+    Accum f = 0;
+    for (std::size_t t = 0; t < copies; ++t) f += acc.force[(t * n + i) * d + c];
+    result.forces[i * d + c] = double(f);
+  }
+  if (energy) {
+    Accum e = 0;
+    for (std::size_t t = 0; t < copies; ++t) e += acc.energy[t * n + i];
+    result.energies[i] = double(e);
+  }
+}
+
+}  // namespace
 
 template <class Accum>
 void accumulate(const Accumulators<Accum>& acc, Accumulation mode, int dim, std::size_t n,
@@ -18,16 +37,7 @@ void accumulate(const Accumulators<Accum>& acc, Accumulation mode, int dim, std:
   result.energies.resize(request.energy ? n : 0);
 #pragma omp parallel for schedule(static)
   for (std::size_t i = 0; i < n; ++i) {
-    for (std::size_t c = 0; c < d; ++c) {
-      Accum f = 0;
-      for (std::size_t t = 0; t < copies; ++t) f += acc.force[(t * n + i) * d + c];
-      result.forces[i * d + c] = double(f);
-    }
-    if (request.energy) {
-      Accum e = 0;
-      for (std::size_t t = 0; t < copies; ++t) e += acc.energy[t * n + i];
-      result.energies[i] = double(e);
-    }
+    sum_slots(acc, copies, d, n, i, request.energy, result);
   }
   result.energy = 0;
   if (request.energy) {
@@ -70,16 +80,7 @@ void accumulate_local(const Accumulators<Accum>& acc, Accumulation mode, int dim
   std::vector<double> w6(request.virial ? n_local * kc : 0);  // each local's components, summed
 #pragma omp parallel for schedule(static)
   for (std::size_t i = 0; i < n_local; ++i) {
-    for (std::size_t c = 0; c < d; ++c) {
-      Accum f = 0;
-      for (std::size_t t = 0; t < copies; ++t) f += acc.force[(t * n + i) * d + c];
-      result.forces[i * d + c] = double(f);
-    }
-    if (request.energy) {
-      Accum e = 0;
-      for (std::size_t t = 0; t < copies; ++t) e += acc.energy[t * n + i];
-      result.energies[i] = double(e);
-    }
+    sum_slots(acc, copies, d, n, i, request.energy, result);
     if (request.virial) {
       for (std::size_t k = 0; k < kc; ++k) {
         Accum w = 0;
