@@ -35,7 +35,22 @@ namespace {
 using ::testing::HasSubstr;
 namespace cf = cellforce;
 
-constexpr const char* kCudaRefusal = "compute_local: the cuda backend does not take ghost particles yet; use backend cpu";
+// Why a CUDA instance cannot run here (empty: it can).
+std::string cuda_missing() {
+#ifdef CELLFORCE_HAVE_CUDA
+  return cf::GpuEngine::unavailable();
+#else
+  return "no CUDA in this build";
+#endif
+}
+
+// The backends a test runs on here: the CPU, and CUDA where a device can be used.
+std::vector<cf::Backend> usable_backends() {
+  std::vector<cf::Backend> b{cf::Backend::kCpu};
+  if (cuda_missing().empty()) b.push_back(cf::Backend::kCuda);
+  return b;
+}
+const char* name_of(cf::Backend b) { return b == cf::Backend::kCuda ? "cuda" : "cpu"; }
 
 struct Liquid {
   cf::Configuration config;  // periodic on every axis, positions in [0, L)
@@ -102,14 +117,15 @@ std::vector<Slab> cut_into_slabs(const cf::Configuration& c, double rc, int slab
   return out;
 }
 
-cf::Context context_for(const Liquid& l, const cf::Box& box, cf::Precision precision) {
+cf::Context context_for(const Liquid& l, const cf::Box& box, cf::Precision precision,
+                        cf::Backend backend = cf::Backend::kCpu) {
   cf::Context ctx(box.dim);
   const bool periodic[3] = {box.periodic[0], box.periodic[1], box.periodic[2]};
   ctx.set_box(box.length, periodic);
   ctx.set_cutoff(l.ff.cutoff, l.ff.mode);
   for (const auto& t : l.ff.types) ctx.add_type(t.name, t.sigma, t.epsilon);
   for (const auto& o : l.ff.overrides) ctx.set_pair(uint32_t(o.a), uint32_t(o.b), o.sigma, o.epsilon);
-  ctx.set_backend(cf::Backend::kCpu);
+  ctx.set_backend(backend);
   ctx.set_precision(precision);
   return ctx;
 }
@@ -204,28 +220,9 @@ using SlabParam = std::tuple<cf::Backend, int, cf::Precision>;
 
 class LocalGhostSlabs : public ::testing::TestWithParam<SlabParam> {
  protected:
-  // The CUDA instance: where a device can run it, compute_local must refuse it by name; it then
-  // skips with that message until the CUDA engine takes ghosts.
   void SetUp() override {
     if (std::get<0>(GetParam()) != cf::Backend::kCuda) return;
-#ifdef CELLFORCE_HAVE_CUDA
-    if (const std::string why = cf::GpuEngine::unavailable(); !why.empty()) GTEST_SKIP() << why;
-    const Liquid l = liquid(std::get<1>(GetParam()));
-    const std::vector<Slab> slabs = cut_into_slabs(l.config, l.ff.cutoff, 4);
-    cf::Context ctx = context_for(l, slabs[0].config.box, std::get<2>(GetParam()));
-    ctx.set_backend(cf::Backend::kCuda);
-    std::vector<double> f(slabs[0].n_local * std::size_t(l.config.box.dim));
-    try {
-      ctx.compute_local(slabs[0].n_local, slabs[0].config.size() - slabs[0].n_local,
-                        slabs[0].config.positions.data(), slabs[0].config.types.data(), {f.data()});
-      ADD_FAILURE() << "the cuda backend took ghosts: this test's CUDA instance is to check its results";
-    } catch (const cf::Error& e) {
-      EXPECT_EQ(e.message(), kCudaRefusal);
-    }
-    GTEST_SKIP() << kCudaRefusal;
-#else
-    GTEST_SKIP() << "no CUDA in this build (" << kCudaRefusal << ")";
-#endif
+    if (const std::string why = cuda_missing(); !why.empty()) GTEST_SKIP() << why;
   }
 };
 
@@ -253,7 +250,7 @@ TEST_P(LocalGhostSlabs, SumToTheWholePeriodicSystem) {
     for (std::size_t b = 0; b < d; ++b) ref_virial[a * d + b] = ref.virial[a][b];
 
   const std::vector<Slab> slabs = cut_into_slabs(l.config, l.ff.cutoff, 4);
-  cf::Context ctx = context_for(l, slabs[0].config.box, precision);
+  cf::Context ctx = context_for(l, slabs[0].config.box, precision, backend);
   const Summed got = run_slabs(ctx, slabs, n, d);
   const double tol = tolerance(precision);
   const double e_abs = [&] {
@@ -277,7 +274,7 @@ TEST_P(LocalGhostSlabs, NoPairOfTwoGhostsIsEvaluated) {
   const auto [backend, dim, precision] = GetParam();
   const Liquid l = liquid(dim);
   const std::vector<Slab> slabs = cut_into_slabs(l.config, l.ff.cutoff, 4);
-  cf::Context ctx = context_for(l, slabs[0].config.box, precision);
+  cf::Context ctx = context_for(l, slabs[0].config.box, precision, backend);
   for (const Slab& slab : slabs) {
     const std::size_t nl = slab.n_local, n = slab.config.size();
     std::size_t with_local = 0, ghost_pairs = 0;
@@ -319,34 +316,43 @@ TEST(LocalGhost, VisitedPairsAreThePairsWithALocal) {
   }
 }
 
-// Without ghosts, on the periodic box, compute_local is compute() with per-particle virials: the
-// same forces bitwise (the same traversal), energy and virial to rounding (summed per particle
-// instead of per cell), per-particle virials as the oracle's.
+// Without ghosts, on the periodic box, compute_local is compute() with per-particle virials: on the
+// CPU the same forces bitwise (the same traversal), on CUDA to rounding (compute walks pair lists,
+// compute_local the cells' tiles: sums in another order), energy and virial to rounding (summed
+// per particle instead of per cell), per-particle virials as the oracle's. Then compute() again
+// on CUDA, on the structure compute_local built (no pair list: the cells serve it).
 TEST(LocalGhost, WithoutGhostsItIsComputeWithPerParticleVirials) {
-  for (const int dim : {3, 2}) {
-    const Liquid l = liquid(dim);
-    const std::size_t n = l.config.size(), d = std::size_t(dim);
-    cf::Context ctx = context_for(l, l.config.box, cf::Precision::kDouble);
-    std::vector<double> f(n * d), f_local(n * d), w(d * d), w_local(d * d), shares(n * d * d);
-    double e = 0, e_local = 0;
-    ctx.compute(n, l.config.positions.data(), l.config.types.data(), {f.data(), nullptr, &e, w.data()});
-    ctx.compute_local(n, 0, l.config.positions.data(), l.config.types.data(),
-                      {f_local.data(), nullptr, &e_local, w_local.data(), shares.data()});
-    EXPECT_EQ(f, f_local) << dim << "D";
-    EXPECT_NEAR(e_local, e, 1e-12 * std::abs(e));
-    EXPECT_LE(relative_error(w, w_local), 1e-12);
-    EXPECT_LE(relative_error(virial_shares(l), shares), 1e-12);
-  }
+  for (const cf::Backend backend : usable_backends())
+    for (const int dim : {3, 2}) {
+      SCOPED_TRACE(std::string(name_of(backend)) + " " + std::to_string(dim) + "D");
+      const Liquid l = liquid(dim);
+      const std::size_t n = l.config.size(), d = std::size_t(dim);
+      cf::Context ctx = context_for(l, l.config.box, cf::Precision::kDouble, backend);
+      std::vector<double> f(n * d), f_local(n * d), f_after(n * d), w(d * d), w_local(d * d), shares(n * d * d);
+      double e = 0, e_local = 0;
+      ctx.compute(n, l.config.positions.data(), l.config.types.data(), {f.data(), nullptr, &e, w.data()});
+      ctx.compute_local(n, 0, l.config.positions.data(), l.config.types.data(),
+                        {f_local.data(), nullptr, &e_local, w_local.data(), shares.data()});
+      if (backend == cf::Backend::kCpu) EXPECT_EQ(f, f_local);
+      else EXPECT_LE(relative_error(f, f_local), 1e-12);
+      EXPECT_NEAR(e_local, e, 1e-12 * std::abs(e));
+      EXPECT_LE(relative_error(w, w_local), 1e-12);
+      EXPECT_LE(relative_error(virial_shares(l), shares), 1e-12);
+      ctx.compute(n, l.config.positions.data(), l.config.types.data(), {f_after.data()});
+      EXPECT_LE(relative_error(f, f_after), 1e-12);
+    }
 }
 
 // Energy-only calls (forces null) added over the slabs with accumulate give the whole system's
 // energy and virial; forces accumulated twice are twice the forces.
 TEST(LocalGhost, AccumulatedEnergyOnlyCallsSumOverSlabs) {
+  for (const cf::Backend backend : usable_backends()) {
+  SCOPED_TRACE(name_of(backend));
   const Liquid l = liquid(3);
   cf::ForceResult ref;
   cf::brute_force(l.config.view(), l.ff, cf::Request{true, true}, ref);
   const std::vector<Slab> slabs = cut_into_slabs(l.config, l.ff.cutoff, 4);
-  cf::Context ctx = context_for(l, slabs[0].config.box, cf::Precision::kDouble);
+  cf::Context ctx = context_for(l, slabs[0].config.box, cf::Precision::kDouble, backend);
   double energy = 0;
   std::vector<double> virial(9, 0.0);
   cf::LocalOutputs out;
@@ -373,20 +379,46 @@ TEST(LocalGhost, AccumulatedEnergyOnlyCallsSumOverSlabs) {
   for (int k = 0; k < 2; ++k)
     ctx.compute_local(s.n_local, s.config.size() - s.n_local, s.config.positions.data(), s.config.types.data(), add);
   for (std::size_t k = 0; k < once.size(); ++k) ASSERT_EQ(twice[k], 2.0 * once[k]) << "entry " << k;
+  }
 }
 
-// Gauss-Seidel accumulation (passes by cell type) takes ghosts as Jacobi does.
+// Gauss-Seidel accumulation (passes by cell type) takes ghosts as Jacobi does; so does a CUDA
+// engine set to another traversal form (ghosts always take the tile form, whose tiles the
+// structure's build did not make) and with a skin (the structure reused from call to call where
+// the particles moved less than half of it).
 TEST(LocalGhost, GaussSeidelSlabsSumToTheWholeSystem) {
   const Liquid l = liquid(3);
   cf::ForceResult ref;
   cf::brute_force(l.config.view(), l.ff, cf::Request{true, true}, ref);
   const std::vector<Slab> slabs = cut_into_slabs(l.config, l.ff.cutoff, 4);
-  cf::Context ctx = context_for(l, slabs[0].config.box, cf::Precision::kDouble);
-  ctx.set_option("accumulation", "gauss-seidel");
-  const Summed got = run_slabs(ctx, slabs, l.config.size(), 3);
-  EXPECT_LE(relative_error(ref.forces, got.forces), 1e-12);
-  EXPECT_LE(relative_error(ref.energies, got.energies), 1e-12);
-  EXPECT_LE(relative_error(virial_shares(l), got.virials), 1e-12);
+  for (const cf::Backend backend : usable_backends()) {
+    cf::Context ctx = context_for(l, slabs[0].config.box, cf::Precision::kDouble, backend);
+    ctx.set_option("accumulation", "gauss-seidel");
+    const Summed got = run_slabs(ctx, slabs, l.config.size(), 3);
+    EXPECT_LE(relative_error(ref.forces, got.forces), 1e-12) << name_of(backend);
+    EXPECT_LE(relative_error(ref.energies, got.energies), 1e-12) << name_of(backend);
+    EXPECT_LE(relative_error(virial_shares(l), got.virials), 1e-12) << name_of(backend);
+  }
+  if (!cuda_missing().empty()) GTEST_SKIP() << "the CUDA cases: " << cuda_missing();
+  for (const char* form : {"thread", "warp"}) {
+    cf::Context ctx = context_for(l, slabs[0].config.box, cf::Precision::kDouble, cf::Backend::kCuda);
+    ctx.set_option("traversal", form);
+    ctx.set_option("skin", "0.3");
+    const Summed got = run_slabs(ctx, slabs, l.config.size(), 3);
+    EXPECT_LE(relative_error(ref.forces, got.forces), 1e-12) << form;
+    EXPECT_LE(relative_error(ref.energies, got.energies), 1e-12) << form;
+    EXPECT_LE(relative_error(virial_shares(l), got.virials), 1e-12) << form;
+    // The same slab twice: the second call reuses the structure, with the same results bitwise.
+    const Slab& s = slabs[2];
+    std::vector<double> first(s.n_local * 3), again(s.n_local * 3);
+    ctx.compute_local(s.n_local, s.config.size() - s.n_local, s.config.positions.data(), s.config.types.data(),
+                      {first.data()});
+    EXPECT_TRUE(ctx.statistics().rebuilt) << form;
+    ctx.compute_local(s.n_local, s.config.size() - s.n_local, s.config.positions.data(), s.config.types.data(),
+                      {again.data()});
+    EXPECT_FALSE(ctx.statistics().rebuilt) << form;
+    EXPECT_EQ(first, again) << form;
+  }
 }
 
 // ---- bad input: each named ---------------------------------------------------------------------

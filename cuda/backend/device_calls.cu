@@ -282,7 +282,7 @@ cudaGraphExec_t GpuEngine::Impl::make_call_graph(const GpuOptions& o, const Pipe
   return call_graph.make(
       std::move(key), stream, [&](cudaGraphConditionalHandle h) { cuda::queue_decide(state, limit2, h, stream); },
       [&] {
-        build(o, scratch, sys, ff);
+        build(o, scratch, sys, ff, true);
         build_list<Real, Accum>(o, scratch.grid, sys, ff);
       },
       [&](cudaGraphConditionalHandle h) { cuda::queue_select(state, h, stream); },

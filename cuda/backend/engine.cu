@@ -165,6 +165,58 @@ void GpuEngine::evaluate(const SystemView& system, const ForceField& ff, const R
   audit(system, ff);  // after the total: its host search is no part of the engine's time
 }
 
+void GpuEngine::evaluate_local(const SystemView& system, std::size_t n_local, const ForceField& ff,
+                               const Request& request, ForceResult& result) {
+  if (n_local > system.n)
+    throw Error("internal error: " + std::to_string(n_local) + " locals of " + std::to_string(system.n) + " particles");
+  const DeviceScope scope(options_.device);
+  Impl& s = *impl_;
+  s.per_call_flags();
+  prepare(system, ff, nullptr, false);
+  const Grid& g = stats_.grid;
+  switch (options_.precision) {
+    case Precision::kSingle: s.evaluate_local<float, float>(options_, g, system, n_local, ff, request); break;
+    case Precision::kMixed: s.evaluate_local<float, double>(options_, g, system, n_local, ff, request); break;
+    case Precision::kDouble: s.evaluate_local<double, double>(options_, g, system, n_local, ff, request); break;
+  }
+  stats_.listed = false;
+  const std::size_t dim = std::size_t(g.dim);
+  const bool observables = request.energy || request.virial;
+  cuda::DeviceFlags flags{};
+  CF_CUDA_CHECK(cudaMemcpyAsync(&flags, s.flags.data(), sizeof(flags), cudaMemcpyDeviceToHost, s.stream));
+  std::vector<double> forces, energies, w6;  // the caller's result is left as it was on an error
+  download(forces, s.forces.data(), n_local * dim, s.stream);
+  download(energies, s.energies.data(), request.energy ? n_local : 0, s.stream);
+  download(w6, s.virials.data(), observables ? n_local * kVirialComponents : 0, s.stream);
+  s.record(Impl::kDownloaded);
+  CF_CUDA_CHECK(cudaStreamSynchronize(s.stream));
+  s.throw_flags(flags, system, ff, options_.precision);
+
+  result.dim = g.dim;
+  result.forces = std::move(forces);
+  result.energies = std::move(energies);
+  // The totals: the locals' shares in index order (a pair of two locals whole, with a ghost half).
+  result.energy = 0;
+  for (const double e : result.energies) result.energy += e;
+  double w[kVirialComponents] = {};
+  result.virials.assign(request.virial ? n_local * dim * dim : 0, 0.0);
+  if (request.virial)
+    for (std::size_t i = 0; i < n_local; ++i)
+      for (int k = 0; k < kVirialComponents; ++k) {
+        const double v = w6[i * kVirialComponents + std::size_t(k)];
+        w[k] += v;
+        const std::size_t r = std::size_t(virial_row(k)), c = std::size_t(virial_col(k));
+        if (r >= dim || c >= dim) continue;
+        result.virials[i * dim * dim + r * dim + c] = result.virials[i * dim * dim + c * dim + r] = v;
+      }
+  set_virial(result, g.dim, w);
+
+  finish_timing();
+  s.read_counts(stats_);
+  stats_.candidate_pairs = std::size_t(flags.candidates);  // counted by the ghosts' traversal
+  stats_.interacting_pairs = std::size_t(flags.interacting);
+}
+
 void GpuEngine::evaluate_device(const DeviceInput& input, const ForceField& ff, const DeviceOutputs& out,
                                 void* stream) {
   const DeviceScope scope(options_.device);
@@ -434,7 +486,8 @@ void GpuEngine::finish_timing() {
 
 // Validates the input, uploads it, then rebuilds the structure (stages 1-3) or keeps the last
 // one: shared by evaluate() and the pair recorder.
-void GpuEngine::prepare(const SystemView& system, const ForceField& ff, const DeviceSystemView* on_device) {
+void GpuEngine::prepare(const SystemView& system, const ForceField& ff, const DeviceSystemView* on_device,
+                        bool lists) {
   Impl& s = *impl_;
   validate_system(system, ff);
   check_capacity(system, ff);
@@ -448,7 +501,7 @@ void GpuEngine::prepare(const SystemView& system, const ForceField& ff, const De
   }, stats_);
   s.record(Impl::kChecked);
   if (rebuild) {
-    build(system, ff);
+    build(system, ff, lists);
   } else {
     s.skip_build();
     reuse_.reused();
@@ -503,10 +556,10 @@ void GpuEngine::plan_corners(const Box& box, std::size_t n, const double* positi
 }
 
 // Stages 1-3 on the uploaded positions, the policy invalid until they complete.
-void GpuEngine::build(const SystemView& system, const ForceField& ff) {
+void GpuEngine::build(const SystemView& system, const ForceField& ff, bool with_lists) {
   reuse_.invalidate();
   Impl& s = *impl_;
-  const bool lists = Impl::lists(options_, system.box, ff.cutoff);
+  const bool lists = with_lists && Impl::lists(options_, system.box, ff.cutoff);
   const std::size_t replays = s.graph.replays();
   stats_.graph_build = false;
   // Stages 1-3, then the list in the engine's precision; the pair table first, before the build's
@@ -515,7 +568,7 @@ void GpuEngine::build(const SystemView& system, const ForceField& ff) {
     using Real = decltype(real);
     using Accum = decltype(accum);
     if (lists) s.upload_table<Real>(ff);
-    s.build(options_, stats_, system, ff);
+    s.build(options_, stats_, system, ff, lists);
     if (lists) s.build_list<Real, Accum>(options_, stats_.grid, system, ff);
   };
   try {
@@ -525,6 +578,10 @@ void GpuEngine::build(const SystemView& system, const ForceField& ff) {
       case Precision::kDouble: stages(double{}, double{}); break;
     }
     if (s.graph.open()) throw Error("internal error: the build's fixed part did not end");
+    if (!lists) {  // none built: the cells serve this structure's evaluations
+      s.list_usable = false;
+      s.list_built_for = s.builds;
+    }
     stats_.graph_build = s.graph.replays() > replays;
   } catch (...) {
     s.graph.abandon(s.stream);

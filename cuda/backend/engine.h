@@ -66,6 +66,16 @@ class GpuEngine final : public cuda::ResidentForces {
   void evaluate(const SystemView& system, const ForceField& ff, const Request& request,
                 ForceResult& result);
 
+  // Local and ghost particles (ForceEngine::evaluate_local's contract, backends/force_engine.h):
+  // particles n_local .. n - 1 are ghosts; results for the locals only, each local's share of its
+  // pairs (result.virials n_local x dim x dim when request.virial), the totals the locals' sums in
+  // index order. The cells' traversal in the tile form with ghosts (forces/traversal.cuh
+  // traverse_local), whatever the traversal option: no pair of two ghosts is tested, and
+  // stats()' candidate and interacting counts are this call's. A build for it makes no pair list
+  // (a later call reusing that structure walks the cells). Throws as evaluate() does.
+  void evaluate_local(const SystemView& system, std::size_t n_local, const ForceField& ff,
+                      const Request& request, ForceResult& result);
+
   // Device arrays (core/system.h): the work is ordered after what the caller's `stream` (a
   // cudaStream_t; null: the legacy default stream) holds, and the results are written on the
   // engine's stream, which the caller's stream then waits for. Energy and virial are computed when
@@ -186,13 +196,15 @@ class GpuEngine final : public cuda::ResidentForces {
  private:
   std::vector<std::pair<uint32_t, uint32_t>> record(const SystemView& system, const ForceField& ff,
                                                     bool keep);
-  void prepare(const SystemView& system, const ForceField& ff, const DeviceSystemView* on_device = nullptr);
+  // `lists`: a build makes the pair list where the options ask for one (evaluate_local: none).
+  void prepare(const SystemView& system, const ForceField& ff, const DeviceSystemView* on_device = nullptr,
+               bool lists = true);
   void traverse(const SystemView& system, const ForceField& ff, const Request& request, bool read_flags = true);
   void prepare_resident(const SystemView& system, const ForceField& ff, const DeviceSystemView& on_device,
                         std::optional<double> known_d2 = {});
   void plan_corners(const Box& box, std::size_t n, const double* positions);
   void finish_timing();
-  void build(const SystemView& system, const ForceField& ff);
+  void build(const SystemView& system, const ForceField& ff, bool lists = true);
   // The decided calls (backend/device_calls.cu): whether this call may be one, queueing it on the
   // call graph (false: the host's own path serves it), and reading what the device did: the
   // posted sizes of its builds without waiting, and with `wait` its state too.

@@ -72,6 +72,8 @@ struct GpuEngine::Impl {
   TraversalForm form = TraversalForm::kWarpPerCell;  // the traversal of the structure in use
   DeviceBuffer<std::byte> staged, table, force_slots, energy_slots, cell_sums;
   DeviceBuffer<double> forces, energies, totals;
+  DeviceBuffer<std::byte> virial_slots;  // evaluate_local: the locals' virial slots ...
+  DeviceBuffer<double> virials;          // ... and their sums (kVirialComponents a local)
   DeviceBuffer<cuda::DeviceFlags> flags;
   DeviceBuffer<uint2> pairs;
   DeviceBuffer<double> build_positions;  // reuse: positions at the build in use (n x dim)
@@ -137,6 +139,7 @@ struct GpuEngine::Impl {
     f("staged occupants", staged), f("LJ table", table), f("Jacobi slots: forces", force_slots);
     f("Jacobi slots: energies", energy_slots), f("cell sums", cell_sums), f("forces", forces);
     f("energies", energies), f("totals", totals), f("flags", flags), f("pairs (tests)", pairs);
+    f("Jacobi slots: virials (ghosts)", virial_slots), f("virials (ghosts)", virials);
     f("build positions", build_positions), f("decided calls: state", call_state);
     f("chapter sort: keys", chapter_sort.keys), f("chapter sort: values", chapter_sort.values);
     f("chapter sort: counts", chapter_sort.counts), f("chapter sort: digit totals", chapter_sort.digit_totals);
@@ -247,7 +250,8 @@ struct GpuEngine::Impl {
 
   // Stages 1-3 on the uploaded positions: cell IDs, count, sort, collision cells (split by type
   // for Gauss-Seidel). With a skin, keeps the build's positions (and, for the audit, its keys).
-  void build(const GpuOptions& o, PipelineStats& st, const SystemView& sys, const ForceField& ff);
+  // `listed`: a pair list is built after it (build_list), which the memory plan and the tiles serve.
+  void build(const GpuOptions& o, PipelineStats& st, const SystemView& sys, const ForceField& ff, bool listed);
   // The build's steps: the grid (planned and checked, or the test's), where the build's arrays go
   // (backend/memory_plan.h; it applies the lean mode's releases), and stage 1 and 2's queueing.
   void plan_build_grid(const GpuOptions& o, PipelineStats& st, const SystemView& sys, const ForceField& ff);
@@ -310,6 +314,13 @@ struct GpuEngine::Impl {
   template <class Real, class Accum>
   void evaluate_cells(const GpuOptions& o, const Grid& g, const SystemView& sys, const ForceField& ff,
                       const Request& req);
+  // Local and ghost particles (GpuEngine::evaluate_local): the tile form's traversal with ghosts
+  // over the cells of the structure in use (its tiles counted again: its build made them only for
+  // the tile form or a list), the locals' slots summed into forces, energies and virials
+  // (kVirialComponents a local; with req.energy or req.virial both are computed).
+  template <class Real, class Accum>
+  void evaluate_local(const GpuOptions& o, const Grid& g, const SystemView& sys, std::size_t n_local,
+                      const ForceField& ff, const Request& req);
   // The room evaluate_cells takes, taken now (before a call graph's capture).
   template <class Real, class Accum>
   void reserve_cells(const GpuOptions& o, const Grid& g, std::size_t n, const Request& req);

@@ -219,6 +219,57 @@ void GpuEngine::Impl::evaluate_cells(const GpuOptions& o, const Grid& g, const S
   record(kAccumulated);
 }
 
+template <class Real, class Accum>
+void GpuEngine::Impl::evaluate_local(const GpuOptions& o, const Grid& g, const SystemView& sys, std::size_t n_local,
+                                     const ForceField& ff, const Request& req) {
+  const bool gs = o.accumulation == Accumulation::kGaussSeidel;
+  const bool observables = req.energy || req.virial;
+  const std::size_t dim = std::size_t(g.dim), copies = gs ? 1 : std::size_t(g.num_types());
+  constexpr std::size_t kc = kVirialComponents;
+  tile_start.reserve(max_cells + 1);
+  cuda::tile_starts(cells.data(), counts.data()->cell_range, max_cells, tile_start.data(), cub, stream);
+  force_slots.reserve(std::max<std::size_t>(copies * n_local * dim, 1) * sizeof(Accum));
+  forces.reserve(std::max<std::size_t>(n_local * dim, 1));
+  if (observables) {
+    energy_slots.reserve(std::max<std::size_t>(copies * n_local, 1) * sizeof(Accum));
+    virial_slots.reserve(std::max<std::size_t>(copies * n_local * kc, 1) * sizeof(Accum));
+    energies.reserve(std::max<std::size_t>(n_local, 1));
+    virials.reserve(std::max<std::size_t>(n_local * kc, 1));
+  }
+  cuda::TraversalArgs<Real, Accum> args = prepare<Real, Accum>(g, sys, ff, ff.mode);
+  args.n_local = n_local;
+  CF_CUDA_CHECK(cudaMemsetAsync(force_slots.data(), 0, copies * n_local * dim * sizeof(Accum), stream));
+  args.force = as<Accum>(force_slots);
+  args.force_slot_stride = gs ? 0 : n_local * dim;
+  if (observables) {
+    CF_CUDA_CHECK(cudaMemsetAsync(energy_slots.data(), 0, copies * n_local * sizeof(Accum), stream));
+    CF_CUDA_CHECK(cudaMemsetAsync(virial_slots.data(), 0, copies * n_local * kc * sizeof(Accum), stream));
+    args.energy = as<Accum>(energy_slots);
+    args.energy_slot_stride = gs ? 0 : n_local;
+    args.virial = as<Accum>(virial_slots);
+    args.virial_slot_stride = gs ? 0 : n_local * kc;
+  }
+  cuda::Switches sw;
+  sw.dim = g.dim;
+  sw.wrap = g.any_wrap_inside_cell();
+  sw.multi_type = ff.num_types() > 1;
+  sw.mode = ff.mode;
+  sw.observables = observables;
+  if (!gs) {
+    cuda::traverse_local(sw, args, stream);
+  } else {
+    for (int t = 0; t < g.num_types(); ++t) {  // one pass per cell type, in type order
+      args.cell_range = counts.data()->type_start + t;
+      cuda::traverse_local(sw, args, stream);
+    }
+  }
+  record(kTraversed);
+  cuda::sum_slots<Accum>(as<Accum>(force_slots), observables ? as<Accum>(energy_slots) : nullptr, g.dim, n_local,
+                         int(copies), forces.data(), observables ? energies.data() : nullptr, stream);
+  if (observables) cuda::sum_virial_slots<Accum>(as<Accum>(virial_slots), n_local, int(copies), virials.data(), stream);
+  record(kAccumulated);
+}
+
 #define CF_EVALUATION(Real, Accum)                                                                              \
   template cuda::ListArgs<Real, Accum> GpuEngine::Impl::list_args<Real, Accum>(const Grid&, const SystemView&,  \
                                                                                const ForceField&, const Request&); \
@@ -240,7 +291,9 @@ void GpuEngine::Impl::evaluate_cells(const GpuOptions& o, const Grid& g, const S
   template void GpuEngine::Impl::evaluate_cells<Real, Accum>(const GpuOptions&, const Grid&, const SystemView&,  \
                                                              const ForceField&, const Request&);              \
   template void GpuEngine::Impl::reserve_cells<Real, Accum>(const GpuOptions&, const Grid&, std::size_t,         \
-                                                            const Request&);
+                                                            const Request&);                                  \
+  template void GpuEngine::Impl::evaluate_local<Real, Accum>(const GpuOptions&, const Grid&, const SystemView&,  \
+                                                             std::size_t, const ForceField&, const Request&);
 CF_EVALUATION(float, float)
 CF_EVALUATION(float, double)
 CF_EVALUATION(double, double)

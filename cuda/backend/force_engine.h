@@ -18,6 +18,10 @@ class CudaForceEngine final : public ForceEngine {
 
   void evaluate(const SystemView& system, const ForceField& ff, const Request& request,
                 ForceResult& result) override;
+  void evaluate_local(const SystemView& system, std::size_t n_local, const ForceField& ff,
+                      const Request& request, ForceResult& result) override {
+    engine_.evaluate_local(system, n_local, ff, request, result);
+  }
   void evaluate_device(const DeviceInput& input, const ForceField& ff, const DeviceOutputs& out,
                        void* stream) override;
   void synchronize(const ForceField& ff) override { engine_.synchronize(ff); }

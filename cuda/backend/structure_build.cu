@@ -9,7 +9,8 @@
 
 namespace cellforce {
 
-void GpuEngine::Impl::build(const GpuOptions& o, PipelineStats& st, const SystemView& sys, const ForceField& ff) {
+void GpuEngine::Impl::build(const GpuOptions& o, PipelineStats& st, const SystemView& sys, const ForceField& ff,
+                            bool listed) {
   plan_build_grid(o, st, sys, ff);
   const Grid& g = st.grid;
   const std::size_t n = sys.n;
@@ -19,7 +20,6 @@ void GpuEngine::Impl::build(const GpuOptions& o, PipelineStats& st, const System
   counts.reserve(1);
   form = cuda::resolve_traversal(o.traversal, max_cells, multiprocessors);
   ++builds;
-  const bool listed = lists(o, sys.box, ff.cutoff);
   const cuda::BuildMemoryPlan plan = plan_build_memory(o, listed, n, last_entries, g);
   // The unsorted keys and IDs: their own arrays, or a dead room's first words (the lean build's
   // last list, or the masks' room), the sort's scratch after them.

@@ -27,6 +27,19 @@ __global__ void sum_slots_kernel(const Accum* __restrict__ force_slots,
   }
 }
 
+template <class Accum>
+__global__ void sum_virial_slots_kernel(const Accum* __restrict__ virial_slots, std::size_t n_local, int copies,
+                                        double* __restrict__ virials) {
+  const std::size_t i = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
+  if (i >= n_local) return;
+  const std::size_t stride = n_local * kVirialComponents;
+  for (int k = 0; k < kVirialComponents; ++k) {
+    Accum w = 0;
+    for (int t = 0; t < copies; ++t) w += virial_slots[std::size_t(t) * stride + i * kVirialComponents + k];
+    virials[i * kVirialComponents + k] = double(w);
+  }
+}
+
 constexpr int kSumThreads = 256;
 
 template <class Accum>
@@ -83,6 +96,16 @@ void sum_slots(const Accum* force_slots, const Accum* energy_slots, int dim, std
 }
 
 template <class Accum>
+void sum_virial_slots(const Accum* virial_slots, std::size_t n_local, int copies, double* virials,
+                      cudaStream_t stream) {
+  if (n_local == 0) return;
+  constexpr int kBlock = 256;
+  sum_virial_slots_kernel<Accum><<<unsigned((n_local + kBlock - 1) / kBlock), kBlock, 0, stream>>>(
+      virial_slots, n_local, copies, virials);
+  CF_CUDA_CHECK_LAUNCH();
+}
+
+template <class Accum>
 void sum_cells(const Accum* cell_sums, const uint32_t* count, double* totals, cudaStream_t stream) {
   sum_cells_kernel<Accum><<<1, kSumThreads, 0, stream>>>(cell_sums, count, totals);
   CF_CUDA_CHECK_LAUNCH();
@@ -90,6 +113,8 @@ void sum_cells(const Accum* cell_sums, const uint32_t* count, double* totals, cu
 
 template void sum_slots<float>(const float*, const float*, int, std::size_t, int, double*, double*, cudaStream_t);
 template void sum_slots<double>(const double*, const double*, int, std::size_t, int, double*, double*, cudaStream_t);
+template void sum_virial_slots<float>(const float*, std::size_t, int, double*, cudaStream_t);
+template void sum_virial_slots<double>(const double*, std::size_t, int, double*, cudaStream_t);
 template void sum_cells<float>(const float*, const uint32_t*, double*, cudaStream_t);
 template void sum_cells<double>(const double*, const uint32_t*, double*, cudaStream_t);
 

@@ -26,6 +26,13 @@ template <class Real, class Accum>
 void traverse(TraversalForm form, const Switches& sw, const TraversalArgs<Real, Accum>& args,
               cudaStream_t stream);
 
+// The tile form's traversal with ghosts: particles args.n_local .. args.n - 1 are ghosts, which get
+// no slots and no pair of two of which is tested; each local's forces, and with sw.observables its
+// half of each pair's energy and virial (args.virial), go to its slots; candidate and interacting
+// pairs are counted in args.flags; no cell sums. Needs args.tile_start (tile_starts) and max_tiles.
+template <class Real, class Accum>
+void traverse_local(const Switches& sw, const TraversalArgs<Real, Accum>& args, cudaStream_t stream);
+
 // The same candidate loop in double, recording each pair with r < rc in args.pairs and counting
 // candidates and interacting pairs in args.flags, instead of evaluating LJ.
 void record_pairs(TraversalForm form, int dim, bool wrap, const TraversalArgs<double, double>& args,
@@ -36,6 +43,12 @@ void record_pairs(TraversalForm form, int dim, bool wrap, const TraversalArgs<do
 template <class Accum>
 void sum_slots(const Accum* force_slots, const Accum* energy_slots, int dim, std::size_t n,
                int copies, double* forces, double* energies, cudaStream_t stream);
+
+// With ghosts: each local's `copies` virial slots (kVirialComponents each, stride n_local x
+// kVirialComponents) summed in slot order into virials (n_local x kVirialComponents doubles).
+template <class Accum>
+void sum_virial_slots(const Accum* virial_slots, std::size_t n_local, int copies, double* virials,
+                      cudaStream_t stream);
 
 // Sums the per-cell energy and virial over cells [0, *count) (count in device memory) in a fixed
 // order into totals[kCellSums].

@@ -6,5 +6,6 @@ namespace cellforce::cuda {
 
 template void traverse<double, double>(TraversalForm, const Switches&, const TraversalArgs<double, double>&,
                                     cudaStream_t);
+template void traverse_local<double, double>(const Switches&, const TraversalArgs<double, double>&, cudaStream_t);
 
 }  // namespace cellforce::cuda

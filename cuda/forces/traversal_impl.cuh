@@ -259,21 +259,48 @@ __global__ void __launch_bounds__(kWarpsPerBlock * 32)
 // need the H columns. Twice the pair evaluations of warp_per_cell, for many times its parallelism:
 // what a small system needs. Energy and virial: half of each pair from each side, summed per row
 // tile (args.cell_sums is indexed by the global tile) and then over the tiles in a fixed order.
+//
+// With ghosts (T::kLocal, traverse_local): a row of a ghost is skipped (a tile of ghosts only ends
+// at once), so no pair of two ghosts is tested; a pair of two locals is evaluated from both sides
+// as above, a pair of a local and a ghost from the local's side only. Each local row sums its half
+// of each pair's energy and virial into its slots (args.virial); the totals are the locals' sums,
+// formed after (GpuEngine::evaluate_local), so no cell sums are written. Candidate and interacting
+// pairs are counted (each pair once: the canonical side above, or the local's side) into the flags.
 template <class T, class Real, class Accum>
 struct RowTileSums {
+  static constexpr bool kVirials = T::kLocal && T::kObservables;
   Accum force[kWarpsPerBlock][T::kDim][32];
   Accum energy[kWarpsPerBlock][T::kObservables ? 32 : 1];
-  Accum totals[kWarpsPerBlock][T::kObservables ? kCellSums : 1];
+  Accum totals[kWarpsPerBlock][T::kObservables && !T::kLocal ? kCellSums : 1];
+  Accum virial[kWarpsPerBlock][kVirials ? kVirialComponents : 1][kVirials ? 32 : 1];
 };
+
+// A local's half of a pair's virial, F/r = fr at separation d, added to its components w
+// (core/cell_totals.h's order: xx, yy, zz, xy, xz, yz; 2D: xx, yy, xy).
+template <int D, class Real, class Accum>
+__device__ __forceinline__ void add_virial_share(Accum* w, Real fr, const Real* d) {
+  const Real h = Real(0.5) * fr;
+  w[0] += Accum(h * d[0] * d[0]);
+  w[1] += Accum(h * d[1] * d[1]);
+  w[3] += Accum(h * d[0] * d[1]);
+  if constexpr (D == 3) {
+    w[2] += Accum(h * d[2] * d[2]);
+    w[4] += Accum(h * d[0] * d[2]);
+    w[5] += Accum(h * d[1] * d[2]);
+  }
+}
 
 template <class T, class Real, class Accum, bool Record>
 __global__ void __launch_bounds__(kWarpsPerBlock * 32)
     warp_per_tile(const TraversalArgs<Real, Accum> args) {
   constexpr int D = T::kDim;
   __shared__ StagedEntry<Real> column_tiles[kWarpsPerBlock][32];
+  __shared__ uint32_t column_id_tiles[kWarpsPerBlock][T::kLocal ? 32 : 1];  // ghosts: the columns' particles
   __shared__ RowTileSums<T, Real, Accum> partial;
+  constexpr bool kVirials = RowTileSums<T, Real, Accum>::kVirials;
   const int warp = int(threadIdx.x / 32), lane = int(threadIdx.x % 32);
   StagedEntry<Real>* column = column_tiles[warp];
+  uint32_t* column_ids = column_id_tiles[warp];
   const uint32_t first_cell = args.cell_range[0], end_cell = args.cell_range[1];
   const uint32_t w = args.tile_start[first_cell] + blockIdx.x;
   if (w >= args.tile_start[end_cell]) return;  // the whole block: the tile index is block-uniform
@@ -289,16 +316,28 @@ __global__ void __launch_bounds__(kWarpsPerBlock * 32)
   bool impossible = false;
 
   const uint32_t a = row + uint32_t(lane);
-  const bool row_ok = a < m, a_home = a < h;
+  const bool a_home = a < h;
+  const uint32_t ia = a < m ? ids[a] : 0;
+  if (a < m && ia >= args.n) impossible = true;
+  bool row_ok = a < m;
+  if constexpr (T::kLocal) {
+    row_ok = row_ok && ia < args.n_local;  // a ghost's row is not walked
+    if (!__syncthreads_or(row_ok)) {       // block-uniform: a tile of ghosts only
+      if (impossible) args.flags->impossible = 1;
+      return;
+    }
+  }
   const StagedEntry<Real> A = row_ok ? occ[a] : StagedEntry<Real>{};
-  const uint32_t ia = row_ok ? ids[a] : 0;
-  if (row_ok && ia >= args.n) impossible = true;
   Accum fa[D] = {};
   Accum ea = 0;
+  Accum wa[kVirials ? kVirialComponents : 1] = {};
   const uint32_t columns = row >= h ? h : m;  // a tile of P rows pairs with H columns only
   for (uint32_t col = uint32_t(warp) * 32u; col < columns; col += 32u * kWarpsPerBlock) {
     const uint32_t own = col + uint32_t(lane);
-    if (own < columns) column[lane] = occ[own];
+    if (own < columns) {
+      column[lane] = occ[own];
+      if constexpr (T::kLocal) column_ids[lane] = ids[own];
+    }
     __syncwarp();
     const uint32_t count = columns - col < 32u ? columns - col : 32u;
     for (uint32_t k = 0; k < count; ++k) {
@@ -312,7 +351,9 @@ __global__ void __launch_bounds__(kWarpsPerBlock * 32)
       if (!test) continue;
       // Each pair is seen from both sides; it is counted (and recorded) from one: the H side of an
       // H x P pair, the lower slot of an H x H pair.
-      const bool canonical = a_home && (!b_home || a < b);
+      // With ghosts, a pair of a local and a ghost is seen from the local's side alone.
+      bool canonical = a_home && (!b_home || a < b);
+      if constexpr (T::kLocal) canonical = canonical || column_ids[k] >= args.n_local;
       if (canonical) ++candidates;
       Real d[3];
       const Real r2 = separation<T>(A, B, args.length, args.inv_length, d);
@@ -332,20 +373,22 @@ __global__ void __launch_bounds__(kWarpsPerBlock * 32)
         if constexpr (T::kObservables) {
           const Real half_e = Real(0.5) * e;
           ea += Accum(half_e);
-          totals.template add<D>(half_e, Real(0.5) * fr, d);
+          if constexpr (T::kLocal) add_virial_share<D>(wa, fr, d);
+          else totals.template add<D>(half_e, Real(0.5) * fr, d);
         }
       }
     }
     __syncwarp();
   }
   if (impossible) args.flags->impossible = 1;
-  if constexpr (Record) {
-    add_pair_counts(args.flags, candidates, interacting, lane);
-  } else {
+  if constexpr (Record || T::kLocal) add_pair_counts(args.flags, candidates, interacting, lane);
+  if constexpr (!Record) {
     // The warps' partial sums, added in warp order by warp 0 (and the totals by one thread each).
     for (int c = 0; c < D; ++c) partial.force[warp][c][lane] = fa[c];
-    if constexpr (T::kObservables) {
-      partial.energy[warp][lane] = ea;
+    if constexpr (kVirials)
+      for (int k = 0; k < kVirialComponents; ++k) partial.virial[warp][k][lane] = wa[k];
+    if constexpr (T::kObservables) partial.energy[warp][lane] = ea;
+    if constexpr (T::kObservables && !T::kLocal) {
       totals.finish();
       for (int k = 0; k < kCellSums; ++k) {
         const Accum v = warp_sum(totals.v[k]);
@@ -365,8 +408,16 @@ __global__ void __launch_bounds__(kWarpsPerBlock * 32)
         for (int k = 1; k < kWarpsPerBlock; ++k) e += partial.energy[k][lane];
         args.energy[type * args.energy_slot_stride + ia] += e;
       }
+      if constexpr (kVirials) {
+        Accum* w = args.virial + type * args.virial_slot_stride + std::size_t(ia) * kVirialComponents;
+        for (int c = 0; c < kVirialComponents; ++c) {
+          Accum v = partial.virial[0][c][lane];
+          for (int k = 1; k < kWarpsPerBlock; ++k) v += partial.virial[k][c][lane];
+          w[c] += v;
+        }
+      }
     }
-    if constexpr (T::kObservables) {
+    if constexpr (T::kObservables && !T::kLocal) {
       if (threadIdx.x < unsigned(kCellSums)) {
         Accum v = partial.totals[0][threadIdx.x];
         for (int k = 1; k < kWarpsPerBlock; ++k) v += partial.totals[k][threadIdx.x];
@@ -405,6 +456,16 @@ void traverse(TraversalForm form, const Switches& sw, const TraversalArgs<Real, 
   detail::dispatch(sw, [&](auto traits) {
     detail::launch<decltype(traits), Real, Accum, false>(form, args, stream);
   });
+}
+
+template <class Real, class Accum>
+void traverse_local(const Switches& sw, const TraversalArgs<Real, Accum>& args, cudaStream_t stream) {
+  if (args.max_cells == 0 || args.max_tiles == 0) return;
+  detail::dispatch<true>(sw, [&](auto traits) {  // the tile form alone takes ghosts
+    detail::warp_per_tile<decltype(traits), Real, Accum, false>
+        <<<args.max_tiles, detail::kWarpsPerBlock * 32, 0, stream>>>(args);
+  });
+  CF_CUDA_CHECK_LAUNCH();
 }
 
 }  // namespace cellforce::cuda

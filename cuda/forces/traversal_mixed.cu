@@ -6,5 +6,6 @@ namespace cellforce::cuda {
 
 template void traverse<float, double>(TraversalForm, const Switches&, const TraversalArgs<float, double>&,
                                     cudaStream_t);
+template void traverse_local<float, double>(const Switches&, const TraversalArgs<float, double>&, cudaStream_t);
 
 }  // namespace cellforce::cuda

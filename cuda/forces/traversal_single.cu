@@ -6,5 +6,6 @@ namespace cellforce::cuda {
 
 template void traverse<float, float>(TraversalForm, const Switches&, const TraversalArgs<float, float>&,
                                     cudaStream_t);
+template void traverse_local<float, float>(const Switches&, const TraversalArgs<float, float>&, cudaStream_t);
 
 }  // namespace cellforce::cuda

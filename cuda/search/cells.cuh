@@ -83,6 +83,12 @@ struct TraversalArgs {
   Accum* energy = nullptr;               // per particle, same slots with one component
   std::size_t energy_slot_stride = 0;
   Accum* cell_sums = nullptr;            // kCellSums per cell
+  // Local and ghost particles (traverse_local): particles n_local .. n - 1 are ghosts, which get no
+  // slots; each local's half of its pairs' virials, kVirialComponents a slot, at
+  // virial[t * virial_slot_stride + i * kVirialComponents] (core/cell_totals.h's order).
+  std::size_t n_local = 0;
+  Accum* virial = nullptr;
+  std::size_t virial_slot_stride = 0;
   DeviceFlags* flags = nullptr;
   uint2* pairs = nullptr;                // record mode: (i, j) of each pair with r < rc
   std::size_t pair_capacity = 0;
@@ -117,13 +123,15 @@ inline std::size_t max_tiles(std::size_t entries, std::size_t cell_bound) { retu
 
 namespace detail {
 
-template <int D, bool Wrap, bool MultiType, CutoffMode Mode, bool Observables>
+// Local: the evaluation has ghosts (traverse_local), which only the tile form takes.
+template <int D, bool Wrap, bool MultiType, CutoffMode Mode, bool Observables, bool Local = false>
 struct Traits {
   static constexpr int kDim = D;
   static constexpr bool kWrap = Wrap;
   static constexpr bool kMultiType = MultiType;
   static constexpr CutoffMode kMode = Mode;
   static constexpr bool kObservables = Observables;
+  static constexpr bool kLocal = Local;
 };
 
 constexpr uint32_t kControlMask = 0xffffu;
@@ -213,14 +221,14 @@ void with_bool(bool b, F&& f) {
   else f(std::false_type{});
 }
 
-// Turns the run-time choices into one Traits instantiation.
-template <class F>
+// Turns the run-time choices into one Traits instantiation (Local: of the ghosts' kernels).
+template <bool Local = false, class F>
 void dispatch(const Switches& sw, F&& f) {
   auto with_mode = [&](auto d, auto w, auto m) {
     auto go = [&](auto cm) {
       with_bool(sw.observables, [&](auto o) {
         f(Traits<decltype(d)::value, decltype(w)::value, decltype(m)::value, decltype(cm)::value,
-                 decltype(o)::value>{});
+                 decltype(o)::value, Local>{});
       });
     };
     switch (sw.mode) {

@@ -114,8 +114,8 @@ CELLFORCE_API cf_status cf_compute(cf_context* ctx, size_t n, const double* posi
 CELLFORCE_API cf_status cf_compute_energies(cf_context* ctx, size_t n, const double* positions, const uint32_t* types,
                               double* forces, double* energies, double* energy, double* virial);
 
-/* A rank's own particles with its ghosts, for domain-decomposed codes (host arrays; CPU backend:
- * the cuda backend is CF_ERROR_INPUT naming it). positions: (n_local + n_ghost) * dim, the locals
+/* A rank's own particles with its ghosts, for domain-decomposed codes (host arrays, either
+ * backend). positions: (n_local + n_ghost) * dim, the locals
  * first, then the ghosts the caller places (other ranks' particles, or periodic images at their
  * image positions); types: as many, or NULL for all type 0. Outputs for the locals only, each
  * optional (forces NULL: an energy-only call): forces n_local * dim; energy 1, the locals' shares

@@ -334,8 +334,9 @@ class CELLFORCE_API Context {
   // across it (its pairs would count twice). Ghosts with every axis periodic are refused: each
   // local then finds every neighbour by the minimum image already. Beside compute()'s checks
   // (null positions, a non-finite coordinate, a type out of range: each named by particle, index
-  // into the whole array), a ghost count with every axis periodic is named. The cuda backend does
-  // not take ghosts yet (cellforce::Error naming it).
+  // into the whole array), a ghost count with every axis periodic is named. The cuda backend walks
+  // the collision cells for these calls (the tile form, whatever the traversal option; a build for
+  // one makes no pair list, so a compute() that reuses its structure walks the cells too).
   void compute_local(std::size_t n_local, std::size_t n_ghost, const double* positions, const uint32_t* types,
                      const LocalOutputs& out);
   // count_pairs() for a compute_local call: the pairs tested and within the cutoff, no pair of two

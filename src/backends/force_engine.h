@@ -57,10 +57,9 @@ class ForceEngine {
   // local's share (half of each of its pairs); energy and virial are the sums of those shares, so
   // a pair of two locals counts whole and a pair of a local and a ghost half (LAMMPS's newton off).
   // A pair of two ghosts is never evaluated (nor counted in stats()' pair counts). The caller has
-  // checked n_local <= n. The default throws cellforce::Error naming the backend: a backend that
-  // takes ghosts overrides it.
+  // checked n_local <= n.
   virtual void evaluate_local(const SystemView& system, std::size_t n_local, const ForceField& ff,
-                              const Request& request, ForceResult& result);
+                              const Request& request, ForceResult& result) = 0;
 
   // Device arrays in and out, work ordered after what `stream` (a cudaStream_t; null: the legacy
   // default stream) already holds, results ready when the stream reaches the point of the call.

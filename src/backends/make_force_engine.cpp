@@ -1,14 +1,8 @@
-// Picks the backend: the one place that knows whether this build has CUDA; and the interface's
-// default for what a backend does not take yet.
+// Picks the backend: the one place that knows whether this build has CUDA.
 #include "backends/force_engine.h"
 #include "core/error.h"
 
 namespace cellforce {
-
-void ForceEngine::evaluate_local(const SystemView&, std::size_t, const ForceField&, const Request&, ForceResult&) {
-  throw Error(std::string("compute_local: the ") + to_string(backend()) +
-              " backend does not take ghost particles yet; use backend cpu");
-}
 
 Backend resolve_backend(Backend backend) {
   if (backend != Backend::kAuto) return backend;
