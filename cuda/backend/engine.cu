@@ -234,11 +234,7 @@ void GpuEngine::evaluate_device(const DeviceInput& input, const ForceField& ff, 
   for (const auto& [p, what] : pointers) {
     if (!p || (input.n == 0 && (p == input.positions || p == input.types || p == out.forces || p == out.energies)))
       continue;
-    cudaPointerAttributes attributes{};
-    const cudaError_t err = cudaPointerGetAttributes(&attributes, p);
-    if (err != cudaSuccess) (void)cudaGetLastError();
-    if (err != cudaSuccess || attributes.type == cudaMemoryTypeUnregistered ||
-        (attributes.type == cudaMemoryTypeHost && attributes.devicePointer == nullptr))
+    if (!device_pointer(p))
       throw Error(std::string(what) + " is not a device pointer (compute_device takes device arrays; use "
                   "compute for host arrays)");
   }
@@ -439,6 +435,7 @@ void GpuEngine::settle_gate(int64_t served, double served_d2) {
 }
 
 const double* GpuEngine::device_forces() const { return impl_->forces.data(); }
+double* GpuEngine::device_forces_to_add() { return impl_->forces.data(); }
 std::size_t GpuEngine::listed_pairs() const {
   const Impl& s = *impl_;
   return s.list_usable && s.list_built_for == s.builds ? s.list.pairs : 0;
@@ -709,6 +706,14 @@ std::size_t GpuEngine::memory_bytes(int device) {
   if (!ok(cudaSetDevice(device)) || !ok(cudaMemGetInfo(&free_bytes, &total_bytes))) total_bytes = 0;
   (void)ok(cudaSetDevice(previous));
   return total_bytes;
+}
+
+bool GpuEngine::device_pointer(const void* p) {
+  cudaPointerAttributes attributes{};
+  const cudaError_t err = cudaPointerGetAttributes(&attributes, p);
+  if (err != cudaSuccess) (void)cudaGetLastError();
+  return err == cudaSuccess && attributes.type != cudaMemoryTypeUnregistered &&
+         !(attributes.type == cudaMemoryTypeHost && attributes.devicePointer == nullptr);
 }
 
 std::string GpuEngine::unavailable() {

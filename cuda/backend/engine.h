@@ -113,6 +113,7 @@ class GpuEngine final : public cuda::ResidentForces {
                          bool time_stages = true) override;
   void check_flags(const Box& box, std::size_t n, const double* positions, const ForceField& ff) override;
   const double* device_forces() const override;
+  double* device_forces_to_add() override;
   const double* device_totals() const override;
   void collect_timing() override;
   int64_t gate_steps(const Box& box, std::size_t n, const ForceField& ff) const override;
@@ -184,6 +185,8 @@ class GpuEngine final : public cuda::ResidentForces {
 
   // Empty when a CUDA device can be used here; otherwise why not.
   static std::string unavailable();
+  // Whether the device can use `p` (device, managed or mapped host memory; not pageable host memory).
+  static bool device_pointer(const void* p);
   // A stream on `device` for an owner to give to its engines (GpuOptions::stream), destroyed with
   // the last copy of the handle. Throws cellforce::DeviceError as the constructor does.
   static std::shared_ptr<void> make_stream(int device);

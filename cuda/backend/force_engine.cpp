@@ -78,6 +78,7 @@ std::unique_ptr<ForceEngine> make_cuda_force_engine(const EngineChoice& choice) 
 }
 
 std::string cuda_unavailable() { return GpuEngine::unavailable(); }
+bool cuda_device_pointer(const void* p) { return GpuEngine::device_pointer(p); }
 ListMemory cuda_lists_memory(ListMemory asked, std::size_t n, int device) {
   return cuda::lists_memory(asked, n, GpuEngine::memory_bytes(device));
 }

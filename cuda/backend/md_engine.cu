@@ -139,7 +139,8 @@ std::vector<std::pair<const char*, std::size_t>> CudaMdEngine::state_buffers() c
           {"md: FIRE start", fire_start_.bytes()},
           {"md: reduction scratch", reduce_scratch_.bytes()},
           {"md: step gate", gate_.bytes()},
-          {"md: chunk state in rank order", ranked_state_.bytes()}};
+          {"md: chunk state in rank order", ranked_state_.bytes()},
+          {"md: external forces", external_values_.bytes()}};
 }
 
 Observables CudaMdEngine::observables() {
@@ -167,6 +168,19 @@ Observables CudaMdEngine::observables() {
     o.virial[r][c] = o.virial[c][r] = host[2 + k];
   }
   return o;
+}
+
+void CudaMdEngine::set_external_force(const ExternalForce& external) {
+  const OnDevice on(resident_.device());
+  external_ = external;
+  if (!external.values.empty()) {
+    cuda::upload(external_values_, external.values, stream_);
+    counters_.bytes_to_device += external.values.size() * sizeof(double);
+  } else {
+    external_values_.release();
+  }
+  external_.values.clear();  // the device copy serves
+  external_.device = external.values.empty() ? external.device : external_values_.data();
 }
 
 void CudaMdEngine::reevaluate() {
@@ -272,6 +286,7 @@ void CudaMdEngine::resume() {
 }
 
 CudaMdEngine::GateChunk CudaMdEngine::gate_chunk(int64_t most) const {
+  if (external_.any()) return {};  // each step's force is added before its kick
   const int64_t allowed = std::min(most, resident_.gate_steps(box_, n_, ff_));
   if (allowed <= 0) return {};
   const int64_t expected = std::clamp<int64_t>(interval_ + 1 - since_build_, 2, kMaxGated);
@@ -465,6 +480,9 @@ DriftBox CudaMdEngine::drift_box(double limit) const {
 void CudaMdEngine::evaluate(bool observe, std::optional<double> known_d2, bool time_stages) {
   resident_.evaluate_resident(box_, n_, positions_.data(), ff_.num_types() > 1 ? types_.data() : nullptr, ff_,
                          Request{observe, observe}, known_d2, time_stages);
+  if (external_.device) cuda::queue_add(resident_.device_forces_to_add(), external_.device, n_ * std::size_t(box_.dim), stream_);
+  if (external_.callback)
+    external_.callback(external_.user, step_, n_, box_.dim, positions_.data(), resident_.device_forces_to_add(), stream_);
   observed_ = observe;
   at_build_ = resident_.stats().rebuilt;  // the build's positions are the positions now
   ++counters_.evaluations;

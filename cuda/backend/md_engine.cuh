@@ -88,6 +88,9 @@ class CudaMdEngine final : public MdEngine {
   Observables observables() override;
 
   void reevaluate() override;
+  // With an external force the steps are not gated (each step's evaluation, then the force added,
+  // then the kick: gate_chunk() gives none).
+  void set_external_force(const ExternalForce& external) override;
   FireResult minimize(const FireSettings& settings) override;
 
   ForceEngine& forces() override { return *owner_; }
@@ -193,7 +196,8 @@ class CudaMdEngine final : public MdEngine {
     cuda::queue_drift(positions_.data(), velocities_.data(), h, drift_box(limit), wrap, n_, flags_.data(), stream_);
   }
 
-  // known_d2: the step gate's displacement at these positions, where it closed (the reuse check's value).
+  // known_d2: the step gate's displacement at these positions, where it closed (the reuse check's
+  // value). The external force is added to the evaluation's forces.
   void evaluate(bool observe, std::optional<double> known_d2 = {}, bool time_stages = true);
 
   // FIRE on the state (minimize() restores the start when this throws): md/minimize.h's run_fire,
@@ -247,6 +251,8 @@ class CudaMdEngine final : public MdEngine {
   DeviceBuffer<double> fire_start_;  // positions, then velocities, before minimize()
   DeviceBuffer<double> ranked_state_;  // a gated chunk's state in rank order: x, v, built, mass
   DeviceBuffer<std::byte> reduce_scratch_;
+  ExternalForce external_;            // its host array (values) is held on the device, below
+  DeviceBuffer<double> external_values_;
   bool observed_ = false;
   std::optional<double> uniform_mass_;  // every particle's mass, where they are all the same
   bool at_build_ = false;  // the positions are those the structure in use was built from

@@ -54,6 +54,9 @@ class ResidentForces {
   // come to the host only then, for the message).
   virtual void check_flags(const Box& box, std::size_t n, const double* positions, const ForceField& ff) = 0;
   virtual const double* device_forces() const = 0;
+  // The same array, for the MD engine to add its external force into after an evaluation (before
+  // anything reads it).
+  virtual double* device_forces_to_add() = 0;
   virtual const double* device_totals() const = 0;
   // stats() gets the counts of the last evaluation and the stage times of the last timed one
   // (zeros where none was timed); synchronises.

@@ -97,6 +97,19 @@ struct KineticTerm {
 
 }  // namespace
 
+namespace {
+__global__ void add_kernel(double* __restrict__ f, const double* __restrict__ add, std::size_t count) {
+  const std::size_t k = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
+  if (k < count) f[k] += add[k];
+}
+}  // namespace
+
+void queue_add(double* f, const double* add, std::size_t count, cudaStream_t stream) {
+  if (count == 0) return;
+  add_kernel<<<blocks_for(count), kBlock, 0, stream>>>(f, add, count);
+  CF_CUDA_CHECK_LAUNCH();
+}
+
 void queue_kick(double* v, const double* f, const double* mass, double h, int kicks, std::size_t n, int dim,
                 cudaStream_t stream) {
   if (n == 0) return;

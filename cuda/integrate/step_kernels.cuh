@@ -16,6 +16,9 @@
 
 namespace cellforce::cuda {
 
+// f += add, `count` coordinates (an external force: backend/md_engine.cu).
+void queue_add(double* f, const double* add, std::size_t count, cudaStream_t stream);
+
 // `kicks` half kicks v += (h / m) F of every coordinate (n x dim; mass n).
 void queue_kick(double* v, const double* f, const double* mass, double h, int kicks, std::size_t n, int dim,
                 cudaStream_t stream);

@@ -200,6 +200,21 @@ CELLFORCE_API cf_status cf_step(cf_context* ctx, int64_t count);
 CELLFORCE_API cf_status cf_set_positions(cf_context* ctx, size_t n, const double* positions);
 CELLFORCE_API cf_status cf_set_velocities(cf_context* ctx, size_t n, const double* velocities);
 
+/* An external force added to the pair forces at every evaluation of the MD state's forces (each
+ * step; set_state, set_positions; cf_thermo when it evaluates again), with no energy or virial of
+ * its own; one at a time, kept until cf_clear_external_force (cellforce.hpp
+ * Context::set_external_forces says more). cf_set_external_forces: a host array n * dim (copied);
+ * cf_set_external_forces_device: the caller's device array n * dim (cuda backend), read at every
+ * evaluation; cf_set_external_force_callback: fn(user, step, n, dim, positions, forces, stream) adds
+ * its forces into `forces` at every evaluation, both arrays where the state lives (device arrays on
+ * `stream`, the context's cudaStream_t, with cuda; host arrays and NULL on the CPU); fn NULL clears. */
+typedef void (*cf_external_force_fn)(void* user, int64_t step, size_t n, int dim, const double* positions,
+                                     double* forces, void* stream);
+CELLFORCE_API cf_status cf_set_external_forces(cf_context* ctx, size_t n, const double* forces);
+CELLFORCE_API cf_status cf_set_external_forces_device(cf_context* ctx, size_t n, const double* forces);
+CELLFORCE_API cf_status cf_set_external_force_callback(cf_context* ctx, cf_external_force_fn fn, void* user);
+CELLFORCE_API cf_status cf_clear_external_force(cf_context* ctx);
+
 /* The state now into host arrays of n * dim each, n the state's particle count (another n is an
  * error): positions (wrapped into the box), velocities and forces; any may be NULL. */
 CELLFORCE_API cf_status cf_get_state(cf_context* ctx, size_t n, double* positions, double* velocities,

@@ -390,12 +390,39 @@ class CELLFORCE_API Context {
   // leaves the state as it was. set_velocities (finite) changes nothing else.
   void set_positions(std::size_t n, const double* positions);
   void set_velocities(std::size_t n, const double* velocities);
+  // An external force on every particle, added to the pair forces at each evaluation of the MD
+  // state's forces (each step, and set_state, set_positions, thermo() when it evaluates again)
+  // before anything reads them, as LAMMPS's fix external does; it has no energy or virial of its
+  // own (thermo() reports the pair potential's). One at a time (setting one replaces the last),
+  // kept across set_state and changes of the physics or engine until clear_external_force(); a
+  // state's forces are evaluated again when it is set or cleared. minimize() refuses to run while
+  // one is set (its energy is unknown). With cuda, steps with an external force are not served
+  // behind the step gate (each step's forces get it before its kick): fewer steps a second.
+  //  - set_external_forces: a host array, n x dim (n the state's count, or that of the next
+  //    set_state), finite (a value that is not is named by particle and axis), copied where the
+  //    state lives.
+  //  - set_external_forces_device (cuda): the caller's device array, n x dim, read at every
+  //    evaluation, kept by the caller (change it between step() calls, which return when the device
+  //    is done).
+  //  - set_external_force_callback: `callback(user, step, n, dim, positions, forces, stream)` at
+  //    every evaluation, after the pair forces: it adds its forces into `forces` (n x dim, the
+  //    state's order) from `positions` (n x dim, wrapped), both where the state lives (device
+  //    arrays with cuda, `stream` the context's cudaStream_t, on which it queues its work or
+  //    which it synchronises; host arrays and a null stream on the CPU); `step` is the step the
+  //    positions belong to. It must not throw, nor call this context. A null callback clears.
+  using ExternalForceFn = void (*)(void* user, int64_t step, std::size_t n, int dim, const double* positions,
+                                   double* forces, void* stream);
+  void set_external_forces(std::size_t n, const double* forces);
+  void set_external_forces_device(std::size_t n, const double* forces);
+  void set_external_force_callback(ExternalForceFn callback, void* user);
+  void clear_external_force();
   // The state now into host arrays (n x dim each; any may be null); a download with cuda.
   void get_state(double* positions, double* velocities, double* forces);
   // Thermodynamics now: a reduction on the device and 8 numbers copied back with cuda (one more
   // force evaluation when the last step did not observe).
   Thermo thermo();
-  // FIRE on the state's positions (velocities are left zero); throws naming the particle with the
+  // FIRE on the state's positions (velocities are left zero; refused while an external force is
+  // set); throws naming the particle with the
   // largest force when it does not converge within max_steps, and then leaves the state as it was.
   // Runs where the state lives: with cuda, kernels on the device, the host reading 56 bytes of
   // sums per FIRE step for its step-size decisions (one synchronisation per step).

@@ -268,6 +268,22 @@ cf_status cf_set_velocities(cf_context* ctx, size_t n, const double* velocities)
   return on(ctx, [&](cellforce::Context& c) { c.set_velocities(n, velocities); });
 }
 
+cf_status cf_set_external_forces(cf_context* ctx, size_t n, const double* forces) {
+  return on(ctx, [&](cellforce::Context& c) { c.set_external_forces(n, forces); });
+}
+
+cf_status cf_set_external_forces_device(cf_context* ctx, size_t n, const double* forces) {
+  return on(ctx, [&](cellforce::Context& c) { c.set_external_forces_device(n, forces); });
+}
+
+cf_status cf_set_external_force_callback(cf_context* ctx, cf_external_force_fn fn, void* user) {
+  return on(ctx, [&](cellforce::Context& c) { c.set_external_force_callback(fn, user); });
+}
+
+cf_status cf_clear_external_force(cf_context* ctx) {
+  return on(ctx, [&](cellforce::Context& c) { c.clear_external_force(); });
+}
+
 cf_status cf_get_state(cf_context* ctx, size_t n, double* positions, double* velocities, double* forces) {
   return on(ctx, [&](cellforce::Context& c) {
     require_particles(c, n, "cf_get_state");

@@ -67,6 +67,20 @@ struct [[gnu::visibility("hidden")]] Context::Impl {
   std::vector<uint32_t> types;
   ReuseOptions md_reuse;                     // what `md` was made with
   ListMemory md_memory = ListMemory::kAuto;  // and the lists' memory mode its skin was resolved for
+  // The external force every evaluation of the MD state's forces adds (set_external_forces and the
+  // others), given to each MD engine made, and the particle count its array holds (0: a callback,
+  // or none).
+  ExternalForce external;
+  std::size_t external_n = 0;
+  // Makes `e` (an array of n particles; n 0: a callback or none) the context's external force and
+  // the state's, whose forces are then evaluated again.
+  void set_external(ExternalForce e, std::size_t n);
+  // Before a state of n particles is set: an external array of another count is refused, naming
+  // `what` (the call).
+  void check_external(std::size_t n, const char* what) const;
+  // An external array of n particles for the state (or, without one, the next set_state), named
+  // by `what` when it cannot be.
+  void check_external_count(std::size_t n, const char* what) const;
   // What Context::text and held_neighbor_state returned last (the caller copies it at once).
   std::string held_text;
   ReuseState held_neighbor;

@@ -90,6 +90,7 @@ void Context::Impl::carry(const Box& b, const ForceField& f, const EngineChoice&
       std::unique_ptr<MdEngine> fresh;
       try {
         fresh = make_md_engine(with_stream(next, true));
+        fresh->set_external_force(external);
         fresh->set_state(state, masses, f);
       } catch (...) {
         fresh.reset();
@@ -151,6 +152,7 @@ void Context::set_state(std::size_t n, const double* positions, const double* ve
   state.time = double(step) * s.integrator.dt;
   std::vector<double> m(masses, masses + n);
   validate_masses(m, n);
+  s.check_external(n, "set_state");
   check_step_arithmetic(s.integrator.dt, m, state.config.types, s.ff);
   const ListMemory memory = md_list_memory(s.choice, n);
   const EngineChoice resolved = s.resolved(s.box, true, memory);
@@ -159,6 +161,7 @@ void Context::set_state(std::size_t n, const double* positions, const double* ve
   if (!s.md) {
     s.md = make_md_engine(s.with_stream(resolved));
     s.md_reuse = resolved.reuse;
+    s.md->set_external_force(s.external);
   }
   s.md_memory = memory;
   try {
@@ -231,6 +234,72 @@ void Context::get_state(double* positions, double* velocities, double* forces) {
   if (forces) std::memcpy(forces, state.forces.data(), count * sizeof(double));
 }
 
+void Context::Impl::check_external(std::size_t n, const char* what) const {
+  if (external_n != 0 && n != external_n)
+    throw Error(std::string(what) + ": " + std::to_string(n) + " particles, but the external force set holds " +
+                std::to_string(external_n) + " (set one for " + std::to_string(n) + ", or clear_external_force)");
+}
+
+void Context::Impl::set_external(ExternalForce e, std::size_t n) {
+  if (md) {
+    md->set_external_force(e);
+    try {
+      md->reevaluate();  // the state's forces with it
+    } catch (...) {
+      md->set_external_force(external);  // the one before, as the state had it
+      throw;
+    }
+  }
+  external = std::move(e);
+  external_n = n;
+}
+
+void Context::Impl::check_external_count(std::size_t n, const char* what) const {
+  if (md && n != masses.size())
+    throw Error(std::string(what) + ": " + std::to_string(n) + " particles given for a state of " +
+                std::to_string(masses.size()));
+  if (n == 0) throw Error(std::string(what) + ": no particles (clear_external_force clears it)");
+}
+
+void Context::set_external_forces(std::size_t n, const double* forces) {
+  Impl& s = self();
+  s.check_external_count(n, "set_external_forces");
+  check_output(forces, "external forces", n);
+  const std::size_t dim = std::size_t(s.dim);
+  ExternalForce e;
+  e.values.assign(forces, forces + n * dim);
+  for (std::size_t k = 0; k < e.values.size(); ++k)
+    if (!std::isfinite(e.values[k]))
+      throw Error("set_external_forces: particle " + std::to_string(k / dim) + " has a non-finite external force (" +
+                  format_number(e.values[k]) + ") along axis " + std::to_string(k % dim));
+  s.set_external(std::move(e), n);
+}
+
+void Context::set_external_forces_device(std::size_t n, const double* forces) {
+  Impl& s = self();
+  s.check_external_count(n, "set_external_forces_device");
+  if (resolve_backend(s.choice.backend) != Backend::kCuda)
+    throw Error("set_external_forces_device: the cpu backend holds the state in host memory; use set_external_forces");
+  if (!forces) throw Error("set_external_forces_device: external forces is a null pointer");
+#ifdef CELLFORCE_HAVE_CUDA
+  if (!cuda_device_pointer(forces))
+    throw Error("set_external_forces_device: external forces is not a device pointer (use set_external_forces "
+                "for a host array)");
+#endif
+  ExternalForce e;
+  e.device = forces;
+  s.set_external(std::move(e), n);
+}
+
+void Context::set_external_force_callback(ExternalForceFn callback, void* user) {
+  ExternalForce e;
+  e.callback = callback;
+  e.user = callback ? user : nullptr;
+  self().set_external(std::move(e), 0);
+}
+
+void Context::clear_external_force() { self().set_external(ExternalForce{}, 0); }
+
 Thermo Context::thermo() {
   Impl& s = self();
   const Observables o = s.get_md().observables();
@@ -259,6 +328,9 @@ MinimizeResult Context::minimize(const MinimizeOptions& options) {
   fire.dt = options.dt;
   fire.dt_max = options.dt_max;
   fire.max_displacement = options.max_displacement;
+  if (self().external.any())
+    throw Error("minimize: an external force is set, and FIRE needs the energy, which it does not give; "
+                "clear_external_force first");
   // In place where the state lives (CUDA: kernels on the device); after a throw the engine holds
   // the state it had, with its forces.
   const FireResult r = self().get_md().minimize(fire);

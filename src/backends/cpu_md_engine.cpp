@@ -146,6 +146,7 @@ class CpuMdEngine final : public MdEngine {
   }
 
   void reevaluate() override { evaluate(true); }
+  void set_external_force(const ExternalForce& external) override { external_ = external; }
   ForceEngine& forces() override { return *forces_; }
   const MdCounters& counters() const override { return counters_; }
   void reset_counters() override { counters_ = MdCounters{}; }
@@ -155,6 +156,7 @@ class CpuMdEngine final : public MdEngine {
     const SystemView view = state_.config.view();
     forces_->evaluate(view, ff_, Request{observe, observe}, result_);
     state_.forces.swap(result_.forces);  // no copy: the engine overwrites the old buffer next time
+    add_external();
     observed_ = observe;
     ++counters_.evaluations;
     const PipelineStats s = forces_->stats(view, ff_, false);
@@ -162,7 +164,17 @@ class CpuMdEngine final : public MdEngine {
     add_reuse(counters_, s);
   }
 
+  void add_external() {
+    std::vector<double>& f = state_.forces;
+    if (!external_.values.empty())
+      for (std::size_t k = 0; k < f.size(); ++k) f[k] += external_.values[k];
+    if (external_.callback)
+      external_.callback(external_.user, state_.step, masses_.size(), state_.config.box.dim,
+                         state_.config.positions.data(), f.data(), nullptr);
+  }
+
   std::unique_ptr<ForceEngine> forces_;
+  ExternalForce external_;
   MdState state_;
   std::vector<double> masses_;
   ForceField ff_;

@@ -128,6 +128,7 @@ std::unique_ptr<ForceEngine> make_cpu_force_engine(const EngineChoice& choice);
 #ifdef CELLFORCE_HAVE_CUDA
 std::unique_ptr<ForceEngine> make_cuda_force_engine(const EngineChoice& choice);
 std::string cuda_unavailable();  // empty when a CUDA device can be used; otherwise why not
+bool cuda_device_pointer(const void* p);  // whether the device can use p (GpuEngine::device_pointer)
 // The lists' memory mode for n particles on `device` (cuda/backend/memory_plan.h lists_memory on
 // its total memory; `asked` where the device cannot be used).
 ListMemory cuda_lists_memory(ListMemory asked, std::size_t n, int device);

@@ -111,6 +111,11 @@ class MdEngine {
   // force engine's structure was restored (restore_reuse), so that the state's forces come from it.
   virtual void reevaluate() = 0;
 
+  // The external force (md/md.h) every later evaluation of the state's forces adds (none: an
+  // empty one); the state's forces now are not changed (reevaluate() does that). The caller has
+  // checked its size against the state's and, on the CPU, that it holds no device array.
+  virtual void set_external_force(const ExternalForce& external) = 0;
+
   // The force engine underneath (description, reuse state for checkpoints, stage statistics).
   virtual ForceEngine& forces() = 0;
 

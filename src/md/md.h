@@ -31,6 +31,22 @@ struct ThermoValues {
 ThermoValues thermo(const MdState& state, const std::vector<double>& masses, const ForceResult& result,
               bool com_conserved = true);
 
+// A force added to every particle's pair force at each evaluation of the MD state's forces (the
+// API's set_external_forces and set_external_force_callback), before anything reads them: one of
+// a host array (n x dim, copied where the state lives), the caller's device array (n x dim, read
+// at each evaluation; CUDA), or a callback that adds its forces itself (positions and forces where
+// the state lives, the state's order; `stream` the engine's cudaStream_t on CUDA, null on the CPU;
+// `step` the step whose positions they are). No energy or virial of its own.
+using ExternalForceCallback = void (*)(void* user, int64_t step, std::size_t n, int dim, const double* positions,
+                                 double* forces, void* stream);
+struct ExternalForce {
+  std::vector<double> values;
+  const double* device = nullptr;
+  ExternalForceCallback callback = nullptr;
+  void* user = nullptr;
+  bool any() const { return !values.empty() || device != nullptr || callback != nullptr; }
+};
+
 struct IntegratorSettings {
   bool langevin = false;
   double dt = 0.005;
