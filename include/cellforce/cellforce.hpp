@@ -403,7 +403,8 @@ class CELLFORCE_API Context {
   //    state lives.
   //  - set_external_forces_device (cuda): the caller's device array, n x dim, read at every
   //    evaluation, kept by the caller (change it between step() calls, which return when the device
-  //    is done).
+  //    is done: the next step's evaluation reads the change; the forces the state holds keep the
+  //    value they were evaluated with).
   //  - set_external_force_callback: `callback(user, step, n, dim, positions, forces, stream)` at
   //    every evaluation, after the pair forces: it adds its forces into `forces` (n x dim, the
   //    state's order) from `positions` (n x dim, wrapped), both where the state lives (device
