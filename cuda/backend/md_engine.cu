@@ -286,7 +286,7 @@ void CudaMdEngine::resume() {
 }
 
 CudaMdEngine::GateChunk CudaMdEngine::gate_chunk(int64_t most) const {
-  if (external_.any()) return {};  // each step's force is added before its kick
+  if (external_.callback) return {};  // the host's function runs after each step's evaluation
   const int64_t allowed = std::min(most, resident_.gate_steps(box_, n_, ff_));
   if (allowed <= 0) return {};
   const int64_t expected = std::clamp<int64_t>(interval_ + 1 - since_build_, 2, kMaxGated);
@@ -313,7 +313,9 @@ CudaMdEngine::Chunk CudaMdEngine::begin_chunk(const IntegratorSettings& settings
   c.box = drift_box(settings.langevin ? 0.5 : 1.0);  // as the ungated steps' drifts
   c.types = ff_.num_types() > 1 ? types_.data() : nullptr;
   // The drifts place the positions; a Verlet chunk's evaluations may run the next step's kick-drift.
-  c.to = resident_.rank_order(box_, n_, positions_.data(), c.types, ff_, !settings.langevin);
+  // An external array is added after each evaluation (no fused kick-drift).
+  const bool fusible = !settings.langevin && !external_.device;
+  c.to = resident_.rank_order(box_, n_, positions_.data(), c.types, ff_, fusible);
   // With the forces in rank order (fast mode), the chunk runs on a rank-order copy of the state.
   c.ranked = c.to.forces != nullptr;
   c.state = cuda::GatedState{positions_.data(), velocities_.data(), resident_.device_forces(),
@@ -332,7 +334,7 @@ CudaMdEngine::Chunk CudaMdEngine::begin_chunk(const IntegratorSettings& settings
   }
   // Verlet on the rank-order copy: every gated evaluation but the chunk's last runs the next
   // step's kick-drift in its force kernel, so only the chunk's first step has a kick-drift kernel.
-  c.fused = c.ranked && !settings.langevin;
+  c.fused = c.ranked && fusible;
   c.then = cuda::NextKickDrift{c.state.x_ranked, c.state.v_ranked, c.state.mass_ranked, c.state.built_ranked,
                                c.to.order, 0.5 * dt, dt, c.box, flags_.data(), c.state.mass_value};
   return c;
@@ -369,11 +371,17 @@ void CudaMdEngine::queue_chunk(Chunk& c, const GateChunk& chunk, int first_kicks
     // that one's time (they run the same kernels on the same list); the untimed ones the gate shut
     // (kernels that return at once) fall in the integration's time.
     const cuda::NextKickDrift* next = c.fused && j + 1 < count ? &c.then : nullptr;
+    auto evaluate_step = [&] {
+      resident_.evaluate_gated(box_, n_, positions_.data(), c.types, ff_, c.view, next);
+      if (external_.device)  // into the evaluation's own array (RankOrder::forces, written by it) or the caller-order one
+        cuda::queue_gated_external(c.view, c.ranked ? const_cast<double*>(c.to.forces) : resident_.device_forces_to_add(),
+                                   external_.device, c.ranked ? c.to.order : nullptr, n_, box_.dim, stream_);
+    };
     if (j == 0) {
       std::size_t slot = timed;  // counted by read_chunk, for every step served
-      timed_evaluation(slot, [&] { resident_.evaluate_gated(box_, n_, positions_.data(), c.types, ff_, c.view, next); });
+      timed_evaluation(slot, evaluate_step);
     } else {
-      resident_.evaluate_gated(box_, n_, positions_.data(), c.types, ff_, c.view, next);
+      evaluate_step();
     }
   }
   c.view.step = first;

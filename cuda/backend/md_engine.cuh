@@ -88,8 +88,9 @@ class CudaMdEngine final : public MdEngine {
   Observables observables() override;
 
   void reevaluate() override;
-  // With an external force the steps are not gated (each step's evaluation, then the force added,
-  // then the kick: gate_chunk() gives none).
+  // An external array is added after each evaluation, a gated one's too (behind the gate, into the
+  // chunk's rank order; such chunks are not fused); with a callback the steps are not gated (the
+  // host's function runs after each step's evaluation: gate_chunk() gives none).
   void set_external_force(const ExternalForce& external) override;
   FireResult minimize(const FireSettings& settings) override;
 

@@ -287,6 +287,33 @@ void with_state_order(StateOrder o, F&& f) {
 
 }  // namespace
 
+namespace {
+
+// The evaluation's gate, as gate_shut reads it (the evaluation's kernel posted the notice), read by
+// one thread of the block.
+__global__ void gated_external_kernel(GateView gate, double* __restrict__ forces, const double* __restrict__ external,
+                                      const uint32_t* __restrict__ order, std::size_t n, int dim) {
+  __shared__ int shut;
+  if (threadIdx.x == 0) {
+    const volatile StepGate* g = gate.gate;
+    shut = g->closed != kGateOpen || g->d2[gate.step % 3] > gate.limit;
+  }
+  __syncthreads();
+  const std::size_t k = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
+  if (shut || k >= n * std::size_t(dim)) return;
+  const std::size_t p = k / std::size_t(dim), axis = k % std::size_t(dim);
+  forces[k] += external[(order ? std::size_t(order[p]) : p) * std::size_t(dim) + axis];
+}
+
+}  // namespace
+
+void queue_gated_external(const GateView& gate, double* forces, const double* external, const uint32_t* order,
+                          std::size_t n, int dim, cudaStream_t stream) {
+  if (n == 0) return;
+  gated_external_kernel<<<blocks_for(n * std::size_t(dim)), kBlock, 0, stream>>>(gate, forces, external, order, n, dim);
+  CF_CUDA_CHECK_LAUNCH();
+}
+
 void queue_gated_step(const GatedStep& g, cudaStream_t stream) {
   const std::size_t n = g.n;
   const unsigned blocks = unsigned((n + kGateParticles - 1) / kGateParticles);

@@ -70,4 +70,10 @@ struct GatedStep {
 // Queues the step's kernels (2 or 3 dimensions: box.dim).
 void queue_gated_step(const GatedStep& step, cudaStream_t stream);
 
+// After the gated evaluation of gate.step, unless the gate shut it: forces += an external force
+// (n x dim, the caller's order), into the evaluation's forces in rank order (`order`: the particle
+// of rank p, RankOrder::order) or, with order null, in the caller's order.
+void queue_gated_external(const GateView& gate, double* forces, const double* external, const uint32_t* order,
+                          std::size_t n, int dim, cudaStream_t stream);
+
 }  // namespace cellforce::cuda

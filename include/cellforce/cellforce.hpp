@@ -396,8 +396,10 @@ class CELLFORCE_API Context {
   // own (thermo() reports the pair potential's). One at a time (setting one replaces the last),
   // kept across set_state and changes of the physics or engine until clear_external_force(); a
   // state's forces are evaluated again when it is set or cleared. minimize() refuses to run while
-  // one is set (its energy is unknown). With cuda, steps with an external force are not served
-  // behind the step gate (each step's forces get it before its kick): fewer steps a second.
+  // one is set (its energy is unknown). With cuda an array is added behind the step gate too (its
+  // chunks then run the kick-drift as a kernel of its own, not in the force kernel), while with a
+  // callback the steps are not served behind the gate (the host calls it each step): fewer steps a
+  // second.
   //  - set_external_forces: a host array, n x dim (n the state's count, or that of the next
   //    set_state), finite (a value that is not is named by particle and axis), copied where the
   //    state lives.

@@ -282,6 +282,13 @@ void time_steps(const TimedRun& run, Context& ctx) {
   const auto t_setup = Clock::now();
   ctx.set_state(n, state.config.positions.data(), state.velocities.data(), state.config.types.data(),
                 run.masses.data());
+  row["external_force"] = args.external_force;
+  if (args.external_force > 0) {
+    const std::size_t dim = std::size_t(state.config.box.dim);
+    std::vector<double> field(n * dim, 0.0);
+    for (std::size_t i = 0; i < n; ++i) field[i * dim] = i % 2 == 0 ? args.external_force : -args.external_force;
+    ctx.set_external_forces(n, field.data());
+  }
   row["backend"] = ctx.backend_name();
   row["description"] = ctx.description();
   row["traversal"] = ctx.traversal();
@@ -314,6 +321,7 @@ void time_embedded(const TimedRun& run, Context& ctx) {
   const MdState& state = run.state;
   const std::size_t n = state.config.size();
   if (args.langevin) throw Error("--embed: the embedding loop is velocity Verlet (NVE); leave out --langevin");
+  if (args.external_force > 0) throw Error("--embed: the embedding loop has no external force; leave out --external-force");
   if (args.order == Numbering::kCells)  // planned for step()'s skin, which the force calls do not use
     throw Error("--embed: --order cells numbers the particles for step()'s neighbour grid; use lattice or shuffled");
   if (ctx.backend_name() != "cuda") throw Error("--embed: needs the cuda backend (compute_device)");

@@ -38,6 +38,8 @@ struct BenchArgs {
                                   // rows then have no NVE drift
   bool embed = false;             // time an embedding code's own Verlet loop around compute_device
                                   // (cli/embed_loop.h; CUDA, NVE) instead of Context::step
+  double external_force = 0;      // > 0: an external force of +-this along x (+ on even particles, - on
+                                  // odd: no net force) set on the state (Context::set_external_forces)
   double seconds = 2.0;           // timed seconds per size (sets the steps after the warm-up)
   int64_t steps = 0;              // > 0: exactly these timed steps instead
   int64_t warmup = 50;            // steps before the timing

@@ -355,6 +355,10 @@ int main(int argc, char** argv) {
   bench_cmd->add_flag("--embed", ba.embed,
                       "Time the loop of a code that embeds cellforce (CUDA): its own velocity Verlet, two kernels "
                       "of its own on its own stream around compute_device on device arrays, instead of step()");
+  cli::add_number(bench_cmd, "--external-force", ba.external_force,
+                  "An external force of this size along x, + on even particles and - on odd (no net force), set "
+                  "on the MD state (set_external_forces): what an external force costs a step",
+                  cli::kPositive);
   bench_cmd->add_flag("--langevin", ba.langevin,
                       "Langevin dynamics (BAOAB, kT 1.44, friction 1) instead of NVE: the same fluid at its "
                       "temperature (no NVE drift)");
