@@ -98,12 +98,14 @@ GpuOptions call_options(Precision p, bool device_decides) {
 
 // One engine's calls over the trajectory, queued back to back (each call's positions and outputs
 // in arrays of their own), then one synchronize(). Calls from `observe` on ask for per-particle
-// energies, the energy and the virial.
+// energies, the energy and the virial. `fixed`: every call reads one positions array and writes
+// one set of outputs, as an embedding code's loop does (each call's positions copied in before it
+// and its outputs copied out after it, on the calls' stream).
 struct Calls {
   std::vector<std::vector<double>> forces, energies, energy, virial;
 };
 Calls run_calls(GpuEngine& engine, const Trajectory& t, int calls, int observe, int squeeze_from = -1,
-                int squeeze_to = -1) {
+                int squeeze_to = -1, bool fixed = false) {
   const std::size_t n = t.n(), nd = 3 * n;
   uint32_t* types = device_array<uint32_t>(n);
   EXPECT_EQ(cudaMemcpy(types, t.start.types.data(), n * sizeof(uint32_t), cudaMemcpyHostToDevice), cudaSuccess);
@@ -117,14 +119,34 @@ Calls run_calls(GpuEngine& engine, const Trajectory& t, int calls, int observe, 
     const std::vector<double> p = t.at(k, squeeze_from, squeeze_to);
     EXPECT_EQ(cudaMemcpy(pos[k], p.data(), nd * sizeof(double), cudaMemcpyHostToDevice), cudaSuccess);
   }
+  double* one_pos = device_array<double>(nd);
+  double* one_f = device_array<double>(nd);
+  double* one_e = device_array<double>(n);
+  double* one_u = device_array<double>(1);
+  double* one_w = device_array<double>(9);
   EXPECT_EQ(cudaDeviceSynchronize(), cudaSuccess);
   for (int k = 0; k < calls; ++k) {
     const bool obs = k >= observe;
-    engine.evaluate_device(cellforce::DeviceInput{t.start.box, n, pos[k], cellforce::Scalar::kFloat64, 0, types},
+    if (!fixed) {
+      engine.evaluate_device(cellforce::DeviceInput{t.start.box, n, pos[k], cellforce::Scalar::kFloat64, 0, types},
+                             t.scene.force_field,
+                             cellforce::DeviceOutputs{f[k], obs ? e[k] : nullptr, obs ? u[k] : nullptr,
+                                                      obs ? w[k] : nullptr},
+                             nullptr);
+      continue;
+    }
+    EXPECT_EQ(cudaMemcpyAsync(one_pos, pos[k], nd * sizeof(double), cudaMemcpyDeviceToDevice, nullptr), cudaSuccess);
+    engine.evaluate_device(cellforce::DeviceInput{t.start.box, n, one_pos, cellforce::Scalar::kFloat64, 0, types},
                            t.scene.force_field,
-                           cellforce::DeviceOutputs{f[k], obs ? e[k] : nullptr, obs ? u[k] : nullptr,
-                                                    obs ? w[k] : nullptr},
+                           cellforce::DeviceOutputs{one_f, obs ? one_e : nullptr, obs ? one_u : nullptr,
+                                                    obs ? one_w : nullptr},
                            nullptr);
+    const std::pair<double*, double*> out[] = {{f[k], one_f}, {e[k], one_e}, {u[k], one_u}, {w[k], one_w}};
+    const std::size_t sizes[] = {nd, n, 1, 9};
+    for (int a = 0; a < (obs ? 4 : 1); ++a)
+      EXPECT_EQ(cudaMemcpyAsync(out[a].first, out[a].second, sizes[a] * sizeof(double), cudaMemcpyDeviceToDevice,
+                                nullptr),
+                cudaSuccess);
   }
   engine.synchronize(t.scene.force_field);
   Calls out;
@@ -136,6 +158,7 @@ Calls run_calls(GpuEngine& engine, const Trajectory& t, int calls, int observe, 
     out.virial.push_back(obs ? to_host(w[k], 9) : std::vector<double>{});
     for (double* p : {pos[k], f[k], e[k], u[k], w[k]}) cudaFree(p);
   }
+  for (double* p : {one_pos, one_f, one_e, one_u, one_w}) cudaFree(p);
   cudaFree(types);
   return out;
 }
@@ -172,6 +195,28 @@ TEST_P(DeviceCalls, DecidedCallsAreTheHostDecidedCalls) {
   std::printf("device-decided calls (%s): %zu of %d, builds %zu (%zu decided by the device), graphs %zu\n",
               cellforce::to_string(GetParam()), device.device_calls(), calls, device.stats().builds,
               device.device_builds(), device.call_captures());
+}
+
+// The same calls as an embedding code's loop makes them, one positions array and one set of outputs
+// for all (the graph then holds the input pass, its last block deciding, and writes the outputs):
+// bitwise the host-decided calls, and a few graphs (forces, then observables; a list array that
+// grew), not one a call.
+TEST_P(DeviceCalls, DecidedCallsOnFixedArraysAreTheHostDecidedCalls) {
+  const Trajectory t;
+  const int calls = 48, observe = 24;
+  GpuEngine device(call_options(GetParam(), true)), host(call_options(GetParam(), false));
+  const Calls x = run_calls(device, t, calls, observe, -1, -1, true), y = run_calls(host, t, calls, observe);
+  for (int k = 0; k < calls; ++k) {
+    SCOPED_TRACE("call " + std::to_string(k));
+    EXPECT_TRUE(x.forces[k] == y.forces[k]);
+    EXPECT_TRUE(x.energies[k] == y.energies[k]);
+    EXPECT_TRUE(x.energy[k] == y.energy[k]);
+    EXPECT_TRUE(x.virial[k] == y.virial[k]);
+  }
+  EXPECT_EQ(device.stats().builds, host.stats().builds);
+  EXPECT_GE(device.device_builds(), 3u) << "the device decided too few of the builds";
+  EXPECT_GE(device.device_calls(), std::size_t(calls) - 12) << "the device's graph served too few calls";
+  EXPECT_LE(device.call_captures(), 4u);  // a grown list array makes another key
 }
 
 // The fluid squeezed at calls 16 to 21 (a list ~3x longer than its array): the device's build at

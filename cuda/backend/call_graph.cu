@@ -16,14 +16,40 @@ struct Axes {
   double inv_length[kMaxDim] = {0, 0, 0};
 };
 
+// The call's decision, as ReusePolicy::decide with the check on: rebuild where the largest squared
+// displacement exceeds (skin / 2)^2 (a NaN does not: the input check names the coordinate). The
+// route (call_graph.cuh): 1 a rebuild, else 2 where the structure's list fits (no body: the list's
+// kernels beside the switch run, not_listed 0), 0 where the cells serve it. One thread.
+__device__ void decide_call(CallState* state, double limit2, cudaGraphConditionalHandle route) {
+  const unsigned long long bits = *static_cast<volatile unsigned long long*>(&state->d2);
+  const bool again = __longlong_as_double(static_cast<long long>(bits)) > limit2 || state->force != 0;
+  state->force = 0;
+  state->last_d2 = bits;
+  state->d2 = 0;
+  ++state->calls;
+  state->rebuilt = again;
+  if (again) {
+    ++state->builds;
+    state->served = 1;
+  } else {
+    ++state->served;
+  }
+  const unsigned r = again ? 1u : state->overflow ? 0u : 2u;
+  state->not_listed = r != 2u;
+  cudaGraphSetConditional(route, r);
+}
+
 // One thread a particle: the row converted and stored, checked, and its squared displacement; then
 // the block's largest (its bits: non-negative doubles order as their bits do; a NaN counts as the
-// largest and compares false with the limit, as the host's check) by one atomicMax.
-template <int D, class T>
+// largest and compares false with the limit, as the host's check) by one atomicMax. Decide: the
+// block that finishes last then decides (decide_call), the others' maxima visible to it by their
+// fences before they count themselves done.
+template <int D, class T, bool Decide>
 __global__ void take_input_kernel(const T* __restrict__ in, std::size_t stride, const uint32_t* __restrict__ in_types,
                                   std::size_t n, Axes axes, uint32_t num_types, double* __restrict__ positions,
                                   uint32_t* __restrict__ types, const double* __restrict__ then,
-                                  DeviceFlags* flags, CallState* state) {
+                                  DeviceFlags* flags, CallState* state, double limit2,
+                                  cudaGraphConditionalHandle route) {
   const std::size_t i = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
   double d2 = 0;
   if (i < n) {
@@ -55,27 +81,19 @@ __global__ void take_input_kernel(const T* __restrict__ in, std::size_t stride, 
     for (int w = 1; w < kBlock / 32; ++w)
       if (__double_as_longlong(warps[w]) > __double_as_longlong(d2)) d2 = warps[w];
     if (d2 > 0 || d2 != d2) atomicMax(&state->d2, static_cast<unsigned long long>(__double_as_longlong(d2)));
+    if constexpr (Decide) {
+      __threadfence();
+      if (atomicAdd(&state->blocks_done, 1ull) == gridDim.x - 1) {
+        __threadfence();
+        state->blocks_done = 0;
+        decide_call(state, limit2, route);
+      }
+    }
   }
 }
 
-// The call's decision, as ReusePolicy::decide with the check on: rebuild where the largest squared
-// displacement exceeds (skin / 2)^2 (a NaN does not: the input check names the coordinate).
-__global__ void decide_kernel(CallState* state, double limit2, cudaGraphConditionalHandle rebuild) {
-  if (threadIdx.x != 0) return;
-  const unsigned long long bits = state->d2;
-  const bool again = __longlong_as_double(static_cast<long long>(bits)) > limit2 || state->force != 0;
-  state->force = 0;
-  state->last_d2 = bits;
-  state->d2 = 0;
-  ++state->calls;
-  state->rebuilt = again;
-  if (again) {
-    ++state->builds;
-    state->served = 1;
-  } else {
-    ++state->served;
-  }
-  cudaGraphSetConditional(rebuild, again ? 1u : 0u);
+__global__ void decide_kernel(CallState* state, double limit2, cudaGraphConditionalHandle route) {
+  if (threadIdx.x == 0) decide_call(state, limit2, route);
 }
 
 __global__ void select_kernel(const CallState* state, cudaGraphConditionalHandle lists) {
@@ -87,14 +105,18 @@ __global__ void reset_kernel(CallState* state, unsigned long long served, unsign
   state->d2 = 0;
   state->served = served;
   state->overflow = overflow;
+  state->blocks_done = 0;
 }
 
 }  // namespace
 
-void take_call_input(const void* in, Scalar scalar, std::size_t stride, const uint32_t* in_types, std::size_t n,
-                     const Box& box, uint32_t num_types, double* positions, uint32_t* types, const double* then,
-                     DeviceFlags* flags, CallState* state, cudaStream_t stream) {
-  if (n == 0) return;
+namespace {
+
+template <bool Decide>
+void queue_input(const void* in, Scalar scalar, std::size_t stride, const uint32_t* in_types, std::size_t n,
+                 const Box& box, uint32_t num_types, double* positions, uint32_t* types, const double* then,
+                 DeviceFlags* flags, CallState* state, double limit2, cudaGraphConditionalHandle route,
+                 cudaStream_t stream) {
   Axes axes;
   for (int a = 0; a < box.dim; ++a) {
     axes.length[a] = box.length[a];
@@ -103,8 +125,9 @@ void take_call_input(const void* in, Scalar scalar, std::size_t stride, const ui
   const unsigned blocks = unsigned((n + kBlock - 1) / kBlock);
   auto go = [&](auto d, auto real) {
     using T = decltype(real);
-    take_input_kernel<decltype(d)::value, T><<<blocks, kBlock, 0, stream>>>(
-        static_cast<const T*>(in), stride, in_types, n, axes, num_types, positions, types, then, flags, state);
+    take_input_kernel<decltype(d)::value, T, Decide><<<blocks, kBlock, 0, stream>>>(
+        static_cast<const T*>(in), stride, in_types, n, axes, num_types, positions, types, then, flags, state, limit2,
+        route);
   };
   const bool single = scalar == Scalar::kFloat32;
   if (box.dim == 2) {
@@ -115,6 +138,25 @@ void take_call_input(const void* in, Scalar scalar, std::size_t stride, const ui
     else go(std::integral_constant<int, 3>{}, double{});
   }
   CF_CUDA_CHECK_LAUNCH();
+}
+
+}  // namespace
+
+void take_call_input(const void* in, Scalar scalar, std::size_t stride, const uint32_t* in_types, std::size_t n,
+                     const Box& box, uint32_t num_types, double* positions, uint32_t* types, const double* then,
+                     DeviceFlags* flags, CallState* state, cudaStream_t stream) {
+  if (n == 0) return;
+  queue_input<false>(in, scalar, stride, in_types, n, box, num_types, positions, types, then, flags, state, 0.0, 0,
+                     stream);
+}
+
+void take_call_input_and_decide(const void* in, Scalar scalar, std::size_t stride, const uint32_t* in_types,
+                                std::size_t n, const Box& box, uint32_t num_types, double* positions, uint32_t* types,
+                                const double* then, DeviceFlags* flags, CallState* state, double limit2,
+                                cudaGraphConditionalHandle route, cudaStream_t stream) {
+  if (n == 0) throw Error("internal error: a decided call's input pass without particles");
+  queue_input<true>(in, scalar, stride, in_types, n, box, num_types, positions, types, then, flags, state, limit2,
+                    route, stream);
 }
 
 void reset_call_state(CallState* state, int64_t served, bool overflow, cudaStream_t stream) {
@@ -131,8 +173,8 @@ void request_build(CallState* state, cudaStream_t stream) {
   CF_CUDA_CHECK_LAUNCH();
 }
 
-void queue_decide(CallState* state, double limit2, cudaGraphConditionalHandle rebuild, cudaStream_t stream) {
-  decide_kernel<<<1, 32, 0, stream>>>(state, limit2, rebuild);
+void queue_decide(CallState* state, double limit2, cudaGraphConditionalHandle route, cudaStream_t stream) {
+  decide_kernel<<<1, 32, 0, stream>>>(state, limit2, route);
   CF_CUDA_CHECK_LAUNCH();
 }
 

@@ -2,15 +2,26 @@
 // lists, backend/device_calls.cu): one CUDA graph a call, so that the host never waits for the
 // displacement or for the list's sizes.
 //
-//   decide ──> IF rebuild { the whole build: stages 1-3, the list's count pass, lengths, layout,
-//                           the sizes' post and the early fill into the list's array }
-//          ──> select ──> IF the list fits { the list force kernel } ELSE { the cells' traversal }
+//   input + decide ──┬──> the list's gather and force kernel (return at once unless the route is theirs)
+//                    └──> SWITCH route {
+//                           0: the cells' traversal (the structure kept, its list did not fit)
+//                           1: the whole build (stages 1-3, the list's count pass, lengths, layout,
+//                              the sizes' post and the early fill into the list's array)
+//                              ──> select ──> IF the list fits { the list force kernel } ELSE { the cells' }
+//                           2 (the kept structure's list: the most calls): nothing
+//                         }
 //
-// `decide` compares the call's largest squared displacement since the build (take_call_input,
-// queued before the graph) with (skin / 2)^2, as the host's ReusePolicy does, and sets the first
-// condition (or rebuilds where the host asked it to: `force`); `select` reads whether the last
-// build's list fitted its array (the early fill's guard wrote nothing where it did not; a list the
-// host would decline as crowded counts as not fitting) and sets the second. So the device rebuilds
+// The input pass (take_call_input: the caller's arrays copied and checked, the largest squared
+// displacement since the build) is the graph's first node, its last block deciding
+// (take_call_input_and_decide); a caller that changes its input arrays from call to call gets it
+// queued before the graph instead, and a kernel of its own decides. The decision compares that
+// displacement with (skin / 2)^2, as the host's ReusePolicy does, and picks the route
+// (a rebuild also where the host asked for one: `force`); after a build `select` reads whether its
+// list fitted its array (the early fill's guard wrote nothing where it did not; a list the host
+// would decline as crowded counts as not fitting). A conditional node costs the device some 10 us
+// before its body's first kernel (performance.md), so the most common route, the list the
+// structure kept, is no body: its kernels run beside the switch, and return at once where the
+// route is another (CallState::not_listed, ListArgs::skip). So the device rebuilds
 // on exactly the calls the host-decided path would, with the same list, and the results are
 // bitwise that path's until a list outgrows its array: the cells serve that call, exact; the host
 // grows the array when it reads the posted sizes and asks for a build at the next call, from where
@@ -51,6 +62,8 @@ struct CallState {
   unsigned long long overflow;  // 1: the list of the structure in use did not fit its array
   unsigned long long overflows; // builds whose list did not fit (PairList::overflow: the two words)
   unsigned long long force;     // 1: the next decided call rebuilds (the list's array grew after one)
+  unsigned long long blocks_done;  // the input pass's blocks done, where its last one decides (0 between calls)
+  unsigned long long not_listed;   // 1: this call takes another route than the kept list (its kernels return)
 };
 
 struct DeviceFlags;
@@ -67,7 +80,13 @@ void take_call_input(const void* in, Scalar scalar, std::size_t stride, const ui
 // fits (overflow false) or the cells serve it.
 void reset_call_state(CallState* state, int64_t served, bool overflow, cudaStream_t stream);
 void request_build(CallState* state, cudaStream_t stream);
-void queue_decide(CallState* state, double limit2, cudaGraphConditionalHandle rebuild, cudaStream_t stream);
+void queue_decide(CallState* state, double limit2, cudaGraphConditionalHandle route, cudaStream_t stream);
+// take_call_input whose last block then decides as queue_decide's kernel does (one launch: the
+// graph's first node where the caller's input arrays are part of its key). n > 0.
+void take_call_input_and_decide(const void* in, Scalar scalar, std::size_t stride, const uint32_t* in_types,
+                                std::size_t n, const Box& box, uint32_t num_types, double* positions, uint32_t* types,
+                                const double* then, DeviceFlags* flags, CallState* state, double limit2,
+                                cudaGraphConditionalHandle route, cudaStream_t stream);
 void queue_select(const CallState* state, cudaGraphConditionalHandle lists, cudaStream_t stream);
 
 // The graphs of the last few keys (a caller that asks for energies every so often, or writes the
@@ -93,10 +112,11 @@ class CallGraph {
       }
     return nullptr;
   }
-  // Whether a graph is kept whose key differs from `key` in its first `prefix` words only.
-  bool kept_but_prefix(const Key& key, std::size_t prefix) const {
+  // Whether a graph is kept whose key differs from `key` in words [first, last) only.
+  bool kept_differing_in(const Key& key, std::size_t first, std::size_t last) const {
     for (const Entry& e : kept_)
-      if (e.key.size() == key.size() && std::equal(key.begin() + prefix, key.end(), e.key.begin() + prefix))
+      if (e.key.size() == key.size() && std::equal(key.begin(), key.begin() + first, e.key.begin()) &&
+          std::equal(key.begin() + last, key.end(), e.key.begin() + last))
         return true;
     return false;
   }
@@ -110,8 +130,10 @@ class CallGraph {
   std::size_t captures() const { return captures_; }
 
   // Captures the graph above: decide(handle) and select(handle) queue the kernels that set the
-  // conditions; build(), lists() and cells() queue the bodies. On an exception the graph is not
-  // kept and `key` is refused. The least recently used graph gives way past kKept.
+  // conditions (the route 0, 1 or 2; the list's fit 1 or 0); build(), lists(kept) and cells() queue
+  // the bodies (lists(true): the kept list's path beside the switch, its kernels skipped on another
+  // route; lists and cells each captured twice). On an exception the graph is not kept and `key` is
+  // refused. The least recently used graph gives way past kKept.
   template <class Decide, class Build, class Select, class Lists, class Cells>
   cudaGraphExec_t make(Key key, cudaStream_t stream, Decide&& decide, Build&& build, Select&& select, Lists&& lists,
                        Cells&& cells) {
@@ -120,17 +142,21 @@ class CallGraph {
     CF_CUDA_CHECK(cudaGraphCreate(&top, 0));
     try {
       FrozenBuffers frozen;
-      cudaGraphConditionalHandle rebuild = 0, listed = 0;
-      CF_CUDA_CHECK(cudaGraphConditionalHandleCreate(&rebuild, top, 0, 0));
+      // Both handles are the top graph's (a handle may serve a conditional node in a child graph).
+      cudaGraphConditionalHandle route = 0, listed = 0;
+      CF_CUDA_CHECK(cudaGraphConditionalHandleCreate(&route, top, 0, 0));
       CF_CUDA_CHECK(cudaGraphConditionalHandleCreate(&listed, top, 0, 0));
-      const std::vector<cudaGraphNode_t> decided = capture(top, {}, stream, [&] { decide(rebuild); });
-      cudaGraph_t body[2] = {};
-      const cudaGraphNode_t built = add_if(top, decided, rebuild, 1, body);
-      capture(body[0], {}, stream, build);
-      const std::vector<cudaGraphNode_t> selected = capture(top, {built}, stream, [&] { select(listed); });
-      add_if(top, selected, listed, 2, body);
-      capture(body[0], {}, stream, lists);
-      capture(body[1], {}, stream, cells);
+      const std::vector<cudaGraphNode_t> decided = capture(top, {}, stream, [&] { decide(route); });
+      capture(top, decided, stream, [&] { lists(true); });
+      cudaGraph_t routes[2] = {};
+      add_conditional(top, decided, route, cudaGraphCondTypeSwitch, 2, routes);
+      capture(routes[0], {}, stream, cells);
+      const std::vector<cudaGraphNode_t> built = capture(routes[1], {}, stream, build);
+      const std::vector<cudaGraphNode_t> selected = capture(routes[1], built, stream, [&] { select(listed); });
+      cudaGraph_t fits[2] = {};
+      add_conditional(routes[1], selected, listed, cudaGraphCondTypeIf, 2, fits);
+      capture(fits[0], {}, stream, [&] { lists(false); });
+      capture(fits[1], {}, stream, cells);
       CF_CUDA_CHECK(cudaGraphInstantiate(&exec, top, 0));
     } catch (...) {
       if (exec) cudaGraphExecDestroy(exec);
@@ -181,13 +207,15 @@ class CallGraph {
     return leaves;
   }
 
-  // An IF node (size 2: IF/ELSE) after `after`; its bodies into body[0] (and body[1]).
-  static cudaGraphNode_t add_if(cudaGraph_t graph, const std::vector<cudaGraphNode_t>& after,
-                                cudaGraphConditionalHandle handle, unsigned size, cudaGraph_t* body) {
+  // A conditional node of `type` after `after` (IF of size 2: IF/ELSE; SWITCH: `size` bodies); its
+  // bodies into body[0 .. size - 1].
+  static cudaGraphNode_t add_conditional(cudaGraph_t graph, const std::vector<cudaGraphNode_t>& after,
+                                         cudaGraphConditionalHandle handle, cudaGraphConditionalNodeType type,
+                                         unsigned size, cudaGraph_t* body) {
     cudaGraphNodeParams params{};
     params.type = cudaGraphNodeTypeConditional;
     params.conditional.handle = handle;
-    params.conditional.type = cudaGraphCondTypeIf;
+    params.conditional.type = type;
     params.conditional.size = size;
     cudaGraphNode_t node = nullptr;
     CF_CUDA_CHECK(

@@ -45,7 +45,8 @@ void GpuEngine::wait_decided_calls() {
   if (s.decided_pending) CF_CUDA_CHECK(cudaStreamWaitEvent(s.stream, s.finished, 0));
 }
 
-bool GpuEngine::ready_device_call(const SystemView& system, const ForceField& ff, const Request& request,
+bool GpuEngine::ready_device_call(const DeviceInput& input, const SystemView& system, const ForceField& ff,
+                                  const Request& request,
                                   const DeviceOutputs& out, bool typed) {
   Impl& s = *impl_;
   settle_device_calls(false);  // the sizes the device's builds posted (the engine's stream already
@@ -83,24 +84,42 @@ bool GpuEngine::ready_device_call(const SystemView& system, const ForceField& ff
     s.upload_table<Real>(ff);
     s.reserve_cells<Real, Accum>(options_, g, n, request);  // the graph's ELSE body
     DeviceOutputs into = s.direct_outputs ? out : DeviceOutputs{};
-    cuda::CallGraph::Key key = s.call_key(options_, g, ff, n, request, into);
+    const DeviceInput* inside = s.input_in_graph ? &input : nullptr;
+    cuda::CallGraph::Key key = s.call_key(options_, g, ff, n, request, into, inside);
     if (key != s.last_call_key) {  // room may have been taken for it, on the engine's stream
       s.engine_dirty = true;
       s.last_call_key = key;
     }
+    s.call_input_inside = inside != nullptr;
     s.call_exec = s.call_graph.find(key);
     if (s.call_exec) return true;
-    if (s.direct_outputs && s.call_graph.kept_but_prefix(key, 2) && ++s.output_changes > 2) {
+    // A kept graph for other arrays (outputs, input or both): a caller that changes them every call
+    // would get a graph each call, so after a few changes the engine's own arrays serve instead.
+    constexpr std::size_t kIn = Impl::kCallKeyInput, kInEnd = Impl::kCallKeyInputEnd;
+    const bool outputs_only = s.call_graph.kept_differing_in(key, 0, kIn);
+    const bool input_only = s.call_graph.kept_differing_in(key, kIn, kInEnd);
+    const bool either = s.call_graph.kept_differing_in(key, 0, kInEnd);
+    bool changed = false;
+    if (s.direct_outputs && (outputs_only || (either && !input_only)) && ++s.output_changes > 2) {
       s.direct_outputs = false;  // from now on the engine's arrays, copied out
       into = DeviceOutputs{};
-      key = s.call_key(options_, g, ff, n, request, into);
+      changed = true;
+    }
+    if (s.input_in_graph && (input_only || (either && !outputs_only)) && ++s.input_changes > 2) {
+      s.input_in_graph = false;  // from now on the input pass before the graph
+      inside = nullptr;
+      s.call_input_inside = false;
+      changed = true;
+    }
+    if (changed) {
+      key = s.call_key(options_, g, ff, n, request, into, inside);
       s.call_exec = s.call_graph.find(key);
       if (s.call_exec) return true;
     }
     if (s.call_graph.refused(key)) return false;
     try {
-      s.call_exec =
-          s.make_call_graph<Real, Accum>(options_, stats_, system, ff, request, reuse_.limit2(), into, std::move(key));
+      s.call_exec = s.make_call_graph<Real, Accum>(options_, stats_, system, ff, request, reuse_.limit2(), into, inside,
+                                                    std::move(key));
     } catch (const Error&) {  // a buffer would have grown: the host's path serves until the key changes
       return false;
     }
@@ -138,10 +157,11 @@ void GpuEngine::queue_device_call(const DeviceInput& input, const ForceField& ff
     cuda::reset_call_state(s.call_state.data(), reuse_.served(), !s.list_usable, caller);
     s.call_state_stale = false;
   }
-  cuda::take_call_input(input.positions, input.scalar, input.stride == 0 ? dim : input.stride, input.types, n,
-                        input.box, uint32_t(ff.num_types()), s.positions.data(),
-                        input.types ? s.types.data() : nullptr, s.build_positions.data(), s.flags.data(),
-                        s.call_state.data(), caller);
+  if (!s.call_input_inside)  // else the graph's first node
+    cuda::take_call_input(input.positions, input.scalar, input.stride == 0 ? dim : input.stride, input.types, n,
+                          input.box, uint32_t(ff.num_types()), s.positions.data(),
+                          input.types ? s.types.data() : nullptr, s.build_positions.data(), s.flags.data(),
+                          s.call_state.data(), caller);
   const Request request{out.energies || out.energy, out.virial != nullptr};
   if (!s.call_exec) throw Error("internal error: a decided call without its graph");
   s.call_graph.launch(s.call_exec, caller);
@@ -213,10 +233,15 @@ std::size_t GpuEngine::device_builds() const { return std::size_t(impl_->device_
 std::size_t GpuEngine::list_overflows() const { return impl_->list_overflows; }
 
 cuda::CallGraph::Key GpuEngine::Impl::call_key(const GpuOptions& o, const Grid& g, const ForceField& ff, std::size_t n,
-                                               const Request& req, const DeviceOutputs& out) {
+                                               const Request& req, const DeviceOutputs& out, const DeviceInput* input) {
   cuda::CallGraph::Key key;
   cuda::add_to_key(key, out.forces);  // the evaluations write the caller's arrays
   cuda::add_to_key(key, out.energies);
+  // Words kCallKeyInput .. kCallKeyInputEnd - 1: the input pass reads the caller's arrays (or none).
+  cuda::add_to_key(key, input ? input->positions : nullptr);
+  cuda::add_to_key(key, input ? input->types : nullptr);
+  cuda::add_to_key(key, input ? input->stride : std::size_t(0));
+  cuda::add_to_key(key, input ? int(input->scalar) + 1 : 0);
   for_each_buffer([&](const char*, auto& buffer) {
     cuda::add_to_key(key, buffer.data());
     cuda::add_to_key(key, buffer.capacity());
@@ -250,7 +275,7 @@ cuda::CallGraph::Key GpuEngine::Impl::call_key(const GpuOptions& o, const Grid& 
 template <class Real, class Accum>
 cudaGraphExec_t GpuEngine::Impl::make_call_graph(const GpuOptions& o, const PipelineStats& st, const SystemView& sys,
                                       const ForceField& ff, const Request& req, double limit2,
-                                      const DeviceOutputs& out, cuda::CallGraph::Key key) {
+                                      const DeviceOutputs& out, const DeviceInput* input, cuda::CallGraph::Key key) {
   // The capture queues nothing that runs now: what the captured code writes on the host is put back.
   struct Restore {
     Impl& s;
@@ -268,6 +293,7 @@ cudaGraphExec_t GpuEngine::Impl::make_call_graph(const GpuOptions& o, const Pipe
       s.list.device_tag = nullptr;
       s.list.overflow = nullptr;
       s.forces_out = s.energies_out = nullptr;
+      s.list_skip = nullptr;
     }
   } restore{*this, builds, list_built_for, list.width, list.pairs, list.slots, list_usable, timing};
   timing = false;      // no event nodes in a conditional body
@@ -279,17 +305,27 @@ cudaGraphExec_t GpuEngine::Impl::make_call_graph(const GpuOptions& o, const Pipe
   energies_out = out.energies;
   PipelineStats scratch = st;
   const Grid g = st.grid;
+  auto decide = [&](cudaGraphConditionalHandle h) {
+    if (!input) return cuda::queue_decide(state, limit2, h, stream);
+    const std::size_t dim = std::size_t(sys.box.dim);
+    cuda::take_call_input_and_decide(input->positions, input->scalar, input->stride == 0 ? dim : input->stride,
+                                     input->types, sys.n, sys.box, uint32_t(ff.num_types()), positions.data(),
+                                     input->types ? types.data() : nullptr, build_positions.data(), flags.data(), state,
+                                     limit2, h, stream);
+  };
   return call_graph.make(
-      std::move(key), stream, [&](cudaGraphConditionalHandle h) { cuda::queue_decide(state, limit2, h, stream); },
+      std::move(key), stream, decide,
       [&] {
         build(o, scratch, sys, ff, true);
         build_list<Real, Accum>(o, scratch.grid, sys, ff);
       },
       [&](cudaGraphConditionalHandle h) { cuda::queue_select(state, h, stream); },
-      [&] {
+      [&](bool kept) {
         list_usable = true;
         list_built_for = builds;
+        list_skip = kept ? &state->not_listed : nullptr;
         evaluate_lists<Real, Accum>(g, sys, ff, req);
+        list_skip = nullptr;
       },
       [&] { evaluate_cells<Real, Accum>(o, g, sys, ff, req); });
 }
@@ -297,7 +333,8 @@ cudaGraphExec_t GpuEngine::Impl::make_call_graph(const GpuOptions& o, const Pipe
 #define CF_CALL_GRAPH(Real, Accum)                                                                              \
   template cudaGraphExec_t GpuEngine::Impl::make_call_graph<Real, Accum>(const GpuOptions&, const PipelineStats&,          \
                                                               const SystemView&, const ForceField&, const Request&, \
-                                                              double, const DeviceOutputs&, cuda::CallGraph::Key);
+                                                              double, const DeviceOutputs&, const DeviceInput*, \
+                                                              cuda::CallGraph::Key);
 CF_CALL_GRAPH(float, float)
 CF_CALL_GRAPH(float, double)
 CF_CALL_GRAPH(double, double)

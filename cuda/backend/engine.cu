@@ -258,7 +258,7 @@ void GpuEngine::evaluate_device(const DeviceInput& input, const ForceField& ff, 
   // A call the device decides runs on the caller's stream (backend/device_calls.cu): its input
   // pass copies and checks the arrays and measures the displacement, its graph writes the caller's
   // outputs.
-  if (decided && ready_device_call(system, ff, request, out, input.types != nullptr)) {
+  if (decided && ready_device_call(input, system, ff, request, out, input.types != nullptr)) {
     queue_device_call(input, ff, out, stream);
     return;
   }

@@ -212,7 +212,7 @@ class GpuEngine final : public cuda::ResidentForces {
   // call graph (false: the host's own path serves it), and reading what the device did: the
   // posted sizes of its builds without waiting, and with `wait` its state too.
   bool device_decides(const SystemView& system, const ForceField& ff) const;
-  bool ready_device_call(const SystemView& system, const ForceField& ff, const Request& request,
+  bool ready_device_call(const DeviceInput& input, const SystemView& system, const ForceField& ff, const Request& request,
                          const DeviceOutputs& out, bool typed);
   void queue_device_call(const DeviceInput& input, const ForceField& ff, const DeviceOutputs& out, void* stream);
   void wait_decided_calls();

@@ -104,11 +104,20 @@ struct GpuEngine::Impl {
   // per-particle energies into (null: the engine's own, copied out after).
   double* forces_out = nullptr;
   double* energies_out = nullptr;
+  // While a call graph's unconditional list path is captured: the device word that makes its
+  // kernels return at once (ListArgs::skip; null elsewhere).
+  const unsigned long long* list_skip = nullptr;
   // Whether the graphs write the caller's output arrays (the first two words of their keys): not
   // once a caller has changed them for the same graph more than twice (arrays by turns or a new one
   // each call: a graph each would be made every call); the engine's arrays are then copied out.
   bool direct_outputs = true;
   int output_changes = 0;
+  // Whether the graphs hold the call's input pass (the caller's input arrays, words 2-5 of their
+  // keys): not once a caller has changed them for the same graph more than twice (the pass is then
+  // queued before the graph); and whether the graph ready_device_call found holds it.
+  bool input_in_graph = true;
+  int input_changes = 0;
+  bool call_input_inside = false;
   // Whether the engine's stream holds work a decided call must follow (flags reset, room taken, a
   // host path's call): the caller's stream then waits for it; the key of the last decided call
   // (another key may have taken room).
@@ -327,11 +336,14 @@ struct GpuEngine::Impl {
 
   // The call graph of the structure in use (backend/device_calls.cu) and its key: every buffer's
   // address and capacity and what else shapes its operations.
+  // `input`: the call's input pass is the graph's first node (null: queued before it).
   template <class Real, class Accum>
   cudaGraphExec_t make_call_graph(const GpuOptions& o, const PipelineStats& st, const SystemView& sys, const ForceField& ff,
-                       const Request& req, double limit2, const DeviceOutputs& out, cuda::CallGraph::Key key);
+                       const Request& req, double limit2, const DeviceOutputs& out, const DeviceInput* input,
+                       cuda::CallGraph::Key key);
+  static constexpr std::size_t kCallKeyInput = 2, kCallKeyInputEnd = 6;  // the input's words
   cuda::CallGraph::Key call_key(const GpuOptions& o, const Grid& g, const ForceField& ff, std::size_t n,
-                                const Request& req, const DeviceOutputs& out);
+                                const Request& req, const DeviceOutputs& out, const DeviceInput* input);
 
   // Returns whether the pair lists served (else the cells did).
   template <class Real, class Accum>

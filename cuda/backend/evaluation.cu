@@ -29,6 +29,7 @@ cuda::ListArgs<Real, Accum> GpuEngine::Impl::list_args(const Grid& g, const Syst
   la.forces = forces_out ? forces_out : forces.data();
   la.energies = req.energy ? (energies_out ? energies_out : energies.data()) : nullptr;
   la.flags = flags.data();
+  la.skip = list_skip;
   return la;
 }
 
@@ -83,7 +84,7 @@ bool GpuEngine::Impl::evaluate_lists(const Grid& g, const SystemView& sys, const
   record(kTraversed);
   if (observables) {
     totals.reserve(cuda::kCellSums);
-    cuda::sum_cells<Accum>(as<Accum>(list.block_sums), list.blocks.data(), totals.data(), stream);
+    cuda::sum_cells<Accum>(as<Accum>(list.block_sums), list.blocks.data(), totals.data(), stream, list_skip);
   }
   record(kAccumulated);
   return true;

@@ -45,7 +45,8 @@ constexpr int kSumThreads = 256;
 template <class Accum>
 __global__ void __launch_bounds__(kSumThreads)
     sum_cells_kernel(const Accum* __restrict__ cell_sums, const uint32_t* __restrict__ count,
-                     double* __restrict__ totals) {
+                     double* __restrict__ totals, const unsigned long long* skip) {
+  if (skip && *skip) return;
   __shared__ Accum partial[kCellSums][kSumThreads];
   Accum v[kCellSums] = {};
   const std::size_t cells = *count;
@@ -106,8 +107,9 @@ void sum_virial_slots(const Accum* virial_slots, std::size_t n_local, int copies
 }
 
 template <class Accum>
-void sum_cells(const Accum* cell_sums, const uint32_t* count, double* totals, cudaStream_t stream) {
-  sum_cells_kernel<Accum><<<1, kSumThreads, 0, stream>>>(cell_sums, count, totals);
+void sum_cells(const Accum* cell_sums, const uint32_t* count, double* totals, cudaStream_t stream,
+               const unsigned long long* skip) {
+  sum_cells_kernel<Accum><<<1, kSumThreads, 0, stream>>>(cell_sums, count, totals, skip);
   CF_CUDA_CHECK_LAUNCH();
 }
 
@@ -115,7 +117,7 @@ template void sum_slots<float>(const float*, const float*, int, std::size_t, int
 template void sum_slots<double>(const double*, const double*, int, std::size_t, int, double*, double*, cudaStream_t);
 template void sum_virial_slots<float>(const float*, std::size_t, int, double*, cudaStream_t);
 template void sum_virial_slots<double>(const double*, std::size_t, int, double*, cudaStream_t);
-template void sum_cells<float>(const float*, const uint32_t*, double*, cudaStream_t);
-template void sum_cells<double>(const double*, const uint32_t*, double*, cudaStream_t);
+template void sum_cells<float>(const float*, const uint32_t*, double*, cudaStream_t, const unsigned long long*);
+template void sum_cells<double>(const double*, const uint32_t*, double*, cudaStream_t, const unsigned long long*);
 
 }  // namespace cellforce::cuda

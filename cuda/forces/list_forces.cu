@@ -180,6 +180,9 @@ __global__ void __launch_bounds__(B)
   const std::size_t t = std::size_t(blockIdx.x) * B + threadIdx.x;  // launched with B threads a block
   const std::size_t p = t / S;
   const uint32_t part = uint32_t(t % S);
+  // A decided call's other route (ListArgs::skip; never with a gate): the whole block returns
+  // before it reads the list, which that route's build may be writing.
+  if (args.skip && *args.skip) return;
   // Programmatic dependent launch (the gated evaluations, list_forces): the next step's
   // force kernel may be scheduled once every block of this one has started, and waits below for
   // this one to complete, so that its blocks take the multiprocessors this one's last wave leaves

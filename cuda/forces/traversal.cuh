@@ -52,8 +52,10 @@ void sum_virial_slots(const Accum* virial_slots, std::size_t n_local, int copies
 
 // Sums the per-cell energy and virial over cells [0, *count) (count in device memory) in a fixed
 // order into totals[kCellSums].
+// skip: as ListArgs::skip (device memory or null: nonzero, nothing is written).
 template <class Accum>
-void sum_cells(const Accum* cell_sums, const uint32_t* count, double* totals, cudaStream_t stream);
+void sum_cells(const Accum* cell_sums, const uint32_t* count, double* totals, cudaStream_t stream,
+               const unsigned long long* skip = nullptr);
 
 // The totals of sum_cells to a device energy (1 double) and row-major dim x dim virial, either
 // of which may be null; the virial's unused entries (dim < 3) are not written.

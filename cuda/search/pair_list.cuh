@@ -258,6 +258,9 @@ struct ListArgs {
   double* forces = nullptr;            // n x dim, user order (written, not added to)
   double* energies = nullptr;          // n or null: half of each pair's energy
   DeviceFlags* flags = nullptr;
+  // Device memory or null: where nonzero when they run, the gather and the list force kernel
+  // return at once (a decided call that takes another route: backend/call_graph.cuh).
+  const unsigned long long* skip = nullptr;
 };
 
 // What the build stages its occupants from (as stage_kernel would: no staged array is needed).

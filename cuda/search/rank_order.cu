@@ -16,9 +16,9 @@ unsigned blocks_for(std::size_t count) { return unsigned((count + kBlock - 1) / 
 template <int D, class Particle>
 __global__ void gather_ranked(Grid g, const double* __restrict__ positions, const uint32_t* __restrict__ types,
                               const uint32_t* __restrict__ order, std::size_t n, uint32_t num_types,
-                              Particle* __restrict__ ranked, DeviceFlags* flags) {
+                              Particle* __restrict__ ranked, DeviceFlags* flags, const unsigned long long* skip) {
   const std::size_t p = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
-  if (p >= n) return;
+  if (p >= n || (skip && *skip)) return;
   const std::size_t i = order[p];
   double v[3] = {0, 0, 0};
   for (int a = 0; a < D; ++a) v[a] = positions[i * D + a];
@@ -32,7 +32,8 @@ void gather(const ListArgs<Real, Accum>& args, PairList& list, DeviceBuffer<Part
   ranked.reserve(std::max<std::size_t>(args.n, 1));
   with_dim(args.grid.dim, [&](auto d) {
     gather_ranked<decltype(d)::value><<<blocks_for(args.n), kBlock, 0, stream>>>(
-        args.grid, args.positions, args.types, list.order.data(), args.n, args.num_types, ranked.data(), args.flags);
+        args.grid, args.positions, args.types, list.order.data(), args.n, args.num_types, ranked.data(), args.flags,
+        args.skip);
   });
   CF_CUDA_CHECK_LAUNCH();
 }
