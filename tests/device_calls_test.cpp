@@ -98,14 +98,17 @@ GpuOptions call_options(Precision p, bool device_decides) {
 
 // One engine's calls over the trajectory, queued back to back (each call's positions and outputs
 // in arrays of their own), then one synchronize(). Calls from `observe` on ask for per-particle
-// energies, the energy and the virial. `fixed`: every call reads one positions array and writes
-// one set of outputs, as an embedding code's loop does (each call's positions copied in before it
-// and its outputs copied out after it, on the calls' stream).
+// energies, the energy and the virial. `arrays`: kFixed, every call reads one positions array and
+// writes one set of outputs, as an embedding code's loop does (each call's positions copied in
+// before it and its outputs copied out after it, on the calls' stream); kInputsByTurns, four
+// positions arrays by turns and one set of outputs; kOutputsByTurns, one positions array and four
+// sets of outputs by turns.
+enum class Arrays { kFresh, kFixed, kInputsByTurns, kOutputsByTurns };
 struct Calls {
   std::vector<std::vector<double>> forces, energies, energy, virial;
 };
 Calls run_calls(GpuEngine& engine, const Trajectory& t, int calls, int observe, int squeeze_from = -1,
-                int squeeze_to = -1, bool fixed = false) {
+                int squeeze_to = -1, Arrays arrays = Arrays::kFresh) {
   const std::size_t n = t.n(), nd = 3 * n;
   uint32_t* types = device_array<uint32_t>(n);
   EXPECT_EQ(cudaMemcpy(types, t.start.types.data(), n * sizeof(uint32_t), cudaMemcpyHostToDevice), cudaSuccess);
@@ -119,15 +122,23 @@ Calls run_calls(GpuEngine& engine, const Trajectory& t, int calls, int observe, 
     const std::vector<double> p = t.at(k, squeeze_from, squeeze_to);
     EXPECT_EQ(cudaMemcpy(pos[k], p.data(), nd * sizeof(double), cudaMemcpyHostToDevice), cudaSuccess);
   }
-  double* one_pos = device_array<double>(nd);
-  double* one_f = device_array<double>(nd);
-  double* one_e = device_array<double>(n);
-  double* one_u = device_array<double>(1);
-  double* one_w = device_array<double>(9);
+  constexpr int kTurns = 4;
+  std::vector<double*> turn_pos(kTurns), turn_f(kTurns), turn_e(kTurns), turn_u(kTurns), turn_w(kTurns);
+  for (int j = 0; j < kTurns; ++j) {
+    turn_pos[j] = device_array<double>(nd);
+    turn_f[j] = device_array<double>(nd);
+    turn_e[j] = device_array<double>(n);
+    turn_u[j] = device_array<double>(1);
+    turn_w[j] = device_array<double>(9);
+  }
   EXPECT_EQ(cudaDeviceSynchronize(), cudaSuccess);
   for (int k = 0; k < calls; ++k) {
     const bool obs = k >= observe;
-    if (!fixed) {
+    const int in = arrays == Arrays::kInputsByTurns ? k % kTurns : 0;
+    const int to = arrays == Arrays::kOutputsByTurns ? k % kTurns : 0;
+    double *one_pos = turn_pos[in], *one_f = turn_f[to], *one_e = turn_e[to], *one_u = turn_u[to],
+           *one_w = turn_w[to];
+    if (arrays == Arrays::kFresh) {
       engine.evaluate_device(cellforce::DeviceInput{t.start.box, n, pos[k], cellforce::Scalar::kFloat64, 0, types},
                              t.scene.force_field,
                              cellforce::DeviceOutputs{f[k], obs ? e[k] : nullptr, obs ? u[k] : nullptr,
@@ -158,7 +169,8 @@ Calls run_calls(GpuEngine& engine, const Trajectory& t, int calls, int observe, 
     out.virial.push_back(obs ? to_host(w[k], 9) : std::vector<double>{});
     for (double* p : {pos[k], f[k], e[k], u[k], w[k]}) cudaFree(p);
   }
-  for (double* p : {one_pos, one_f, one_e, one_u, one_w}) cudaFree(p);
+  for (int j = 0; j < kTurns; ++j)
+    for (double* p : {turn_pos[j], turn_f[j], turn_e[j], turn_u[j], turn_w[j]}) cudaFree(p);
   cudaFree(types);
   return out;
 }
@@ -198,25 +210,32 @@ TEST_P(DeviceCalls, DecidedCallsAreTheHostDecidedCalls) {
 }
 
 // The same calls as an embedding code's loop makes them, one positions array and one set of outputs
-// for all (the graph then holds the input pass, its last block deciding, and writes the outputs):
-// bitwise the host-decided calls, and a few graphs (forces, then observables; a list array that
-// grew), not one a call.
+// for all (the graph then holds the input pass, its last block deciding, and writes the outputs),
+// and with the positions or the outputs in four arrays by turns (after three changes the input pass
+// is queued before the graph, or the engine's outputs are copied out): bitwise the host-decided
+// calls, and a few graphs (forces, then observables; a list array that grew; the arrays of the
+// first turns), not one a call.
 TEST_P(DeviceCalls, DecidedCallsOnFixedArraysAreTheHostDecidedCalls) {
   const Trajectory t;
   const int calls = 48, observe = 24;
-  GpuEngine device(call_options(GetParam(), true)), host(call_options(GetParam(), false));
-  const Calls x = run_calls(device, t, calls, observe, -1, -1, true), y = run_calls(host, t, calls, observe);
-  for (int k = 0; k < calls; ++k) {
-    SCOPED_TRACE("call " + std::to_string(k));
-    EXPECT_TRUE(x.forces[k] == y.forces[k]);
-    EXPECT_TRUE(x.energies[k] == y.energies[k]);
-    EXPECT_TRUE(x.energy[k] == y.energy[k]);
-    EXPECT_TRUE(x.virial[k] == y.virial[k]);
+  GpuEngine host(call_options(GetParam(), false));
+  const Calls y = run_calls(host, t, calls, observe);
+  for (const Arrays arrays : {Arrays::kFixed, Arrays::kInputsByTurns, Arrays::kOutputsByTurns}) {
+    SCOPED_TRACE("arrays " + std::to_string(int(arrays)));
+    GpuEngine device(call_options(GetParam(), true));
+    const Calls x = run_calls(device, t, calls, observe, -1, -1, arrays);
+    for (int k = 0; k < calls; ++k) {
+      SCOPED_TRACE("call " + std::to_string(k));
+      EXPECT_TRUE(x.forces[k] == y.forces[k]);
+      EXPECT_TRUE(x.energies[k] == y.energies[k]);
+      EXPECT_TRUE(x.energy[k] == y.energy[k]);
+      EXPECT_TRUE(x.virial[k] == y.virial[k]);
+    }
+    EXPECT_EQ(device.stats().builds, host.stats().builds);
+    EXPECT_GE(device.device_builds(), 3u) << "the device decided too few of the builds";
+    EXPECT_GE(device.device_calls(), std::size_t(calls) - 12) << "the device's graph served too few calls";
+    EXPECT_LE(device.call_captures(), arrays == Arrays::kFixed ? 4u : 8u);  // a grown list array: another key
   }
-  EXPECT_EQ(device.stats().builds, host.stats().builds);
-  EXPECT_GE(device.device_builds(), 3u) << "the device decided too few of the builds";
-  EXPECT_GE(device.device_calls(), std::size_t(calls) - 12) << "the device's graph served too few calls";
-  EXPECT_LE(device.call_captures(), 4u);  // a grown list array makes another key
 }
 
 // The fluid squeezed at calls 16 to 21 (a list ~3x longer than its array): the device's build at

@@ -177,13 +177,14 @@ TEST_P(ExternalForce, HostArrayFollowsTheOracle) {
     const bool before = run == 0, lean = run == 2;
     if (lean && GetParam() != cf::Backend::kCuda) continue;
     SCOPED_TRACE(before ? "set before the state" : lean ? "on the state, lean memory" : "set on the state");
-    cf::Context ctx = context(l, GetParam());
+    cf::Context ctx = context(l, GetParam()), plain = context(l, GetParam());
     if (lean) ctx.set_option("memory", "lean");
     if (before) ctx.set_external_forces(l.n, c.data());
     set_state(ctx, l);
-    const double potential = ctx.thermo().potential;
+    set_state(plain, l);
     if (!before) ctx.set_external_forces(l.n, c.data());
-    EXPECT_EQ(ctx.thermo().potential, potential) << "the external force has no energy";
+    EXPECT_NEAR(ctx.thermo().potential, plain.thermo().potential, 1e-12 * std::abs(plain.thermo().potential))
+        << "the external force has no energy";
     ctx.step(kSteps);
     expect_close(ref, state_of(ctx, l.n), l.edge(), kTol);
     const nlohmann::json stats = nlohmann::json::parse(ctx.statistics_json()).at("run");
@@ -262,8 +263,9 @@ TEST_P(ExternalForce, KeptAcrossANewEngineUntilCleared) {
   ctx.set_external_forces(l.n, c.data());
   set_state(ctx, l);
   ctx.step(kSteps / 2);
-  ctx.set_option("skin", "0.35");  // another engine for the state
+  ctx.set_option("skin", "0.35");  // another engine for the state (its run statistics start afresh)
   ctx.step(kSteps / 2);
+  EXPECT_EQ(ctx.run_statistics().steps, kSteps / 2) << "the option made a new engine";
   expect_close(ref, state_of(ctx, l.n), l.edge(), kTol);
 
   cf::Context plain = context(l, GetParam());
@@ -361,6 +363,17 @@ TEST(ExternalForceDevice, DeviceArrayIsTheHostArray) {
   double worst = 0;
   for (std::size_t k = 0; k < pair.size(); ++k) worst = std::max(worst, std::abs(after.f[k] - pair[k] - triple[k]));
   EXPECT_LE(worst, 1e-8);
+  // The state cannot move to the CPU while it takes a device array: refused, the state kept.
+  try {
+    device.set_backend(cf::Backend::kCpu);
+    ADD_FAILURE() << "the state moved to the CPU with a device array as its external force";
+  } catch (const cf::Error& e) {
+    EXPECT_THAT(e.message(), HasSubstr("the external force is a device array on CUDA device 0"));
+  }
+  device.step(1);
+  device.clear_external_force();
+  device.set_backend(cf::Backend::kCpu);
+  device.step(1);
   cudaFree(d);
 #else
   GTEST_SKIP() << "this build has no CUDA";

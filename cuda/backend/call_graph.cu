@@ -1,5 +1,6 @@
-// The kernels of the decided calls (backend/call_graph.cuh): the displacement's reduction and the
-// two kernels that set the graph's conditions.
+// The kernels of the decided calls (backend/call_graph.cuh): the input pass with the displacement's
+// reduction (its last block deciding where it is the graph's first node), and the kernels that set
+// the graph's conditions.
 #include "backend/call_graph.cuh"
 #include <type_traits>
 
@@ -107,10 +108,6 @@ __global__ void reset_kernel(CallState* state, unsigned long long served, unsign
   state->overflow = overflow;
   state->blocks_done = 0;
 }
-
-}  // namespace
-
-namespace {
 
 template <bool Decide>
 void queue_input(const void* in, Scalar scalar, std::size_t stride, const uint32_t* in_types, std::size_t n,

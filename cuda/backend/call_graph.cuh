@@ -18,10 +18,11 @@
 // displacement with (skin / 2)^2, as the host's ReusePolicy does, and picks the route
 // (a rebuild also where the host asked for one: `force`); after a build `select` reads whether its
 // list fitted its array (the early fill's guard wrote nothing where it did not; a list the host
-// would decline as crowded counts as not fitting). A conditional node costs the device some 10 us
-// before its body's first kernel (performance.md), so the most common route, the list the
-// structure kept, is no body: its kernels run beside the switch, and return at once where the
-// route is another (CallState::not_listed, ListArgs::skip). So the device rebuilds
+// would decline as crowded counts as not fitting). Entering a conditional node's body holds the
+// device up longer than a kernel takes to start (performance.md, "An embedding code's loop"), so
+// the most common route, the list the structure kept, is no body: its kernels run beside the
+// switch, and return at once where the route is another (CallState::not_listed, ListArgs::skip).
+// So the device rebuilds
 // on exactly the calls the host-decided path would, with the same list, and the results are
 // bitwise that path's until a list outgrows its array: the cells serve that call, exact; the host
 // grows the array when it reads the posted sizes and asks for a build at the next call, from where

@@ -92,7 +92,10 @@ bool GpuEngine::ready_device_call(const DeviceInput& input, const SystemView& sy
     }
     s.call_input_inside = inside != nullptr;
     s.call_exec = s.call_graph.find(key);
-    if (s.call_exec) return true;
+    if (s.call_exec) {  // arrays the caller keeps, or takes by turns among a few: no change counted
+      s.output_changes = s.input_changes = 0;
+      return true;
+    }
     // A kept graph for other arrays (outputs, input or both): a caller that changes them every call
     // would get a graph each call, so after a few changes the engine's own arrays serve instead.
     constexpr std::size_t kIn = Impl::kCallKeyInput, kInEnd = Impl::kCallKeyInputEnd;

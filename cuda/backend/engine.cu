@@ -578,6 +578,7 @@ void GpuEngine::build(const SystemView& system, const ForceField& ff, bool with_
     if (!lists) {  // none built: the cells serve this structure's evaluations
       s.list_usable = false;
       s.list_built_for = s.builds;
+      s.list.pairs = s.list.slots = 0;  // no figures of an older list for the decided calls' room
     }
     stats_.graph_build = s.graph.replays() > replays;
   } catch (...) {

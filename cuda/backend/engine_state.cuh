@@ -69,6 +69,7 @@ struct GpuEngine::Impl {
   cuda::SplitScratch split;
   DeviceBuffer<cuda::PipelineCounts> counts;  // stage 1-3 counts, read by the later stages
   DeviceBuffer<uint32_t> tile_start;           // tile form: the cells' first row tiles
+  bool tiles_built = false;                    // tile_start holds the tiles of the structure in use
   TraversalForm form = TraversalForm::kWarpPerCell;  // the traversal of the structure in use
   DeviceBuffer<std::byte> staged, table, force_slots, energy_slots, cell_sums;
   DeviceBuffer<double> forces, energies, totals;
@@ -108,13 +109,14 @@ struct GpuEngine::Impl {
   // kernels return at once (ListArgs::skip; null elsewhere).
   const unsigned long long* list_skip = nullptr;
   // Whether the graphs write the caller's output arrays (the first two words of their keys): not
-  // once a caller has changed them for the same graph more than twice (arrays by turns or a new one
-  // each call: a graph each would be made every call); the engine's arrays are then copied out.
+  // once a caller has changed them more than twice between two calls a kept graph served (a new
+  // array each call, or more by turns than graphs are kept: one would be made every call); the
+  // engine's arrays are then copied out.
   bool direct_outputs = true;
   int output_changes = 0;
   // Whether the graphs hold the call's input pass (the caller's input arrays, words 2-5 of their
-  // keys): not once a caller has changed them for the same graph more than twice (the pass is then
-  // queued before the graph); and whether the graph ready_device_call found holds it.
+  // keys): not once a caller has changed them as above (the pass is then queued before the graph);
+  // and whether the graph ready_device_call found holds it.
   bool input_in_graph = true;
   int input_changes = 0;
   bool call_input_inside = false;
@@ -324,8 +326,8 @@ struct GpuEngine::Impl {
   void evaluate_cells(const GpuOptions& o, const Grid& g, const SystemView& sys, const ForceField& ff,
                       const Request& req);
   // Local and ghost particles (GpuEngine::evaluate_local): the tile form's traversal with ghosts
-  // over the cells of the structure in use (its tiles counted again: its build made them only for
-  // the tile form or a list), the locals' slots summed into forces, energies and virials
+  // over the cells of the structure in use (its tiles counted here where its build made none: it
+  // makes them for the tile form or a list), the locals' slots summed into forces, energies and virials
   // (kVirialComponents a local; with req.energy or req.virial both are computed).
   template <class Real, class Accum>
   void evaluate_local(const GpuOptions& o, const Grid& g, const SystemView& sys, std::size_t n_local,

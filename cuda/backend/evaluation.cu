@@ -227,8 +227,11 @@ void GpuEngine::Impl::evaluate_local(const GpuOptions& o, const Grid& g, const S
   const bool observables = req.energy || req.virial;
   const std::size_t dim = std::size_t(g.dim), copies = gs ? 1 : std::size_t(g.num_types());
   constexpr std::size_t kc = kVirialComponents;
-  tile_start.reserve(max_cells + 1);
-  cuda::tile_starts(cells.data(), counts.data()->cell_range, max_cells, tile_start.data(), cub, stream);
+  if (!tiles_built) {
+    tile_start.reserve(max_cells + 1);
+    cuda::tile_starts(cells.data(), counts.data()->cell_range, max_cells, tile_start.data(), cub, stream);
+    tiles_built = true;
+  }
   force_slots.reserve(std::max<std::size_t>(copies * n_local * dim, 1) * sizeof(Accum));
   forces.reserve(std::max<std::size_t>(n_local * dim, 1));
   if (observables) {

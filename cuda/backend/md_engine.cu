@@ -373,8 +373,8 @@ void CudaMdEngine::queue_chunk(Chunk& c, const GateChunk& chunk, int first_kicks
     const cuda::NextKickDrift* next = c.fused && j + 1 < count ? &c.then : nullptr;
     auto evaluate_step = [&] {
       resident_.evaluate_gated(box_, n_, positions_.data(), c.types, ff_, c.view, next);
-      if (external_.device)  // into the evaluation's own array (RankOrder::forces, written by it) or the caller-order one
-        cuda::queue_gated_external(c.view, c.ranked ? const_cast<double*>(c.to.forces) : resident_.device_forces_to_add(),
+      if (external_.device)  // into the evaluation's forces: rank order (RankOrder::forces) or the caller's
+        cuda::queue_gated_external(c.view, c.ranked ? c.to.forces : resident_.device_forces_to_add(),
                                    external_.device, c.ranked ? c.to.order : nullptr, n_, box_.dim, stream_);
     };
     if (j == 0) {

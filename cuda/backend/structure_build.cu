@@ -48,6 +48,7 @@ void GpuEngine::Impl::build(const GpuOptions& o, PipelineStats& st, const System
   control.reserve(std::max<std::size_t>(n, 1));
   if (o.reuse.skin > 0) build_positions.reserve(std::max<std::size_t>(n * std::size_t(g.dim), 1));
   if (tiled) tile_start.reserve(max_cells + 1);
+  tiles_built = tiled;
   // The fixed part of a list build, from here to the list's partition (build_pair_list), queued,
   // captured or replayed as a CUDA graph (backend/build_graph.cuh). Its operations are queued only
   // while graph.queuing().

@@ -180,9 +180,6 @@ __global__ void __launch_bounds__(B)
   const std::size_t t = std::size_t(blockIdx.x) * B + threadIdx.x;  // launched with B threads a block
   const std::size_t p = t / S;
   const uint32_t part = uint32_t(t % S);
-  // A decided call's other route (ListArgs::skip; never with a gate): the whole block returns
-  // before it reads the list, which that route's build may be writing.
-  if (args.skip && *args.skip) return;
   // Programmatic dependent launch (the gated evaluations, list_forces): the next step's
   // force kernel may be scheduled once every block of this one has started, and waits below for
   // this one to complete, so that its blocks take the multiprocessors this one's last wave leaves
@@ -199,6 +196,10 @@ __global__ void __launch_bounds__(B)
   unsigned long long group_chunk0 = 0;
   if (p < n) len = length[p], group_chunk0 = group_chunks[p / kGroup];
   pdl_wait();
+  // A decided call's other route (ListArgs::skip; never with a gate, so the wait above is none):
+  // the whole block returns before any barrier, having read only the list's length and chunk,
+  // whose values it drops (the route's build may be writing them).
+  if (args.skip && *args.skip) return;
   if (p < n) P = ranked[p];
   // The whole block: before any shuffle or barrier. Drift: the next step's first kernel's test, which
   // closes the gate where this step's displacement ran past the limit.
@@ -386,6 +387,7 @@ template <class Real, class Accum>
 void list_forces(const Switches& sw, const ListArgs<Real, Accum>& given, PairList& list, cudaStream_t stream,
                  const GateView& gate, bool by_rank, const NextKickDrift* then) {
   if (given.n == 0) return;
+  if (given.skip && gate.gate) throw Error("internal error: a gated evaluation with a decided call's skip word");
   if (by_rank && (sw.observables || given.energies))
     throw Error("internal error: forces in rank order are for evaluations of forces only");
   if (then && (sw.observables || given.energies || !gate.gate || sw.dim != then->box.dim))

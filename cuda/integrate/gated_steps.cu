@@ -285,12 +285,10 @@ void with_state_order(StateOrder o, F&& f) {
   }
 }
 
-}  // namespace
-
-namespace {
-
 // The evaluation's gate, as gate_shut reads it (the evaluation's kernel posted the notice), read by
 // one thread of the block.
+// `forces` and the thread index k are in rank order where `order` is given (p its rank), else in the
+// caller's order; `external` is in the caller's order.
 __global__ void gated_external_kernel(GateView gate, double* __restrict__ forces, const double* __restrict__ external,
                                       const uint32_t* __restrict__ order, std::size_t n, int dim) {
   __shared__ int shut;

@@ -95,9 +95,6 @@ struct KineticTerm {
   }
 };
 
-}  // namespace
-
-namespace {
 __global__ void add_kernel(double* __restrict__ f, const double* __restrict__ add, std::size_t count) {
   const std::size_t k = std::size_t(blockIdx.x) * blockDim.x + threadIdx.x;
   if (k < count) f[k] += add[k];

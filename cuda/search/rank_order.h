@@ -26,7 +26,7 @@ struct RankOrder {
   // kernel's stores coalesced whatever the caller's numbering; the next step's kick, on the chunk's
   // rank-order copy of the state, reads rank p's; a Verlet chunk's fused evaluations store none).
   // Null (lean memory): they go to the user-order forces.
-  const double* forces = nullptr;
+  double* forces = nullptr;
 };
 
 }  // namespace cellforce::cuda

@@ -324,7 +324,7 @@ class CELLFORCE_API Context {
   void compute_device(std::size_t n, const Positions& positions, const Types& types, const Outputs& out,
                       void* stream = nullptr);
   // Forces, energies and virials of a rank's own particles with its ghosts, for domain-decomposed
-  // codes (host arrays, CPU backend). positions: (n_local + n_ghost) x dim, the locals first
+  // codes (host arrays, either backend). positions: (n_local + n_ghost) x dim, the locals first
   // (particles 0 .. n_local - 1), then the ghosts, which the caller places: other ranks' particles,
   // or periodic images at their image positions. types: as many, or null for all type 0. Outputs
   // (LocalOutputs) are for the locals only; a pair of two ghosts is never evaluated.
@@ -406,13 +406,16 @@ class CELLFORCE_API Context {
   //  - set_external_forces_device (cuda): the caller's device array, n x dim, read at every
   //    evaluation, kept by the caller (change it between step() calls, which return when the device
   //    is done: the next step's evaluation reads the change; the forces the state holds keep the
-  //    value they were evaluated with).
+  //    value they were evaluated with), on the context's device: a state moved to another device
+  //    or backend is refused while it is set. Its values are not checked (a value that is not
+  //    finite shows as a diverged drift naming the particle).
   //  - set_external_force_callback: `callback(user, step, n, dim, positions, forces, stream)` at
   //    every evaluation, after the pair forces: it adds its forces into `forces` (n x dim, the
   //    state's order) from `positions` (n x dim, wrapped), both where the state lives (device
   //    arrays with cuda, `stream` the context's cudaStream_t, on which it queues its work or
   //    which it synchronises; host arrays and a null stream on the CPU); `step` is the step the
-  //    positions belong to. It must not throw, nor call this context. A null callback clears.
+  //    positions belong to (a step's positions evaluated again, by thermo(), call it again). It
+  //    must not throw, nor call this context. A null callback clears.
   using ExternalForceFn = void (*)(void* user, int64_t step, std::size_t n, int dim, const double* positions,
                                    double* forces, void* stream);
   void set_external_forces(std::size_t n, const double* forces);

@@ -72,6 +72,10 @@ struct [[gnu::visibility("hidden")]] Context::Impl {
   // or none).
   ExternalForce external;
   std::size_t external_n = 0;
+  int external_device = -1;  // the CUDA device of a device array (external.device)
+  // Before the state moves to an engine of `c`: a device array is refused (naming `what`) unless
+  // that engine is CUDA on the array's device.
+  void check_external_engine(const EngineChoice& c, const std::string& what) const;
   // Makes `e` (an array of n particles; n 0: a callback or none) the context's external force and
   // the state's, whose forces are then evaluated again.
   void set_external(ExternalForce e, std::size_t n);

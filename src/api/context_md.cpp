@@ -52,6 +52,7 @@ IntegratorSettings Context::Impl::settings() const {
 // the engine took the state: then the state before is set on it again.
 void Context::Impl::carry(const Box& b, const ForceField& f, const EngineChoice& c, bool new_engine,
                           const std::string& setting, const double* scale) {
+  check_external_engine(c, setting);
   MdState before;
   md->get_state(before);
   before.config.box = md_box;
@@ -153,6 +154,7 @@ void Context::set_state(std::size_t n, const double* positions, const double* ve
   std::vector<double> m(masses, masses + n);
   validate_masses(m, n);
   s.check_external(n, "set_state");
+  s.check_external_engine(s.choice, "set_state");
   check_step_arithmetic(s.integrator.dt, m, state.config.types, s.ff);
   const ListMemory memory = md_list_memory(s.choice, n);
   const EngineChoice resolved = s.resolved(s.box, true, memory);
@@ -240,6 +242,14 @@ void Context::Impl::check_external(std::size_t n, const char* what) const {
                 std::to_string(external_n) + " (set one for " + std::to_string(n) + ", or clear_external_force)");
 }
 
+void Context::Impl::check_external_engine(const EngineChoice& c, const std::string& what) const {
+  if (!external.device) return;
+  if (resolve_backend(c.backend) != Backend::kCuda || c.device != external_device)
+    throw Error(what + ": the external force is a device array on CUDA device " + std::to_string(external_device) +
+                ", which the state's engine would not run on; clear_external_force (or set it as a host array) "
+                "first");
+}
+
 void Context::Impl::set_external(ExternalForce e, std::size_t n) {
   if (md) {
     md->set_external_force(e);
@@ -264,7 +274,7 @@ void Context::Impl::check_external_count(std::size_t n, const char* what) const 
 void Context::set_external_forces(std::size_t n, const double* forces) {
   Impl& s = self();
   s.check_external_count(n, "set_external_forces");
-  check_output(forces, "external forces", n);
+  if (!forces) throw Error("set_external_forces: external forces is a null pointer (" + std::to_string(n) + " particles)");
   const std::size_t dim = std::size_t(s.dim);
   ExternalForce e;
   e.values.assign(forces, forces + n * dim);
@@ -288,7 +298,14 @@ void Context::set_external_forces_device(std::size_t n, const double* forces) {
 #endif
   ExternalForce e;
   e.device = forces;
-  s.set_external(std::move(e), n);
+  const int before = s.external_device;
+  s.external_device = s.choice.device;
+  try {
+    s.set_external(std::move(e), n);
+  } catch (...) {
+    s.external_device = before;
+    throw;
+  }
 }
 
 void Context::set_external_force_callback(ExternalForceFn callback, void* user) {

@@ -146,7 +146,10 @@ class CpuMdEngine final : public MdEngine {
   }
 
   void reevaluate() override { evaluate(true); }
-  void set_external_force(const ExternalForce& external) override { external_ = external; }
+  void set_external_force(const ExternalForce& external) override {
+    if (external.device) throw Error("internal error: a device array as the CPU engine's external force");
+    external_ = external;
+  }
   ForceEngine& forces() override { return *forces_; }
   const MdCounters& counters() const override { return counters_; }
   void reset_counters() override { counters_ = MdCounters{}; }
