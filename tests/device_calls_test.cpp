@@ -175,6 +175,17 @@ Calls run_calls(GpuEngine& engine, const Trajectory& t, int calls, int observe, 
   return out;
 }
 
+// Every output of every call bitwise the same in x and y.
+void expect_bitwise(const Calls& x, const Calls& y, int calls) {
+  for (int k = 0; k < calls; ++k) {
+    SCOPED_TRACE("call " + std::to_string(k));
+    EXPECT_TRUE(x.forces[k] == y.forces[k]);
+    EXPECT_TRUE(x.energies[k] == y.energies[k]);
+    EXPECT_TRUE(x.energy[k] == y.energy[k]);
+    EXPECT_TRUE(x.virial[k] == y.virial[k]);
+  }
+}
+
 class DeviceCalls : public ::testing::TestWithParam<Precision> {
  protected:
   void SetUp() override { CF_SKIP_WITHOUT_DEVICE(); }
@@ -188,13 +199,7 @@ TEST_P(DeviceCalls, DecidedCallsAreTheHostDecidedCalls) {
   const int calls = 48, observe = 24;
   GpuEngine device(call_options(GetParam(), true)), host(call_options(GetParam(), false));
   const Calls x = run_calls(device, t, calls, observe), y = run_calls(host, t, calls, observe);
-  for (int k = 0; k < calls; ++k) {
-    SCOPED_TRACE("call " + std::to_string(k));
-    EXPECT_TRUE(x.forces[k] == y.forces[k]);
-    EXPECT_TRUE(x.energies[k] == y.energies[k]);
-    EXPECT_TRUE(x.energy[k] == y.energy[k]);
-    EXPECT_TRUE(x.virial[k] == y.virial[k]);
-  }
+  expect_bitwise(x, y, calls);
   EXPECT_EQ(device.stats().builds, host.stats().builds);
   EXPECT_GE(host.stats().builds, 6u) << "too few rebuilds to test the device's decision";
   EXPECT_GE(device.device_builds(), 3u) << "the device decided too few of the builds";
@@ -224,13 +229,7 @@ TEST_P(DeviceCalls, DecidedCallsOnFixedArraysAreTheHostDecidedCalls) {
     SCOPED_TRACE("arrays " + std::to_string(int(arrays)));
     GpuEngine device(call_options(GetParam(), true));
     const Calls x = run_calls(device, t, calls, observe, -1, -1, arrays);
-    for (int k = 0; k < calls; ++k) {
-      SCOPED_TRACE("call " + std::to_string(k));
-      EXPECT_TRUE(x.forces[k] == y.forces[k]);
-      EXPECT_TRUE(x.energies[k] == y.energies[k]);
-      EXPECT_TRUE(x.energy[k] == y.energy[k]);
-      EXPECT_TRUE(x.virial[k] == y.virial[k]);
-    }
+    expect_bitwise(x, y, calls);
     EXPECT_EQ(device.stats().builds, host.stats().builds);
     EXPECT_GE(device.device_builds(), 3u) << "the device decided too few of the builds";
     EXPECT_GE(device.device_calls(), std::size_t(calls) - 12) << "the device's graph served too few calls";

@@ -8,6 +8,20 @@
 #include "forces/list_forces.cuh"
 
 namespace cellforce {
+namespace {
+
+// The cells' traversal's compile-time switches for this grid and force field.
+cuda::Switches cell_switches(const Grid& g, const ForceField& ff, bool observables) {
+  cuda::Switches sw;
+  sw.dim = g.dim;
+  sw.wrap = g.any_wrap_inside_cell();
+  sw.multi_type = ff.num_types() > 1;
+  sw.mode = ff.mode;
+  sw.observables = observables;
+  return sw;
+}
+
+}  // namespace
 
 template <class Real, class Accum>
 cuda::ListArgs<Real, Accum> GpuEngine::Impl::list_args(const Grid& g, const SystemView& sys, const ForceField& ff,
@@ -194,12 +208,7 @@ void GpuEngine::Impl::evaluate_cells(const GpuOptions& o, const Grid& g, const S
     args.energy_slot_stride = gs ? 0 : n;
     args.cell_sums = as<Accum>(cell_sums);
   }
-  cuda::Switches sw;
-  sw.dim = g.dim;
-  sw.wrap = g.any_wrap_inside_cell();
-  sw.multi_type = ff.num_types() > 1;
-  sw.mode = ff.mode;
-  sw.observables = observables;
+  const cuda::Switches sw = cell_switches(g, ff, observables);
   if (!gs) {
     cuda::traverse(form, sw, args, stream);
   } else {
@@ -253,12 +262,7 @@ void GpuEngine::Impl::evaluate_local(const GpuOptions& o, const Grid& g, const S
     args.virial = as<Accum>(virial_slots);
     args.virial_slot_stride = gs ? 0 : n_local * kc;
   }
-  cuda::Switches sw;
-  sw.dim = g.dim;
-  sw.wrap = g.any_wrap_inside_cell();
-  sw.multi_type = ff.num_types() > 1;
-  sw.mode = ff.mode;
-  sw.observables = observables;
+  const cuda::Switches sw = cell_switches(g, ff, observables);
   if (!gs) {
     cuda::traverse_local(sw, args, stream);
   } else {
