@@ -3,7 +3,8 @@ r"""Checks that the includes of cellforce's sources run the layers one way (READ
 
   core  ->  state  ->  search/forces/integrators (src/cpu, src/md, src/reference; cuda/search,
             cuda/forces, cuda/integrate)  ->  backends (src/backends, cuda/backend)  ->  public API
-            (src/api)  ->  I/O (src/io)  ->  scenes (src/scene)  ->  the CLI (src/cli)
+            (src/api)  ->  I/O (src/io)  ->  scenes (src/scene)  ->  the CLI (src/cli) and the
+            Python module (src/python)
 
 A file may include files of its own folder and of lower layers only, never a sibling of its own
 layer; within cuda/ the folders are ordered search -> forces -> integrate -> backend
@@ -11,7 +12,7 @@ layer; within cuda/ the folders are ordered search -> forces -> integrate -> bac
 integrators' per-particle arithmetic (md/verlet_step.h, md/fire_step.h), which the CUDA kernels
 share with the host loop, and cuda/backend's implementations of src/backends' interfaces. The public
 headers (include/cellforce) are the API's; lower layers may include their leaf headers (options,
-errors, export macros). The application (src/cli, src/scene) reaches the engine only through the
+errors, export macros). The application (src/cli, src/scene, src/python) reaches the engine only through the
 public API: besides it, it includes src/core, src/state, src/io and itself. Prints every include
 that runs against this and exits 1 if there is one.
 
@@ -32,13 +33,13 @@ LAYERS = {
     "cuda": 2, "cuda/search": 2, "cuda/forces": 2, "cuda/integrate": 2,
     "src/backends": 3, "cuda/backend": 3,
     "src/api": 4,
-    "src/io": 5, "src/scene": 6, "src/cli": 7,
+    "src/io": 5, "src/scene": 6, "src/cli": 7, "src/python": 7,
 }
 # Headers of a layer-2 folder that its siblings share: the integrators' per-particle arithmetic,
 # written once for the host loop and the CUDA kernels.
 SHARED = {"md/verlet_step.h", "md/fire_step.h"}
 # The application is a client of the public API: besides it, only these folders.
-CLIENT_FOLDERS = {"src/cli", "src/scene"}
+CLIENT_FOLDERS = {"src/cli", "src/scene", "src/python"}
 CLIENT_MAY_USE = {"src/core", "src/state", "src/io", "src/scene", "src/cli"}
 CUDA_ORDER = {"cuda": 0, "cuda/search": 1, "cuda/forces": 2, "cuda/integrate": 3, "cuda/backend": 4}
 LEAF_PUBLIC = {"cellforce/options.hpp", "cellforce/error.hpp", "cellforce/export.hpp"}

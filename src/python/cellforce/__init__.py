@@ -1,0 +1,16 @@
+"""cellforce from Python: Lennard-Jones forces by the cell search of GPU Gems 3, chapter 32, on the
+CPU or a CUDA device.
+
+    import numpy as np, cellforce
+    k = cellforce.ForceKernel(box=[10.0, 10.0, 10.0], cutoff=2.5,
+                              types={"A": (1.0, 1.0), "B": (0.88, 0.5)})
+    r = k.compute(positions, types=None, energy=True, virial=True)
+    r.forces, r.energy, r.energies, r.virial
+
+positions are (n, dim) float64 or float32 NumPy arrays on the host, in your units; every result is
+a NumPy array on the host (see ForceKernel.compute and Result). The module wraps the C++ API
+(include/cellforce/cellforce.hpp): it computes nothing of its own.
+"""
+from ._cellforce import ForceKernel, Result, __version__
+
+__all__ = ["ForceKernel", "Result", "__version__"]
