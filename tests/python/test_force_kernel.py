@@ -15,25 +15,11 @@ import numpy as np
 import pytest
 
 import cellforce
+from xyz import SYSTEMS, read_xyz
 
 ROOT = Path(__file__).resolve().parents[2]
-SYSTEMS = ROOT / "systems" / "validation"
 EXE = os.environ.get("CELLFORCE_EXE", str(ROOT / "build" / "cellforce"))
 BINARY = {"A": (1.0, 1.0), "B": (0.88, 0.5)}  # binary_lb.xyz's types (systems/validation/README.md)
-
-
-def read_xyz(path: Path):
-    """An extended XYZ of systems/validation: (box, periodic, species, positions (n, 3))."""
-    lines = path.read_text().splitlines()
-    n = int(lines[0])
-    header = lines[1]
-    lattice = [float(v) for v in header.split('Lattice="')[1].split('"')[0].split()]
-    box = [lattice[0], lattice[4], lattice[8]]
-    periodic = [v == "T" for v in header.split('pbc="')[1].split('"')[0].split()]
-    rows = [line.split() for line in lines[2:2 + n]]
-    species = [r[0] for r in rows]
-    positions = np.array([[float(v) for v in r[1:4]] for r in rows], dtype=np.float64)
-    return box, periodic, species, positions
 
 
 def cuda_missing() -> str:
