@@ -15,7 +15,7 @@
 
 #include <algorithm>
 #include <cstdint>
-#include <map>  // parse_option's names
+#include <mutex>
 #include <optional>
 #include <string>
 #include <utility>
@@ -42,43 +42,45 @@ nb::object numpy_array(std::vector<double> values, std::vector<std::size_t> shap
   return nb::cast(nb::ndarray<nb::numpy, double>(owned->data(), shape.size(), shape.data(), owner));
 }
 
-template <class T>
-T parse_option(const std::string& value, const char* what, const std::map<std::string, T>& names) {
-  const auto it = names.find(value);
-  if (it != names.end()) return it->second;
-  std::string known;
-  for (const auto& [name, v] : names) known += (known.empty() ? "" : ", ") + name;
-  throw nb::value_error((std::string(what) + "=" + value + ": expected one of " + known).c_str());
-}
+using HostArray = nb::ndarray<nb::ro, nb::c_contig, nb::device::cpu>;
 
 class ForceKernel {
  public:
-  ForceKernel(const std::vector<double>& box, std::optional<std::vector<bool>> periodic, double cutoff,
-              std::optional<nb::dict> types, std::optional<nb::dict> pairs, const std::string& mixing,
-              const std::string& mode, const std::string& precision, const std::string& backend)
+  ForceKernel(const std::vector<double>& box, nb::object periodic, double cutoff, nb::object types, nb::object pairs,
+              const std::string& mixing, const std::string& mode, const std::string& precision,
+              const std::string& backend)
       : ctx_(check_dim(box)) {
     const std::size_t dim = box.size();
-    std::vector<bool> wrap = periodic.value_or(std::vector<bool>(dim, true));
-    if (wrap.size() != dim)
-      throw nb::value_error(("periodic: " + std::to_string(wrap.size()) + " values for a box of " +
-                             std::to_string(dim) + " axes").c_str());
-    bool p[3] = {false, false, false};
-    for (std::size_t a = 0; a < dim; ++a) p[a] = wrap[a];
+    bool p[3] = {true, true, true};
+    if (!periodic.is_none()) {  // any sequence of truth values (a list, NumPy's bools, ASE's atoms.pbc)
+      std::size_t count = 0;
+      try {
+        for (nb::handle axis : nb::iter(periodic)) {
+          if (count < 3) p[count] = PyObject_IsTrue(axis.ptr()) == 1;
+          ++count;
+        }
+      } catch (const nb::python_error&) {
+        throw nb::type_error("periodic: expected a sequence of truth values, one per axis");
+      }
+      if (count != dim)
+        throw nb::value_error(("periodic: " + std::to_string(count) + " values for a box of " + std::to_string(dim) +
+                               " axes").c_str());
+    }
     ctx_.set_box(box.data(), p);
-    ctx_.set_cutoff(cutoff, parse_option<cf::CutoffMode>(mode, "mode",
-                                                          {{"truncate", cf::CutoffMode::kTruncate},
-                                                           {"shift", cf::CutoffMode::kShift},
-                                                           {"force-shift", cf::CutoffMode::kForceShift}}));
+    ctx_.set_option("cutoff-mode", mode);
+    ctx_.set_cutoff(cutoff);
     ctx_.set_option("mixing", mixing);
     ctx_.set_option("precision", precision);
     ctx_.set_option("backend", backend);
     // Types in the order given (a dict keeps it): a type's index is its place in that order.
-    if (!types) {
+    if (types.is_none()) {
       names_.push_back("A");
       ctx_.add_type("A", 1.0, 1.0);
     } else {
-      if (types->size() == 0) throw nb::value_error("types: no particle type given");
-      for (const auto& [key, value] : *types) {
+      if (!nb::isinstance<nb::dict>(types)) throw nb::type_error("types: expected {name: (sigma, epsilon)}");
+      const nb::dict given = nb::borrow<nb::dict>(types);
+      if (given.size() == 0) throw nb::value_error("types: no particle type given");
+      for (const auto& [key, value] : given) {
         std::string name;
         std::pair<double, double> se;
         if (!nb::try_cast(key, name) || !nb::try_cast(value, se))
@@ -87,8 +89,10 @@ class ForceKernel {
         names_.push_back(std::move(name));
       }
     }
-    if (pairs)
-      for (const auto& [key, value] : *pairs) {
+    if (!pairs.is_none() && !nb::isinstance<nb::dict>(pairs))
+      throw nb::type_error("pairs: expected {(name, name): (sigma, epsilon)}");
+    if (!pairs.is_none())
+      for (const auto& [key, value] : nb::borrow<nb::dict>(pairs)) {
         std::pair<std::string, std::string> ab;
         std::pair<double, double> se;
         if (!nb::try_cast(key, ab) || !nb::try_cast(value, se))
@@ -99,18 +103,25 @@ class ForceKernel {
 
   int dim() const { return ctx_.dim(); }
   const std::vector<std::string>& type_names() const { return names_; }
-  std::string backend() { return ctx_.backend_name(); }
-  std::string description() { return ctx_.description(); }
+  std::string backend() {
+    const std::lock_guard<std::mutex> lock(mutex_);
+    return ctx_.backend_name();
+  }
+  std::string description() {
+    const std::lock_guard<std::mutex> lock(mutex_);
+    return ctx_.description();
+  }
 
   // positions: (n, dim) float64 or float32, C order, on the host; types: None (all the first
   // type), (n,) int32 or uint32 indices, or a sequence of type names.
-  Result compute(nb::handle positions, nb::handle types, bool energy, bool virial, std::size_t n_ghost) {
+  Result compute(nb::handle positions, nb::handle types, bool energy, bool virial, int64_t ghosts) {
     const std::size_t dim = std::size_t(ctx_.dim());
     const Host pos = host_positions(positions, dim);
     const std::size_t n = pos.n;
-    if (n_ghost > n)
-      throw nb::value_error(("n_ghost: " + std::to_string(n_ghost) + " ghosts of " + std::to_string(n) +
+    if (ghosts < 0 || std::size_t(ghosts) > n)
+      throw nb::value_error(("n_ghost: " + std::to_string(ghosts) + " ghosts of " + std::to_string(n) +
                              " particles").c_str());
+    const std::size_t n_ghost = std::size_t(ghosts);
     const HostTypes typ = host_types(types, n);
     const std::size_t n_local = n - n_ghost;
     std::vector<double> f(n_local * dim), e(energy ? n_local : 0), w(virial ? dim * dim : 0);
@@ -129,7 +140,8 @@ class ForceKernel {
       p.data = pos.data;
       p.scalar = pos.scalar;
       {
-        nb::gil_scoped_release release;
+        nb::gil_scoped_release release;  // the arrays are held (pos, typ); one thread at a time in the context
+        const std::lock_guard<std::mutex> lock(mutex_);
         ctx_.compute(n, p, t, out);
       }
     } else {
@@ -145,7 +157,13 @@ class ForceKernel {
       const uint32_t* ts = static_cast<const uint32_t*>(typ.data);
       if (typ.data && typ.index == cf::Index::kInt32) {
         const auto* signed_ids = static_cast<const int32_t*>(typ.data);
-        ids.assign(signed_ids, signed_ids + n);  // negatives become out of range: named by the library
+        ids.resize(n);
+        for (std::size_t i = 0; i < n; ++i) {
+          if (signed_ids[i] < 0)
+            throw nb::value_error(("types: particle " + std::to_string(i) + " has type index " +
+                                   std::to_string(signed_ids[i])).c_str());
+          ids[i] = uint32_t(signed_ids[i]);
+        }
         ts = ids.data();
       }
       std::vector<double> shares(virial ? n_local * dim * dim : 0);
@@ -157,6 +175,7 @@ class ForceKernel {
       out.virials = virial ? shares.data() : nullptr;
       {
         nb::gil_scoped_release release;
+        const std::lock_guard<std::mutex> lock(mutex_);
         ctx_.compute_local(n_local, n_ghost, xs, ts, out);
       }
       if (virial) r.virials = numpy_array(std::move(shares), {n_local, dim, dim});
@@ -187,23 +206,23 @@ class ForceKernel {
     const void* data = nullptr;
     cf::Scalar scalar = cf::Scalar::kFloat64;
     std::size_t n = 0;
-    nb::object keep;  // the caller's array, which the pointer is into
+    HostArray keep;  // the caller's array as exported, which the pointer is into
   };
   struct HostTypes {
     const void* data = nullptr;
     cf::Index index = cf::Index::kUInt32;
     std::vector<uint32_t> from_names;
-    nb::object keep;
+    HostArray keep;
   };
 
   // positions as an (n, dim) C-contiguous float64 or float32 array on the host, used in place (no
   // conversion: another dtype or layout is refused, never copied behind the caller's back).
   Host host_positions(nb::handle obj, std::size_t dim) const {
-    nb::ndarray<nb::ro, nb::c_contig, nb::device::cpu> a;
+    HostArray a;
     if (!nb::try_cast(obj, a, false))
       throw nb::type_error("positions: expected a C-contiguous NumPy array (n, dim) of float64 or float32 on the host");
     Host h;
-    h.keep = nb::borrow(obj);
+    h.keep = a;
     if (a.ndim() != 2 || a.shape(1) != dim)
       throw nb::value_error(("positions: shape " + shape_text(a) + "; expected (n, " + std::to_string(dim) + ")").c_str());
     if (a.dtype() == nb::dtype<double>()) h.scalar = cf::Scalar::kFloat64;
@@ -217,7 +236,7 @@ class ForceKernel {
   HostTypes host_types(nb::handle obj, std::size_t n) const {
     HostTypes t;
     if (obj.is_none()) return t;
-    nb::ndarray<nb::ro, nb::c_contig, nb::device::cpu> a;
+    HostArray a;
     if (nb::try_cast(obj, a, false) && a.dtype() != nb::dtype<double>() && a.dtype() != nb::dtype<float>()) {
       if (a.ndim() != 1 || a.shape(0) != n)
         throw nb::value_error(("types: shape " + shape_text(a) + "; expected (" + std::to_string(n) + ",)").c_str());
@@ -225,7 +244,7 @@ class ForceKernel {
       else if (a.dtype() == nb::dtype<uint32_t>()) t.index = cf::Index::kUInt32;
       else throw nb::type_error("types: expected int32 or uint32 indices (or a sequence of type names)");
       t.data = a.data();
-      t.keep = nb::borrow(obj);
+      t.keep = a;
       return t;
     }
     std::vector<std::string> names;
@@ -247,13 +266,14 @@ class ForceKernel {
     return t;
   }
 
-  static std::string shape_text(const nb::ndarray<nb::ro, nb::c_contig, nb::device::cpu>& a) {
+  static std::string shape_text(const HostArray& a) {
     std::string s = "(";
     for (std::size_t k = 0; k < a.ndim(); ++k) s += (k ? ", " : "") + std::to_string(a.shape(k));
     return s + (a.ndim() == 1 ? ",)" : ")");
   }
 
-  cf::Context ctx_;
+  cf::Context ctx_;  // one thread at a time (mutex_): compute releases the GIL
+  std::mutex mutex_;
   std::vector<std::string> names_;
 };
 
@@ -284,8 +304,8 @@ NB_MODULE(_cellforce, m) {
       .def_ro("energy", &Result::energy,
               "float or None: the total potential energy (the locals' shares with ghosts); None unless energy=True")
       .def_ro("virial", &Result::virial,
-              "(dim, dim) float64 or None: sum over pairs of r_ij (x) f_ij (with ghosts, the locals' shares); None "
-              "unless virial=True")
+              "(dim, dim) float64 or None: sum over pairs of r_ij (x) f_ij, energy units (with ghosts, the locals' "
+              "shares); None unless virial=True")
       .def_ro("virials", &Result::virials,
               "(n_local, dim, dim) float64 or None: each local's share of the virial, with ghosts (n_ghost > 0) "
               "and virial=True");
@@ -293,9 +313,8 @@ NB_MODULE(_cellforce, m) {
   nb::class_<ForceKernel>(m, "ForceKernel",
                           "Lennard-Jones forces by cellforce's cell search (CPU or CUDA). The physics is fixed "
                           "at construction; compute() takes positions as NumPy arrays.")
-      .def(nb::init<const std::vector<double>&, std::optional<std::vector<bool>>, double, std::optional<nb::dict>,
-                    std::optional<nb::dict>, const std::string&, const std::string&, const std::string&,
-                    const std::string&>(),
+      .def(nb::init<const std::vector<double>&, nb::object, double, nb::object, nb::object, const std::string&,
+                    const std::string&, const std::string&, const std::string&>(),
            nb::arg("box"), nb::arg("periodic") = nb::none(), nb::arg("cutoff") = 2.5, nb::arg("types") = nb::none(),
            nb::arg("pairs") = nb::none(), nb::arg("mixing") = "lorentz-berthelot", nb::arg("mode") = "truncate",
            nb::arg("precision") = "double", nb::arg("backend") = "auto",
@@ -310,7 +329,7 @@ NB_MODULE(_cellforce, m) {
            "None (all the first type), (n,) int32 or uint32 indices, or n type names; energy, virial: also "
            "compute them; n_ghost: the last n_ghost rows are ghosts (an axis they stand in for must be open): "
            "results for the others only, a pair with a ghost counted half. Returns a Result.")
-      .def_prop_ro("dim", &ForceKernel::dim)
+      .def_prop_ro("dim", &ForceKernel::dim, "2 or 3: the box's axes, the positions' columns")
       .def_prop_ro("type_names", &ForceKernel::type_names, "the types in index order")
       .def_prop_ro("backend", &ForceKernel::backend, "'cpu' or 'cuda': the backend in use")
       .def_prop_ro("description", &ForceKernel::description);

@@ -74,6 +74,26 @@ def test_index_types_and_float32_positions_are_the_names_and_float64_values():
     assert np.array_equal(k.compute(x32, types=species).forces, k.compute(x32.astype(np.float64), types=species).forces)
 
 
+def test_periodic_takes_numpy_bools_and_one_kernel_serves_two_threads():
+    import threading
+
+    box, periodic, species, x = read_xyz(SYSTEMS / "lj_liquid.xyz")
+    k = cellforce.ForceKernel(box=box, periodic=np.array(periodic), backend="cpu")
+    want = k.compute(x).forces
+    got = [None] * 4
+
+    def run(slot):
+        got[slot] = k.compute(x).forces
+
+    threads = [threading.Thread(target=run, args=(s,)) for s in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    for g in got:
+        assert np.array_equal(g, want)
+
+
 def test_ghost_slabs_sum_to_the_whole_periodic_system():
     """Two slabs along x, each with the periodic images within rc as ghosts (x open): the locals'
     forces and the energies summed equal the whole periodic system's (double, 1e-12)."""
@@ -92,6 +112,14 @@ def test_ghost_slabs_sum_to_the_whole_periodic_system():
             ghosts.append(np.column_stack([xs[near], x[near, 1:]]))
         rows = np.ascontiguousarray(np.vstack([x[own]] + ghosts))
         r = slab.compute(rows, energy=True, virial=True, n_ghost=len(rows) - len(own))
+        # float32 rows and int32 types on the ghost path: the float64 / uint32 results of the same values
+        r32 = slab.compute(rows.astype(np.float32), types=np.zeros(len(rows), dtype=np.int32),
+                           n_ghost=len(rows) - len(own))
+        assert np.array_equal(r32.forces, slab.compute(rows.astype(np.float32).astype(np.float64),
+                                                       types=np.zeros(len(rows), dtype=np.uint32),
+                                                       n_ghost=len(rows) - len(own)).forces)
+        with pytest.raises(ValueError, match="types: particle 0 has type index -1"):
+            slab.compute(rows, types=np.full(len(rows), -1, dtype=np.int32), n_ghost=len(rows) - len(own))
         forces[own] = r.forces
         energy += r.energy
         virial += r.virial
@@ -126,8 +154,14 @@ def test_bad_input_names_the_argument():
         k.compute(x, n_ghost=51)
     with pytest.raises(ValueError, match="box: 4 edge lengths"):
         cellforce.ForceKernel(box=[1.0, 2.0, 3.0, 4.0])
-    with pytest.raises(ValueError, match="mode=cubic"):
+    with pytest.raises(ValueError, match="cubic"):
         cellforce.ForceKernel(box=[10.0, 10.0, 10.0], mode="cubic")
+    with pytest.raises(ValueError, match="n_ghost: -1 ghosts of 50 particles"):
+        k.compute(x, n_ghost=-1)
+    with pytest.raises(TypeError, match="types: expected"):
+        cellforce.ForceKernel(box=[10.0, 10.0, 10.0], types=[("A", 1.0, 1.0)])
+    with pytest.raises(TypeError, match="periodic: expected a sequence of truth values"):
+        cellforce.ForceKernel(box=[10.0, 10.0, 10.0], periodic=3)
     with pytest.raises(ValueError, match="pairs: unknown type 'C'"):
         cellforce.ForceKernel(box=[10.0, 10.0, 10.0], pairs={("A", "C"): (1.0, 1.0)})
     with pytest.raises(ValueError, match="periodic: 2 values for a box of 3 axes"):

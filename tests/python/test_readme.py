@@ -22,7 +22,7 @@ def test_the_readme_has_its_examples():
     assert len(python_blocks()) >= 2
 
 
-@pytest.mark.parametrize("index", range(2))
+@pytest.mark.parametrize("index", range(len(python_blocks())))
 def test_readme_example_runs(index):
     code = python_blocks()[index]
     if "ase" in code:

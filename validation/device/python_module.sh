@@ -2,7 +2,9 @@
 # The Python module for the GPU machine's Python (3.12 there; .venv's is 3.11 here), from the CUDA
 # build's static libraries, and a folder to carry with it: the module package, the wheels its tests
 # need (numpy, h5py, pytest and theirs) and the CLI (the tests' oracle).
-#   bash validation/device/python_module.sh [BUILD_DIR] [PYTHON]   (defaults: build, pyenv's 3.12.1)
+#   bash validation/device/python_module.sh [BUILD_DIR] [PYTHON]
+# (defaults: build, and pyenv's 3.12.1 where it is, as on the development machine: give the Python
+# of the GPU machine's minor version otherwise).
 #   carry .device/py.tar.xz; on the GPU machine:
 #     cd .device && tar xJf py.tar.xz && cd .. && python3 -m pip install -q --no-index --no-deps \
 #       --target /tmp/site .device/py/wheels/*.whl && PYTHONPATH=$PWD/.device/py/pkg:/tmp/site \
@@ -12,6 +14,7 @@ build=$(realpath "${1:-build}")
 python=${2:-/root/.pyenv/versions/3.12.1/bin/python3}
 root=$(realpath "$(dirname "$0")/../..")
 work=$(mktemp -d)
+trap 'rm -rf "$work"' EXIT
 "$python" -m venv "$work/venv"
 "$work/venv/bin/pip" install -q nanobind==3.1.0
 tag=$("$work/venv/bin/python" -c "import sysconfig; print(sysconfig.get_config_var('EXT_SUFFIX'))")
@@ -20,7 +23,7 @@ inc=$("$work/venv/bin/python" -c "import sysconfig; print(sysconfig.get_paths()[
 flags=(-O3 -DNDEBUG -fPIC -fvisibility=hidden -fno-stack-protector -ffunction-sections -fdata-sections -std=c++20
        -I"$inc" -I"$nb/include" -isystem "$nb/ext/robin_map/include")
 g++ "${flags[@]}" -fno-strict-aliasing -DNB_BUILD -DNB_COMPACT_ASSERTIONS -c "$nb/src/nb_combined.cpp" -o "$work/nb.o"
-g++ "${flags[@]}" -Os -fopenmp -DCELLFORCE_HAVE_CUDA -I"$root/include" -I"$build/include" -I"$root/src" \
+g++ "${flags[@]}" -Os -fopenmp -I"$root/include" -I"$build/include" -I"$root/src" \
     -I"$root/cuda" -isystem /usr/local/cuda/include -c "$root/src/python/module.cpp" -o "$work/module.o"
 out="$root/.device/py"
 rm -rf "$out" && mkdir -p "$out/pkg/cellforce" "$out/wheels"
@@ -34,5 +37,4 @@ cp "$root"/src/python/cellforce/*.py "$out/pkg/cellforce/"
 cp "$build/cellforce" "$out/"
 "$work/venv/bin/pip" download -q --only-binary=:all: numpy h5py pytest -d "$out/wheels"
 (cd "$root/.device" && rm -f py.tar.xz && tar cJf py.tar.xz py)
-rm -rf "$work"
 ls -la "$root/.device/py.tar.xz"

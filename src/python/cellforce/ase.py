@@ -43,7 +43,9 @@ class CellforceCalculator(Calculator):
         self._kernel_for = None
 
     def _kernel_of(self, box, pbc):
-        key = (tuple(box), tuple(pbc))
+        # Made again where the cell or a setting changed (the settings are plain attributes).
+        key = (tuple(box), tuple(pbc), self.cutoff, repr(self.types), repr(self.pairs), self.mixing, self.mode,
+               self.precision, self.backend)
         if self._kernel_for != key:
             self._kernel = ForceKernel(box=list(box), periodic=list(pbc), cutoff=self.cutoff, types=self.types,
                                        pairs=self.pairs, mixing=self.mixing, mode=self.mode,
