@@ -23,9 +23,8 @@
 
 #ifdef CELLFORCE_HAVE_CUDA
 #include <cuda_runtime.h>
-
-#include "backend/engine.h"  // cuda/backend/engine.h: GpuEngine::unavailable
 #endif
+#include "backend_here.h"
 #include "core/random.h"
 #include "md/md.h"
 #include "scene/lattice.h"
@@ -35,14 +34,7 @@ namespace {
 namespace cf = cellforce;
 using ::testing::HasSubstr;
 
-std::string unavailable(cf::Backend backend) {
-#ifdef CELLFORCE_HAVE_CUDA
-  if (backend == cf::Backend::kCuda) return cf::GpuEngine::unavailable();
-  return {};
-#else
-  return backend == cf::Backend::kCuda ? "this build has no CUDA" : "";
-#endif
-}
+using cftest::unavailable;
 
 constexpr double kDt = 0.005;
 constexpr int kSteps = 20;
@@ -331,7 +323,7 @@ INSTANTIATE_TEST_SUITE_P(Backends, ExternalForce, ::testing::Values(cf::Backend:
 // and read at every evaluation (changed between step() calls, the next step's forces have the change).
 TEST(ExternalForceDevice, DeviceArrayIsTheHostArray) {
 #ifdef CELLFORCE_HAVE_CUDA
-  if (const std::string why = cf::GpuEngine::unavailable(); !why.empty()) GTEST_SKIP() << why;
+  if (const std::string why = unavailable(cf::Backend::kCuda); !why.empty()) GTEST_SKIP() << why;
   const Liquid l;
   const std::vector<double> c = constant_force(l.n);
   double* d = nullptr;

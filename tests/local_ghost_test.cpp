@@ -19,10 +19,8 @@
 #include <tuple>
 #include <vector>
 
-#ifdef CELLFORCE_HAVE_CUDA
-#include "backend/engine.h"  // cuda/backend/engine.h: GpuEngine::unavailable
-#endif
 
+#include "backend_here.h"
 #include "core/engine_options.h"
 #include "core/force_field.h"
 #include "core/lj.h"
@@ -35,21 +33,8 @@ namespace {
 using ::testing::HasSubstr;
 namespace cf = cellforce;
 
-// Why a CUDA instance cannot run here (empty: it can).
-std::string cuda_missing() {
-#ifdef CELLFORCE_HAVE_CUDA
-  return cf::GpuEngine::unavailable();
-#else
-  return "no CUDA in this build";
-#endif
-}
-
-// The backends a test runs on here: the CPU, and CUDA where a device can be used.
-std::vector<cf::Backend> usable_backends() {
-  std::vector<cf::Backend> b{cf::Backend::kCpu};
-  if (cuda_missing().empty()) b.push_back(cf::Backend::kCuda);
-  return b;
-}
+using cftest::usable_backends;
+std::string cuda_missing() { return cftest::unavailable(cf::Backend::kCuda); }
 const char* name_of(cf::Backend b) { return b == cf::Backend::kCuda ? "cuda" : "cpu"; }
 
 struct Liquid {

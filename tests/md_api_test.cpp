@@ -19,9 +19,7 @@
 #include <utility>
 #include <vector>
 
-#ifdef CELLFORCE_HAVE_CUDA
-#include "backend/engine.h"  // cuda/backend/engine.h: GpuEngine::unavailable
-#endif
+#include "backend_here.h"
 #include "core/box.h"
 #include "core/engine_options.h"
 #include "core/random.h"
@@ -45,14 +43,7 @@ struct RunSetup {
   double length = 1, energy = 1, mass = 1;
 };
 
-std::string unavailable(cf::Backend backend) {
-#ifdef CELLFORCE_HAVE_CUDA
-  if (backend == cf::Backend::kCuda) return cf::GpuEngine::unavailable();
-  return {};
-#else
-  return backend == cf::Backend::kCuda ? "this build has no CUDA" : "";
-#endif
-}
+using cftest::unavailable;
 
 // The MD engine's own statistics (the "run" object of statistics_json(), beside RunStatistics').
 nlohmann::json engine_statistics(const cf::Context& ctx) { return nlohmann::json::parse(ctx.statistics_json()).at("run"); }

@@ -1,4 +1,4 @@
-"""cellforce.ase.CellforceCalculator (issue 48, item 3) against ASE's own LennardJones (smooth off:
+"""cellforce.ase.CellforceCalculator against ASE's own LennardJones (smooth off:
 the pair energy shifted to zero at rc, which is cellforce's mode "shift") on a periodic liquid and
 an open cluster of systems/validation: energy, per-atom energies, forces and stress to 1e-10
 relative in double; ASE's finite-difference forces agree; bad input is named."""

@@ -1,4 +1,4 @@
-"""The Python module's ForceKernel on NumPy arrays (issue 48): bitwise the numbers of `cellforce
+"""The Python module's ForceKernel on NumPy arrays: bitwise the numbers of `cellforce
 forces` (the CLI, the same C++ API) on systems/validation for the same backend and precision (the
 cuda instances skip, with the library's reason, where no CUDA device can be used); ghosts
 summed over slabs equal the whole periodic system (double: 1e-12 relative); bad input raises a

@@ -1,4 +1,4 @@
-"""An ASE calculator over cellforce's ForceKernel (issue 48, item 3).
+"""An ASE calculator over cellforce's ForceKernel.
 
     from cellforce.ase import CellforceCalculator
     atoms.calc = CellforceCalculator(cutoff=2.5, types={"Ar": (1.0, 1.0)}, mode="shift")
