@@ -351,6 +351,7 @@ void time_embedded(const TimedRun& run, Context& ctx) {
                                     {"samples", 1}};
   row["builds"] = int64_t(st.builds - builds_before);
   row["evaluations"] = c.steps;
+  row["compute_device_host_us"] = 1e6 * loop.call_host_seconds();
   row["buffer_bytes"] = st.buffer_bytes;
   row["bytes_per_particle"] = double(st.buffer_bytes) / double(n);  // the engine's; the loop's own arrays not
   loop.download(run.final_positions.data(), run.final_forces.data());

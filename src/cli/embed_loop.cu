@@ -3,6 +3,7 @@
 #include <cuda_runtime.h>
 
 #include <algorithm>
+#include <chrono>
 #include <string>
 #include <vector>
 
@@ -63,6 +64,8 @@ struct EmbeddedVerlet::Impl {
   cudaStream_t stream = nullptr;
   double *x = nullptr, *v = nullptr, *f = nullptr, *inv_mass = nullptr, *sums = nullptr;  // sums: U, KE
   uint32_t* types = nullptr;
+  double call_seconds = 0;  // host time inside compute_device, over `calls` calls
+  int64_t calls = 0;
 
   explicit Impl(Context& c) : ctx(c) {}
   ~Impl() {
@@ -76,7 +79,10 @@ struct EmbeddedVerlet::Impl {
     Outputs out;
     out.forces = f;
     out.energy = observe ? sums : nullptr;
+    const auto t0 = std::chrono::steady_clock::now();
     ctx.compute_device(n, x, types, out, stream);
+    call_seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    ++calls;
   }
   void kick(bool drift) {
     const std::size_t count = n * std::size_t(dim);
@@ -107,6 +113,10 @@ EmbeddedVerlet::EmbeddedVerlet(Context& ctx, std::size_t n, const double* positi
 }
 
 EmbeddedVerlet::~EmbeddedVerlet() = default;
+
+double EmbeddedVerlet::call_host_seconds() const {
+  return impl_->calls ? impl_->call_seconds / double(impl_->calls) : 0.0;
+}
 
 void EmbeddedVerlet::step(int64_t count, bool observe) {
   Impl& s = *impl_;

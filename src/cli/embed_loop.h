@@ -34,6 +34,9 @@ class EmbeddedVerlet {
   double total_energy();
   // Waits, then the positions (as integrated: not wrapped) and forces into host arrays (n x dim).
   void download(double* positions, double* forces);
+  // The host's time inside one compute_device call, averaged over the calls so far (seconds): what
+  // a caller's thread spends queueing a force evaluation.
+  double call_host_seconds() const;
 
  private:
   struct Impl;

@@ -57,6 +57,7 @@ def test_numpy_is_the_cli_bitwise(tmp_path, name, dim, precision, backend):
                               precision=precision, backend=backend)
     r = k.compute(np.ascontiguousarray(x[:, :dim]), types=species, energy=True, virial=True)
     assert r.forces.shape == (len(species), dim)
+    assert not r.forces.flags.owndata and not r.virial.flags.owndata  # handed out in place, not copied
     assert np.array_equal(r.forces, forces.reshape(r.forces.shape))
     assert np.array_equal(r.energies, energies.reshape(-1))
     assert r.energy == energy
@@ -136,7 +137,7 @@ def test_bad_input_names_the_argument():
         k.compute(np.ascontiguousarray(x[:, :2]))
     with pytest.raises(TypeError, match="positions: expected float64 or float32"):
         k.compute(x.astype(np.int64))
-    with pytest.raises(TypeError, match="positions: expected a C-contiguous NumPy array"):
+    with pytest.raises(TypeError, match="positions: expected a C-contiguous array"):
         k.compute(np.asfortranarray(x))
     with pytest.raises(TypeError, match="positions"):
         k.compute("not an array")
@@ -166,3 +167,30 @@ def test_bad_input_names_the_argument():
         cellforce.ForceKernel(box=[10.0, 10.0, 10.0], pairs={("A", "C"): (1.0, 1.0)})
     with pytest.raises(ValueError, match="periodic: 2 values for a box of 3 axes"):
         cellforce.ForceKernel(box=[10.0, 10.0, 10.0], periodic=[True, True])
+    with pytest.raises(ValueError, match=r"forces: shape \(50, 2\); expected \(50, 3\)"):
+        k.compute(x, forces=np.zeros((50, 2)))
+    with pytest.raises(TypeError, match="forces: expected float64, not float32"):
+        k.compute(x, forces=np.zeros((50, 3), dtype=np.float32))
+    read_only = np.zeros((50, 3))
+    read_only.flags.writeable = False
+    with pytest.raises(TypeError, match="forces: expected a writable"):
+        k.compute(x, forces=read_only)
+    with pytest.raises(ValueError, match="energies: given, but energy=False"):
+        k.compute(x, energies=np.zeros(50))
+    with pytest.raises(ValueError, match="stream: host positions"):
+        k.compute(x, stream=0)
+    with pytest.raises(TypeError, match="stream: expected None"):
+        k.compute(x, stream="default")
+
+
+def test_results_into_the_callers_arrays():
+    """forces= and energies= receive bitwise the values of a call that makes its own arrays, and
+    are the arrays the Result holds."""
+    k = cellforce.ForceKernel(box=[10.0, 10.0, 10.0], backend="cpu")
+    x = np.random.default_rng(5).random((300, 3)) * 10
+    fresh = k.compute(x, energy=True)
+    f, e = np.full((300, 3), np.nan), np.full(300, np.nan)
+    r = k.compute(x, energy=True, forces=f, energies=e)
+    assert r.forces is f and r.energies is e
+    assert np.array_equal(f, fresh.forces) and np.array_equal(e, fresh.energies)
+    assert r.energy == fresh.energy

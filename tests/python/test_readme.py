@@ -19,7 +19,7 @@ def python_blocks():
 
 
 def test_the_readme_has_its_examples():
-    assert len(python_blocks()) >= 2
+    assert len(python_blocks()) >= 3
 
 
 @pytest.mark.parametrize("index", range(len(python_blocks())))
@@ -27,6 +27,16 @@ def test_readme_example_runs(index):
     code = python_blocks()[index]
     if "ase" in code:
         pytest.importorskip("ase")
+    if "cupy" in code:
+        cupy = pytest.importorskip("cupy")
+        import cellforce
+
+        if not cellforce.built_with_cuda:
+            pytest.skip("this cellforce was built without CUDA")
+        try:
+            cupy.cuda.runtime.getDeviceCount()
+        except cupy.cuda.runtime.CUDARuntimeError as e:
+            pytest.skip(f"no CUDA device ({e})")
     out = io.StringIO()
     with contextlib.redirect_stdout(out):
         exec(compile(code, f"README.md python block {index}", "exec"), {})

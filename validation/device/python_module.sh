@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The Python module for the GPU machine's Python (3.12 there; .venv's is 3.11 here), from the CUDA
-# build's static libraries, and a folder to carry with it: the module package, the wheels its tests
-# need (numpy, h5py, pytest and theirs) and the CLI (the tests' oracle).
+# build's static libraries, and a folder to carry with it: the module package, ASE's wheel (the GPU
+# machine has numpy, h5py, pytest, CuPy and PyTorch) and the CLI (the tests' oracle).
 #   bash validation/device/python_module.sh [BUILD_DIR] [PYTHON]
 # (defaults: build, and pyenv's 3.12.1 where it is, as on the development machine: give the Python
 # of the GPU machine's minor version otherwise).
@@ -23,18 +23,23 @@ inc=$("$work/venv/bin/python" -c "import sysconfig; print(sysconfig.get_paths()[
 flags=(-O3 -DNDEBUG -fPIC -fvisibility=hidden -fno-stack-protector -ffunction-sections -fdata-sections -std=c++20
        -I"$inc" -I"$nb/include" -isystem "$nb/ext/robin_map/include")
 g++ "${flags[@]}" -fno-strict-aliasing -DNB_BUILD -DNB_COMPACT_ASSERTIONS -c "$nb/src/nb_combined.cpp" -o "$work/nb.o"
-g++ "${flags[@]}" -Os -fopenmp -I"$root/include" -I"$build/include" -I"$root/src" \
-    -I"$root/cuda" -isystem /usr/local/cuda/include -c "$root/src/python/module.cpp" -o "$work/module.o"
+objects=()
+for source in "$root"/src/python/*.cpp; do
+  g++ "${flags[@]}" -Os -fopenmp -DCELLFORCE_HAVE_CUDA -I"$root/include" -I"$build/include" -I"$root/src" \
+      -I"$root/cuda" -isystem /usr/local/cuda/include -c "$source" -o "$work/$(basename "$source").o"
+  objects+=("$work/$(basename "$source").o")
+done
 out="$root/.device/py"
 rm -rf "$out" && mkdir -p "$out/pkg/cellforce" "$out/wheels"
 # The link line of the build's own module (CMakeFiles/cellforce_python.dir/link.txt), its objects
 # and output replaced by these.
 link=$(cat "$build/CMakeFiles/cellforce_python.dir/link.txt")
-libs=${link#*module.cpp.o}
+libs=${link##*.cpp.o}
 (cd "$build" && eval /usr/bin/c++ -fPIC -O3 -DNDEBUG -Wl,-s -Wl,--gc-sections -shared \
-   -o "$out/pkg/cellforce/_cellforce$tag" "$work/module.o" "$work/nb.o" "${libs//libnanobind-static.a/}")
+   -o "$out/pkg/cellforce/_cellforce$tag" "${objects[@]}" "$work/nb.o" "${libs//libnanobind-static.a/}")
 cp "$root"/src/python/cellforce/*.py "$out/pkg/cellforce/"
 cp "$build/cellforce" "$out/"
-"$work/venv/bin/pip" download -q --only-binary=:all: numpy h5py pytest -d "$out/wheels"
+# The GPU machine has numpy, h5py, pytest, CuPy and PyTorch; ASE (pure Python) travels.
+"$work/venv/bin/pip" download -q --no-deps --only-binary=:all: ase=="$("$root/.venv/bin/python" -c "import ase; print(ase.__version__)")" -d "$out/wheels"
 (cd "$root/.device" && rm -f py.tar.xz && tar cJf py.tar.xz py)
 ls -la "$root/.device/py.tar.xz"

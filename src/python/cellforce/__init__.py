@@ -7,10 +7,12 @@ CPU or a CUDA device.
     r = k.compute(positions, types=None, energy=True, virial=True)
     r.forces, r.energy, r.energies, r.virial
 
-positions are (n, dim) float64 or float32 NumPy arrays on the host, in your units; every result is
-a NumPy array on the host (see ForceKernel.compute and Result). The module wraps the C++ API
-(include/cellforce/cellforce.hpp): it computes nothing of its own.
+positions are (n, dim) float64 or float32 arrays in your units, used in place where they live:
+NumPy on the host (the results are NumPy arrays), or CuPy, PyTorch, JAX or any
+__cuda_array_interface__ / DLPack array on a CUDA device (the results are arrays on that device,
+the call queued on the array's stream). See ForceKernel.compute and Result. The module wraps the
+C++ API (include/cellforce/cellforce.hpp): it computes nothing of its own.
 """
-from ._cellforce import ForceKernel, Result, __version__
+from ._cellforce import ForceKernel, Result, __version__, built_with_cuda
 
-__all__ = ["ForceKernel", "Result", "__version__"]
+__all__ = ["ForceKernel", "Result", "__version__", "built_with_cuda"]
