@@ -120,6 +120,15 @@ TEST(CApiMd, VerletRunIsTheCppRunBitwise) {
   EXPECT_EQ(cf_get_state(c.get(), l.n, nullptr, nullptr, nullptr), CF_OK);
   EXPECT_EQ(cf_get_state(c.get(), l.n, nullptr, only.data(), nullptr), CF_OK);
   EXPECT_TRUE(only == v);
+  // The state in place (host memory on the CPU): the arrays get_state copies.
+  const double *px = nullptr, *pv = nullptr, *pf = nullptr;
+  int device = 7;
+  ASSERT_EQ(cf_state_view(c.get(), &px, &pv, &pf, &device), CF_OK) << cf_last_error(c.get());
+  EXPECT_EQ(device, -1);
+  EXPECT_TRUE(std::vector<double>(px, px + 3 * l.n) == cx);
+  EXPECT_TRUE(std::vector<double>(pv, pv + 3 * l.n) == cv);
+  EXPECT_TRUE(std::vector<double>(pf, pf + 3 * l.n) == cfo);
+  EXPECT_EQ(cf_state_view(c.get(), nullptr, nullptr, nullptr, nullptr), CF_OK);
   EXPECT_EQ(cf_thermo(c.get(), nullptr, nullptr, nullptr, nullptr), CF_OK);
   double t_only = 0;
   EXPECT_EQ(cf_thermo(c.get(), nullptr, nullptr, &t_only, nullptr), CF_OK);

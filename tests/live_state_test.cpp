@@ -18,6 +18,8 @@
 #include <vector>
 
 #ifdef CELLFORCE_HAVE_CUDA
+#include <cuda_runtime.h>
+
 #include "backend/engine.h"  // cuda/backend/engine.h: GpuEngine::unavailable
 #endif
 #include "core/box.h"
@@ -434,6 +436,48 @@ TEST_P(LiveState, NewPositionsTheStateCannotTakeAreRefused) {
   a.step(5);
   twin.step(5);
   expect_same(snapshot(a, s.n), snapshot(twin, s.n), rebuilt_tolerance());
+}
+
+// The state view is the state where it lives, read in place: host memory on the CPU, the context's
+// device with cuda; bitwise what get_state downloads, after set_state and after steps; nothing crosses
+// to the host for it (the run statistics count no bytes); no state, no view.
+TEST_P(LiveState, TheStateViewIsTheStateInPlace) {
+  const Start s = liquid_start();
+  cf::Context a(3);
+  set_up(a, s);
+  EXPECT_THROW(a.state_view(), cf::Error);
+  a.set_state(s.n, s.x.data(), s.v.data(), s.types.data(), s.m.data());
+  for (const int steps : {0, 7, 3}) {
+    SCOPED_TRACE("after " + std::to_string(steps) + " more steps");
+    a.step(steps);
+    const Snapshot want = snapshot(a, s.n);
+    a.reset_run_statistics();
+    const cf::StateView view = a.state_view();
+    EXPECT_EQ(a.run_statistics().bytes_to_host, 0u);
+    ASSERT_EQ(view.n, s.n);
+    ASSERT_EQ(view.dim, 3);
+    const std::size_t count = s.n * 3;
+    std::vector<double> x(count), v(count), f(count);
+    if (backend == cf::Backend::kCpu) {
+      EXPECT_EQ(view.device, -1);
+      std::copy(view.positions, view.positions + count, x.begin());
+      std::copy(view.velocities, view.velocities + count, v.begin());
+      std::copy(view.forces, view.forces + count, f.begin());
+    } else {
+#ifdef CELLFORCE_HAVE_CUDA
+      EXPECT_EQ(view.device, 0);
+      for (const auto& [from, to] : {std::pair{view.positions, &x}, {view.velocities, &v}, {view.forces, &f}}) {
+        cudaPointerAttributes where{};
+        ASSERT_EQ(cudaPointerGetAttributes(&where, from), cudaSuccess);
+        EXPECT_EQ(where.type, cudaMemoryTypeDevice);
+        ASSERT_EQ(cudaMemcpy(to->data(), from, count * sizeof(double), cudaMemcpyDeviceToHost), cudaSuccess);
+      }
+#endif
+    }
+    EXPECT_EQ(x, want.x);
+    EXPECT_EQ(v, want.v);
+    EXPECT_EQ(f, want.f);
+  }
 }
 
 INSTANTIATE_TEST_SUITE_P(Backends, LiveState, ::testing::Values(cf::Backend::kCpu, cf::Backend::kCuda),

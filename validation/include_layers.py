@@ -128,7 +128,7 @@ def check(root: Path) -> list[str]:
             if target is None:
                 continue  # a system or third-party header
             there = folder_of(target, root)
-            if here in CLIENT_FOLDERS and there in LAYERS and there not in CLIENT_MAY_USE:
+            if here in CLIENT_FOLDERS and there in LAYERS and there not in CLIENT_MAY_USE and there != here:
                 bad.append(f"{src.relative_to(root)}:{number}: {name} ({there}): the application uses the public "
                            "API (include/cellforce), not the engine's layers")
                 continue

@@ -3,7 +3,8 @@ r"""The Python issue's speed: an embedding code's velocity Verlet written in Pyt
 a stream of its own around `ForceKernel.compute` on CuPy arrays, the forces written into the loop's
 own array) against the same loop in C++ (`cellforce bench --embed`: two kernels of its own around
 `Context::compute_device`), in.lj (fcc, density 0.8442, T 1.44, rc 2.5, dt 0.005, NVE), one precision,
-size by size in one call. Also the host's time inside one force call: `ForceKernel.compute` from
+size by size in one call, with OpenMM CUDA's steps/s on the same system in the same call (the
+project's peer; md_peer.py's timing; a row's error where OpenMM cannot be imported). Also the host's time inside one force call: `ForceKernel.compute` from
 Python against `compute_device` from C++ (the bench's compute_device_host_us), whose difference is
 the module's overhead a call where the host sets the pace (small N; where the device does, a call's
 host time also holds its wait for room in the launch queue). Writes python-embed.json and python-embed.md to --out.
@@ -27,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from performance import device_name, fcc_cells_for, run_bench  # noqa: E402
+from performance import device_name, fcc_cells_for, openmm_row, run_bench  # noqa: E402
 
 DENSITY, TEMPERATURE, CUTOFF, DT = 0.8442, 1.44, 2.5, 0.005
 
@@ -122,15 +123,19 @@ def main() -> int:
             cxx = run_bench(args.cellforce, n, args.precision, args.seconds, out, Path(scratch), "list", "auto", False,
                             ["--seconds", f"{args.seconds:g}", "--no-reference", "--embed"])
             py = python_loop(cells, args.precision, args.seconds)
-            rows.append({"n": py["n"], "python": py, "cxx": cxx})
+            openmm = openmm_row(cells, args.precision, args.seconds)
+            rows.append({"n": py["n"], "python": py, "cxx": cxx, "openmm": openmm})
             print(f"N {py['n']}: Python {py['steps_per_second']:.0f}, C++ {cxx.get('steps_per_second')} steps/s; "
                   f"call {py['compute_host_us']:.1f} us vs {cxx.get('compute_device_host_us')} us", flush=True)
-    lines = ["| N | Python loop (steps/s) | C++ loop (steps/s) | Python / C++ | `compute` host us (Python) | "
-             "`compute_device` host us (C++) | overhead us a call |", "|---|---|---|---|---|---|---|"]
+    lines = ["| N | Python loop (steps/s) | C++ loop (steps/s) | OpenMM CUDA (steps/s) | Python / C++ | "
+             "Python / OpenMM | `compute` host us (Python) | `compute_device` host us (C++) | overhead us a call |",
+             "|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         p, c = r["python"], r["cxx"]
         cs, cu = c.get("steps_per_second", float("nan")), c.get("compute_device_host_us", float("nan"))
-        lines.append(f"| {r['n']:,} | {p['steps_per_second']:,.0f} | {cs:,.0f} | {p['steps_per_second'] / cs:.2f} | "
+        o = r["openmm"].get("steps_per_second", float("nan"))
+        lines.append(f"| {r['n']:,} | {p['steps_per_second']:,.0f} | {cs:,.0f} | {o:,.0f} | "
+                     f"{p['steps_per_second'] / cs:.2f} | {p['steps_per_second'] / o:.2f} | "
                      f"{p['compute_host_us']:.1f} | {cu:.1f} | {p['compute_host_us'] - cu:.1f} |")
     doc = {"device": device_name(), "date": datetime.date.today().isoformat(), "commit": args.commit,
            "precision": args.precision, "rows": rows}

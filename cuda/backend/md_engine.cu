@@ -128,6 +128,12 @@ void CudaMdEngine::get_state(MdState& state) {
   state.time = time_;
 }
 
+MdEngine::StateArrays CudaMdEngine::state_arrays() {
+  const OnDevice on(resident_.device());
+  CF_CUDA_CHECK(cudaStreamSynchronize(stream_));
+  return {positions_.data(), velocities_.data(), resident_.device_forces(), resident_.device()};
+}
+
 std::vector<std::pair<const char*, std::size_t>> CudaMdEngine::state_buffers() const {
   return {{"md: positions", positions_.bytes()},
           {"md: velocities", velocities_.bytes()},

@@ -81,6 +81,7 @@ class CudaMdEngine final : public MdEngine {
   void set_positions(const std::vector<double>& positions) override;
   void set_velocities(const std::vector<double>& velocities) override;
   void get_state(MdState& state) override;
+  StateArrays state_arrays() override;
 
   int64_t step() const override { return step_; }
   std::vector<std::pair<const char*, std::size_t>> state_buffers() const override;

@@ -145,6 +145,17 @@ struct Thermo {
   double virial[9] = {};   // dim x dim, row-major (as Outputs::virial)
 };
 
+// The MD state's arrays where they live (Context::state_view): on the host with the cpu backend,
+// on the context's CUDA device with cuda; the state's particle order, row-major n x dim.
+struct StateView {
+  const double* positions = nullptr;   // wrapped into the box on periodic axes (length)
+  const double* velocities = nullptr;  // length / time
+  const double* forces = nullptr;      // at the positions: the pair forces and any external force
+  std::size_t n = 0;
+  int dim = 3;
+  int device = -1;  // the CUDA device's ordinal; -1: host memory
+};
+
 // FIRE energy minimisation (Bitzek et al. 2006) of the state's positions.
 struct MinimizeOptions {
   double force_tolerance = 100.0;  // converged when every |F_i| < this
@@ -424,6 +435,13 @@ class CELLFORCE_API Context {
   void clear_external_force();
   // The state now into host arrays (n x dim each; any may be null); a download with cuda.
   void get_state(double* positions, double* velocities, double* forces);
+  // The state where it lives, to read without a copy (StateView). With cuda the host waits for the
+  // context's stream first, so that the arrays are complete. The arrays change with every call that
+  // changes the state (step, set_*, minimize, thermo() when it evaluates again), and the pointers
+  // may move with it (the forces' on the CPU do at each evaluation; a new set_state, a change of
+  // backend, device, engine option or box may give the state new arrays): read the view again after
+  // any call on the context. Not to be written: set_positions and set_velocities change the state.
+  StateView state_view();
   // Thermodynamics now: a reduction on the device and 8 numbers copied back with cuda (one more
   // force evaluation when the last step did not observe).
   Thermo thermo();

@@ -291,6 +291,17 @@ cf_status cf_get_state(cf_context* ctx, size_t n, double* positions, double* vel
   });
 }
 
+cf_status cf_state_view(cf_context* ctx, const double** positions, const double** velocities, const double** forces,
+                        int* device) {
+  return on(ctx, [&](cellforce::Context& c) {
+    const cellforce::StateView v = c.state_view();
+    if (positions) *positions = v.positions;
+    if (velocities) *velocities = v.velocities;
+    if (forces) *forces = v.forces;
+    if (device) *device = v.device;
+  });
+}
+
 cf_status cf_thermo(cf_context* ctx, double* kinetic, double* potential, double* temperature, double* pressure) {
   return on(ctx, [&](cellforce::Context& c) {
     const cellforce::Thermo t = c.thermo();

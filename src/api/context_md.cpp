@@ -236,6 +236,19 @@ void Context::get_state(double* positions, double* velocities, double* forces) {
   if (forces) std::memcpy(forces, state.forces.data(), count * sizeof(double));
 }
 
+StateView Context::state_view() {
+  Impl& s = self();
+  const MdEngine::StateArrays a = s.get_md().state_arrays();
+  StateView v;
+  v.positions = a.positions;
+  v.velocities = a.velocities;
+  v.forces = a.forces;
+  v.n = s.masses.size();
+  v.dim = s.md_box.dim;
+  v.device = a.device;
+  return v;
+}
+
 void Context::Impl::check_external(std::size_t n, const char* what) const {
   if (external_n != 0 && n != external_n)
     throw Error(std::string(what) + ": " + std::to_string(n) + " particles, but the external force set holds " +

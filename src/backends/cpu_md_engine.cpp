@@ -126,6 +126,9 @@ class CpuMdEngine final : public MdEngine {
   }
 
   void get_state(MdState& state) override { state = state_; }
+  StateArrays state_arrays() override {
+    return {state_.config.positions.data(), state_.velocities.data(), state_.forces.data(), -1};
+  }
   int64_t step() const override { return state_.step; }
   std::vector<std::pair<const char*, std::size_t>> state_buffers() const override {
     return {{"md: positions", sizeof(double) * state_.config.positions.size()},

@@ -93,6 +93,18 @@ class MdEngine {
   // The state now, into `state` (positions, velocities, forces; step and time): a download on a
   // device backend.
   virtual void get_state(MdState& state) = 0;
+  // The state's arrays where they live, read in place: positions, velocities and forces (n x dim
+  // each, the caller's order), host pointers on the CPU and device pointers on a device backend
+  // (`device`: its ordinal; -1 for host memory), complete when this returns (a device backend
+  // waits for its stream). The pointers hold until the state changes (a step, set_*, minimize,
+  // reevaluate); the caller reads them again after any call.
+  struct StateArrays {
+    const double* positions = nullptr;
+    const double* velocities = nullptr;
+    const double* forces = nullptr;
+    int device = -1;
+  };
+  virtual StateArrays state_arrays() = 0;
   virtual int64_t step() const = 0;
   // Bytes the state and the integrator's working arrays hold where the backend computes, by array
   // (names: string literals), and their sum.

@@ -11,7 +11,7 @@
 
 #include <cellforce/cellforce.hpp>
 
-#include "cli/engine_context.h"
+#include "scene/engine_context.h"
 #include "cli/options.h"
 #include "core/error.h"
 #include "core/grid.h"

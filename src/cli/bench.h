@@ -11,7 +11,7 @@
 #include <string>
 #include <vector>
 
-#include "cli/engine_context.h"
+#include "scene/engine_context.h"
 #include "core/force_field.h"   // CutoffMode
 #include "core/names.h"         // Named
 #include "core/option_table.h"

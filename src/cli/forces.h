@@ -6,7 +6,7 @@
 #include <string>
 #include <vector>
 
-#include "cli/engine_context.h"
+#include "scene/engine_context.h"
 #include "core/force_field.h"
 #include "core/option_table.h"
 #include "io/configuration_file.h"

@@ -1,5 +1,5 @@
 // The cellforce command line, a client of the public API: every command reaches the engine through
-// a cellforce::Context (cli/engine_context.h), its engine flags checked against the option table
+// a cellforce::Context (scene/engine_context.h), its engine flags checked against the option table
 // (core/option_table.h) and handed to Context::set_option. `cellforce forces` reads one
 // configuration (extended XYZ or H5MD) and writes its forces, energies and virial to HDF5 (see
 // cli/forces.h). `cellforce evaluate` builds a lattice scene (by default the LAMMPS in.lj fluid's
@@ -19,7 +19,7 @@
 #include <cellforce/cellforce.hpp>
 
 #include "cli/bench.h"
-#include "cli/engine_context.h"
+#include "scene/engine_context.h"
 #include "cli/forces.h"
 #include "cli/option_rules.h"
 #include "cli/options.h"

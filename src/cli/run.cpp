@@ -16,7 +16,8 @@
 #include <cellforce/cellforce.hpp>
 #include <nlohmann/json.hpp>
 
-#include "cli/engine_context.h"
+#include "scene/engine_context.h"
+#include "scene/scene_start.h"
 #include "core/error.h"
 #include "core/names.h"
 #include "core/numbers.h"
@@ -28,7 +29,6 @@
 #include "io/text_file.h"
 #include "scene/scene.h"
 #include "state/md_state.h"
-#include "state/stable_start.h"
 #include "state/velocities.h"
 
 #ifndef CELLFORCE_VERSION
@@ -207,73 +207,6 @@ OutputClaim claim_outputs(const RunArgs& args, const Scene& scene, bool restart)
       {{"--restart checkpoint", "[output] checkpoint"}});
 }
 
-// The engine for the scene, through the public API: the system and engine choices
-// (make_context), and the integrator.
-Context scene_context(const Scene& scene, const Box& box) {
-  Context ctx = make_context(box, scene.force_field, scene.engine);
-  IntegratorOptions integrator;
-  integrator.kind = scene.integrator.kind == IntegratorKind::kLangevin ? Integrator::kLangevin : Integrator::kVerlet;
-  integrator.dt = scene.integrator.dt;
-  integrator.temperature = scene.integrator.temperature;
-  integrator.friction = scene.integrator.friction;
-  integrator.seed = scene.seed;
-  ctx.set_integrator(integrator);
-  return ctx;
-}
-
-void set_state(Context& ctx, const MdState& state, const std::vector<double>& masses) {
-  ctx.set_state(state.config.size(), state.config.positions.data(),
-                state.velocities.empty() ? nullptr : state.velocities.data(), state.config.types.data(),
-                masses.data(), state.step);
-}
-
-// The state's positions, velocities and forces from the context (a download with CUDA).
-void fetch_state(Context& ctx, MdState& state) {
-  const std::size_t nd = state.config.positions.size();
-  state.velocities.resize(nd);
-  state.forces.resize(nd);
-  ctx.get_state(state.config.positions.data(), state.velocities.data(), state.forces.data());
-  state.step = ctx.current_step();
-}
-
-// [minimize]: FIRE on the starting configuration (a fresh run's, before the velocities are
-// drawn); returns the summary line.
-std::string minimize(Context& ctx, const Scene& scene, MdState& state, const std::vector<double>& masses) {
-  set_state(ctx, state, masses);
-  MinimizeOptions fire;
-  fire.force_tolerance = scene.minimize.force_tolerance;
-  fire.max_steps = scene.minimize.max_steps;
-  fire.dt = scene.minimize.dt;
-  fire.dt_max = scene.minimize.dt_max;
-  fire.max_displacement = scene.minimize.max_displacement;
-  const MinimizeResult r = with_context(scene.source + ": [minimize]", [&] { return ctx.minimize(fire); });
-  fetch_state(ctx, state);
-  const std::size_t n = state.config.size();
-  char line[320];
-  std::snprintf(line, sizeof line,
-                "  minimize (FIRE): %lld steps; max force %.4g -> %.4g (particle %zu); energy per particle "
-                "%.6g -> %.6g",
-                (long long)r.steps, r.initial_max_force, r.final_max_force, r.final_max_force_particle,
-                r.initial_energy / double(n), r.final_energy / double(n));
-  return line;
-}
-
-// Dynamics that the first step would throw apart (overlaps) are refused before any output.
-void check_start(const Scene& scene, const MdState& state, const std::vector<double>& masses, bool restart) {
-  if (state.step >= scene.steps) return;
-  std::string remedy;  // the default advice (add [minimize]) unless it cannot help
-  if (restart)
-    remedy = "the checkpoint's state cannot continue at this dt: lower dt ([minimize] applies to fresh runs "
-             "only, and would change the scene's fingerprint)";
-  else if (scene.minimize.enabled) {
-    char text[200];
-    std::snprintf(text, sizeof text, "[minimize] stops at a largest force of %g, too large for this dt: lower "
-                  "[minimize] force_tolerance, or lower dt", scene.minimize.force_tolerance);
-    remedy = text;
-  }
-  check_stable_start(state, masses, scene.integrator.dt, scene.force_field, remedy);
-}
-
 // The trajectory's elements and the names of its species (the scene's types).
 H5mdOptions trajectory_options(const SceneOutput& output) {
   H5mdOptions o;
@@ -447,11 +380,9 @@ int run_md(const RunArgs& args) {
 
   MdState state;
   std::size_t wrapped = 0;
-  state.config = with_context(scene.source, [&] { return build_configuration(scene, &wrapped); });
+  state.config = scene_configuration(scene, &wrapped);
   const std::size_t n = state.config.size();
-  std::vector<double> masses(n);
-  for (std::size_t i = 0; i < n; ++i) masses[i] = scene.masses[state.config.types[i]];
-  with_context(scene.source, [&] { validate_system(state.config.view(), scene.force_field); });
+  const std::vector<double> masses = scene_masses(scene, state.config);
   // What the trajectory would refuse (type names too long for its attribute) is refused before
   // any output is written.
   if (!output.trajectory.empty())
@@ -460,7 +391,7 @@ int run_md(const RunArgs& args) {
   Context ctx = scene_context(scene, state.config.box);
 
   std::string minimize_line;
-  if (scene.minimize.enabled && !restart) minimize_line = minimize(ctx, scene, state, masses);
+  if (scene.minimize.enabled && !restart) minimize_line = minimize_start(ctx, scene, state, masses);
   const bool langevin = scene.integrator.kind == IntegratorKind::kLangevin;
   initialize_velocities(state, masses, scene.initial_temperature, scene.seed, !langevin);
 
@@ -498,7 +429,8 @@ int run_md(const RunArgs& args) {
     }
   }
   fetch_state(ctx, state);
-  with_context(scene.source + ": step " + std::to_string(state.step), [&] { check_start(scene, state, masses, restart); });
+  if (state.step < scene.steps)
+    with_context(scene.source + ": step " + std::to_string(state.step), [&] { check_start(scene, state, masses, restart); });
 
   // Outputs are touched only now that everything that can refuse the run has run.
   RunFiles files(args, scene, state, restart);

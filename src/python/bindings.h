@@ -6,5 +6,6 @@
 namespace cellforce::python {
 
 void bind_force_kernel(nanobind::module_& m);  // ForceKernel, Result (force_kernel.cpp)
+void bind_simulation(nanobind::module_& m);    // SimulationCore (simulation.cpp; cellforce/simulation.py)
 
 }  // namespace cellforce::python

@@ -27,4 +27,5 @@ NB_MODULE(_cellforce, m) {
     }
   });
   cellforce::python::bind_force_kernel(m);
+  cellforce::python::bind_simulation(m);
 }

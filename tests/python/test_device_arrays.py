@@ -227,11 +227,13 @@ def test_arrays_on_another_device_are_refused():
     box, periodic, index, x = binary()
     k = cellforce.ForceKernel(box=box, periodic=periodic, types=BINARY, backend="cuda", device=0)
     with cupy.cuda.Device(1):
-        elsewhere = cupy.asarray(x)
+        elsewhere, types_there = cupy.asarray(x), cupy.asarray(index)
     with pytest.raises(TypeError, match="positions: an array on CUDA device 1; this kernel computes on device 0"):
         k.compute(elsewhere)
     k1 = cellforce.ForceKernel(box=box, periodic=periodic, types=BINARY, backend="cuda", device=1)
-    r = k1.compute(elsewhere, types=cupy.asarray(index))  # the kernel on device 1 takes them
+    with pytest.raises(TypeError, match="types: an array on CUDA device 0; the positions are on CUDA device 1"):
+        k1.compute(elsewhere, types=cupy.asarray(index))
+    r = k1.compute(elsewhere, types=types_there)  # the kernel on device 1 takes them
     k1.synchronize()
     assert r.forces.device.id == 1
     assert np.array_equal(cupy.asnumpy(r.forces), k.compute(x, types=index).forces)

@@ -1,5 +1,6 @@
-"""The README's Python examples (section "Python") run as written: each ```python block executed in
-a fresh namespace, and nothing it computes is NaN."""
+"""The README's Python examples (section "Python") run as written, from the repository's root: each
+```python block executed in a fresh namespace, and nothing it computes is NaN (the CuPy example
+skips without CuPy and a CUDA device, the ASE one without ASE)."""
 from __future__ import annotations
 
 import contextlib
@@ -9,7 +10,8 @@ from pathlib import Path
 
 import pytest
 
-README = Path(__file__).resolve().parents[2] / "README.md"
+ROOT = Path(__file__).resolve().parents[2]
+README = ROOT / "README.md"
 
 
 def python_blocks():
@@ -19,11 +21,11 @@ def python_blocks():
 
 
 def test_the_readme_has_its_examples():
-    assert len(python_blocks()) >= 3
+    assert len(python_blocks()) >= 4
 
 
 @pytest.mark.parametrize("index", range(len(python_blocks())))
-def test_readme_example_runs(index):
+def test_readme_example_runs(index, monkeypatch):
     code = python_blocks()[index]
     if "ase" in code:
         pytest.importorskip("ase")
@@ -37,6 +39,7 @@ def test_readme_example_runs(index):
             cupy.cuda.runtime.getDeviceCount()
         except cupy.cuda.runtime.CUDARuntimeError as e:
             pytest.skip(f"no CUDA device ({e})")
+    monkeypatch.chdir(ROOT)  # the examples run from the repository's root (its paths are relative to it)
     out = io.StringIO()
     with contextlib.redirect_stdout(out):
         exec(compile(code, f"README.md python block {index}", "exec"), {})

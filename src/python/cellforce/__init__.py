@@ -12,7 +12,11 @@ NumPy on the host (the results are NumPy arrays), or CuPy, PyTorch, JAX or any
 __cuda_array_interface__ / DLPack array on a CUDA device (the results are arrays on that device,
 the call queued on the array's stream). See ForceKernel.compute and Result. The module wraps the
 C++ API (include/cellforce/cellforce.hpp): it computes nothing of its own.
+
+Simulation runs molecular dynamics (the library's own loop, the state where the backend computes):
+from a scene file as `cellforce run` starts it, or from arrays; see cellforce.Simulation.
 """
 from ._cellforce import ForceKernel, Result, __version__, built_with_cuda
+from .simulation import Simulation
 
-__all__ = ["ForceKernel", "Result", "__version__", "built_with_cuda"]
+__all__ = ["ForceKernel", "Result", "Simulation", "__version__", "built_with_cuda"]

@@ -1,6 +1,7 @@
-// The commands' one way to the engine: a cellforce::Context (the public API) set up from the
-// application's description of a system (box, force field) and the engine options it was given
-// (a scene's [run] and [neighbor], a command's flags), handed to Context::set_option as they are.
+// The application's one way to the engine (the CLI's commands, the Python module's scenes): a
+// cellforce::Context (the public API) set up from a description of a system (box, force field) and
+// the engine options it was given (a scene's [run] and [neighbor], a command's flags), handed to
+// Context::set_option as they are.
 #pragma once
 
 #include <cellforce/cellforce.hpp>

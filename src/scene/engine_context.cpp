@@ -1,4 +1,4 @@
-#include "cli/engine_context.h"
+#include "scene/engine_context.h"
 
 #include "core/names.h"
 
