@@ -437,10 +437,11 @@ class CELLFORCE_API Context {
   void get_state(double* positions, double* velocities, double* forces);
   // The state where it lives, to read without a copy (StateView). With cuda the host waits for the
   // context's stream first, so that the arrays are complete. The arrays change with every call that
-  // changes the state (step, set_*, minimize, thermo() when it evaluates again), and the pointers
-  // may move with it (the forces' on the CPU do at each evaluation; a new set_state, a change of
-  // backend, device, engine option or box may give the state new arrays): read the view again after
-  // any call on the context. Not to be written: set_positions and set_velocities change the state.
+  // changes the state (step, set_positions and set_velocities write into them, minimize, thermo()
+  // when it evaluates again); the pointers may move: the forces' on the CPU alternate between two
+  // arrays from one evaluation to the next, and a new set_state, a change of backend, device,
+  // engine option, physics or box may give the state new arrays (the old ones freed). Read the view
+  // again after any call on the context. Not to be written through.
   StateView state_view();
   // Thermodynamics now: a reduction on the device and 8 numbers copied back with cuda (one more
   // force evaluation when the last step did not observe).

@@ -62,14 +62,16 @@ class CpuMdEngine final : public MdEngine {
   }
 
   void set_positions(const std::vector<double>& positions) override {
-    MdState next = state_;
-    next.config.positions = positions;
-    validate_system(next.config.view(), ff_);
-    std::swap(state_.config.positions, next.config.positions);
+    Configuration trial = state_.config;
+    trial.positions = positions;
+    validate_system(trial.view(), ff_);
+    // Into the state's own array (a state view's pointer holds), the positions before kept aside.
+    const std::vector<double> before = state_.config.positions;
+    std::copy(positions.begin(), positions.end(), state_.config.positions.begin());
     try {
       evaluate(true);
     } catch (const Error& e) {
-      std::swap(state_.config.positions, next.config.positions);
+      std::copy(before.begin(), before.end(), state_.config.positions.begin());
       try {
         evaluate(true);
       } catch (const Error& again) {
@@ -80,7 +82,12 @@ class CpuMdEngine final : public MdEngine {
     }
   }
 
-  void set_velocities(const std::vector<double>& velocities) override { state_.velocities = velocities; }
+  void set_velocities(const std::vector<double>& velocities) override {
+    if (state_.velocities.size() == velocities.size())  // in place: a state view's pointer holds
+      std::copy(velocities.begin(), velocities.end(), state_.velocities.begin());
+    else
+      state_.velocities = velocities;
+  }
 
   void advance(int64_t steps, const IntegratorSettings& settings, bool observe) override {
     const auto t0 = Clock::now();

@@ -17,7 +17,7 @@
 namespace cellforce::python {
 namespace {
 
-constexpr int kDLCuda = 2, kDLCudaManaged = 13;  // DLPack's device types for CUDA memory
+constexpr int kDLCpu = 1, kDLCuda = 2, kDLCudaManaged = 13;  // DLPack's device types
 
 Framework framework_of(nb::handle obj) {
   const nb::handle type = reinterpret_cast<PyObject*>(Py_TYPE(obj.ptr()));
@@ -66,6 +66,24 @@ class OnDevice {
 
  private:
   int previous_ = 0;
+};
+
+// The same without throwing, for destructors and deleters: errors are cleared and ignored.
+class OnDeviceQuietly {
+ public:
+  explicit OnDeviceQuietly(int device) {
+    if (cudaGetDevice(&previous_) != cudaSuccess) previous_ = -1;
+    if (previous_ != device) (void)cudaSetDevice(device);
+  }
+  ~OnDeviceQuietly() {
+    if (previous_ >= 0) (void)cudaSetDevice(previous_);
+    (void)cudaGetLastError();
+  }
+  OnDeviceQuietly(const OnDeviceQuietly&) = delete;
+  OnDeviceQuietly& operator=(const OnDeviceQuietly&) = delete;
+
+ private:
+  int previous_ = -1;
 };
 
 // The module's pool on a device: stream-ordered allocations that stay with the pool when freed
@@ -129,11 +147,11 @@ ArrayRef from_cuda_array_interface(nb::handle obj, nb::handle cai, const char* n
     a.shape.push_back(std::size_t(s));
     count *= std::size_t(s);
   }
-  if (d.contains("strides") && !d["strides"].is_none()) {
+  if (itemsize && d.contains("strides") && !d["strides"].is_none()) {  // (another dtype: the caller names it)
     std::vector<int64_t> strides;
     if (!nb::try_cast(d["strides"], strides) || strides.size() != shape.size())
       type_error(name, "__cuda_array_interface__'s strides are not one per axis");
-    int64_t expected = int64_t(itemsize ? itemsize : 1);
+    int64_t expected = int64_t(itemsize);
     for (std::size_t k = shape.size(); k-- > 0;) {
       if (shape[k] > 1 && strides[k] != expected)
         type_error(name, "expected a C-contiguous array (rows packed, in C order); copy it first, e.g. "
@@ -179,6 +197,8 @@ ArrayRef from_ndarray(nb::handle source, nb::handle obj, const char* name, bool 
     nb::ndarray<nb::c_contig> array;
     if (!nb::try_cast(source, array, false))
       type_error(name, "expected a writable C-contiguous array (rows packed, in C order)");
+    if (device < 0 && array.device_type() != nb::device::cpu::value)
+      type_error(name, "an array that is not in host memory; expected the host or a CUDA device");
     a.data = array.data();
     a.dtype = dtype_of(array.dtype());
     for (std::size_t k = 0; k < array.ndim(); ++k) a.shape.push_back(array.shape(k));
@@ -189,6 +209,8 @@ ArrayRef from_ndarray(nb::handle source, nb::handle obj, const char* name, bool 
     if (!nb::try_cast(source, array, false))
       type_error(name, "expected a C-contiguous array (rows packed, in C order): NumPy on the host, or CuPy, "
                        "PyTorch, JAX or any __cuda_array_interface__ / DLPack array on a CUDA device");
+    if (device < 0 && array.device_type() != nb::device::cpu::value)
+      type_error(name, "an array that is not in host memory; expected the host or a CUDA device");
     a.data = const_cast<void*>(array.data());
     a.dtype = dtype_of(array.dtype());
     for (std::size_t k = 0; k < array.ndim(); ++k) a.shape.push_back(array.shape(k));
@@ -241,10 +263,21 @@ bool on_device(nb::handle obj) {
 ArrayRef take_array(nb::handle obj, const char* name, bool writable, uintptr_t stream) {
   // A device array: its __cuda_array_interface__ where it has one (it may name the stream its
   // work is on), else DLPack, asked for in the order of the call's stream.
+  // An interface that names no stream (PyTorch's, version 2) says nothing of the producer's
+  // stream: DLPack, where the object has it, orders the producer's work before the call's stream.
   PyObject* cai = PyObject_GetAttrString(obj.ptr(), "__cuda_array_interface__");
-  if (cai) return from_cuda_array_interface(obj, nb::steal(cai), name, writable);
-  PyErr_Clear();  // no such attribute, or a framework's refusal on a host array
-  if (const auto where = dlpack_device(obj); where && (where->first == kDLCuda || where->first == kDLCudaManaged)) {
+  if (cai) {
+    const nb::object interface = nb::steal(cai);
+    const bool names_stream = nb::isinstance<nb::dict>(interface) && nb::borrow<nb::dict>(interface).contains("stream");
+    if (names_stream || !nb::hasattr(obj, "__dlpack__")) return from_cuda_array_interface(obj, interface, name, writable);
+  } else {
+    PyErr_Clear();  // no such attribute, or a framework's refusal on a host array
+  }
+  const auto where = dlpack_device(obj);
+  if (where && where->first != kDLCpu && where->first != kDLCuda && where->first != kDLCudaManaged)
+    type_error(name, "an array on a DLPack device of type " + std::to_string(where->first) +
+                         "; expected the host or a CUDA device");
+  if (where && (where->first == kDLCuda || where->first == kDLCudaManaged)) {
 #ifdef CELLFORCE_HAVE_CUDA
     nb::object capsule;
     try {
@@ -336,8 +369,8 @@ DeviceResults::DeviceResults(int device, uintptr_t stream, Framework framework)
     : device_(device), stream_(runtime_stream(stream)), framework_(framework) {}
 
 DeviceResults::~DeviceResults() {
-  for (Block* b : blocks_) {  // not handed out (the call failed): nothing was queued to write them
-    OnDevice on(b->device);
+  for (Block* b : blocks_) {  // not handed out (the call failed before queueing its work)
+    OnDeviceQuietly on(b->device);
     (void)cudaFreeAsync(b->data, static_cast<cudaStream_t>(stream_));
     delete b;
   }
@@ -357,18 +390,27 @@ std::vector<nb::object> DeviceResults::finish(const std::vector<std::vector<std:
   CallEnd* end = nullptr;
   if (stream_ && !blocks_.empty()) {
     OnDevice on(device_);
-    end = new CallEnd;
-    check(cudaEventCreateWithFlags(&end->event, cudaEventDisableTiming), "cudaEventCreateWithFlags");
-    check(cudaEventRecord(end->event, static_cast<cudaStream_t>(stream_)), "cudaEventRecord");
+    cudaEvent_t event = nullptr;
+    check(cudaEventCreateWithFlags(&event, cudaEventDisableTiming), "cudaEventCreateWithFlags");
+    const cudaError_t recorded = cudaEventRecord(event, static_cast<cudaStream_t>(stream_));
+    if (recorded != cudaSuccess) {
+      (void)cudaEventDestroy(event);
+      cuda_failed("cudaEventRecord", recorded);
+    }
+    end = new CallEnd{event, int(blocks_.size())};  // each block holds it from here on
+    for (Block* b : blocks_) b->end = end;
   }
-  std::vector<nb::object> arrays;
+  // Each block into its capsule first (nothing here throws), then the arrays over them: a throw
+  // while exporting leaves every block with an owner that frees it.
+  std::vector<nb::capsule> owners;
+  owners.reserve(blocks_.size());
+  for (Block* b : blocks_) owners.emplace_back(b, release);
   std::vector<Block*> blocks = std::move(blocks_);
   blocks_.clear();
+  std::vector<nb::object> arrays;
   for (std::size_t k = 0; k < blocks.size(); ++k) {
     Block* b = blocks[k];
-    if (end) ++end->references;
-    b->end = end;
-    nb::capsule owner(b, release);
+    const nb::capsule& owner = owners[k];
     switch (framework_) {
       case Framework::kCupy: arrays.push_back(device_array<nb::cupy>(b->data, shapes[k], owner, device_)); break;
       case Framework::kTorch: arrays.push_back(device_array<nb::pytorch>(b->data, shapes[k], owner, device_)); break;
@@ -378,6 +420,71 @@ std::vector<nb::object> DeviceResults::finish(const std::vector<std::vector<std:
   }
   return arrays;
 }
+
+// ---- the order of a kernel's calls ----
+
+CallOrder::~CallOrder() {
+  OnDeviceQuietly on(device_);
+  for (Held& h : held_) {
+    (void)cudaEventSynchronize(static_cast<cudaEvent_t>(h.event));
+    free_.push_back(h.event);
+  }
+  held_.clear();  // the arrays go (the GIL is held: the kernel is destroyed from Python)
+  for (void* e : free_) (void)cudaEventDestroy(static_cast<cudaEvent_t>(e));
+}
+
+void* CallOrder::event() {
+  if (!free_.empty()) {
+    void* e = free_.back();
+    free_.pop_back();
+    return e;
+  }
+  cudaEvent_t e = nullptr;
+  check(cudaEventCreateWithFlags(&e, cudaEventDisableTiming), "cudaEventCreateWithFlags");
+  return e;
+}
+
+void CallOrder::after(uintptr_t producer, uintptr_t call) {
+  if (runtime_stream(producer) == runtime_stream(call)) return;
+  OnDevice on(device_);
+  void* e = event();
+  const cudaError_t recorded = cudaEventRecord(static_cast<cudaEvent_t>(e), static_cast<cudaStream_t>(runtime_stream(producer)));
+  const cudaError_t waited = recorded == cudaSuccess
+                                 ? cudaStreamWaitEvent(static_cast<cudaStream_t>(runtime_stream(call)),
+                                                       static_cast<cudaEvent_t>(e), 0)
+                                 : recorded;
+  free_.push_back(e);  // reusable at once: a wait takes the event's state when it is queued
+  if (waited != cudaSuccess) cuda_failed("stream: ordering the call after the array's stream", waited);
+}
+
+void CallOrder::hold(uintptr_t call, std::vector<ArrayRef> arrays) {
+  OnDevice on(device_);
+  void* e = event();
+  const cudaError_t recorded = cudaEventRecord(static_cast<cudaEvent_t>(e), static_cast<cudaStream_t>(runtime_stream(call)));
+  if (recorded != cudaSuccess) {
+    free_.push_back(e);
+    cuda_failed("cudaEventRecord", recorded);
+  }
+  held_.push_back(Held{e, std::move(arrays)});
+}
+
+void CallOrder::release_done() {
+  OnDeviceQuietly on(device_);
+  std::size_t kept = 0;
+  for (Held& h : held_) {
+    const cudaError_t state = cudaEventQuery(static_cast<cudaEvent_t>(h.event));
+    if (state == cudaErrorNotReady) {
+      if (&held_[kept] != &h) held_[kept] = std::move(h);
+      ++kept;
+    } else {
+      free_.push_back(h.event);  // done (or failed: the call's error comes with synchronize())
+      h.arrays.clear();
+    }
+  }
+  held_.resize(kept);
+  (void)cudaGetLastError();
+}
+
 #else
 struct DeviceResults::Block {};
 DeviceResults::DeviceResults(int device, uintptr_t, Framework framework)
@@ -387,6 +494,11 @@ double* DeviceResults::allocate(std::size_t) {
   throw nb::builtin_exception(nb::exception_type::runtime_error, "this cellforce was built without CUDA");
 }
 std::vector<nb::object> DeviceResults::finish(const std::vector<std::vector<std::size_t>>&) { return {}; }
+CallOrder::~CallOrder() = default;
+void* CallOrder::event() { return nullptr; }
+void CallOrder::after(uintptr_t, uintptr_t) {}
+void CallOrder::hold(uintptr_t, std::vector<ArrayRef>) {}
+void CallOrder::release_done() {}
 #endif
 
 }  // namespace cellforce::python

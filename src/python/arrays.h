@@ -83,6 +83,34 @@ class DeviceResults {
   std::vector<Block*> blocks_;
 };
 
+// The order of one kernel's device calls against the caller's streams, on one device: a call's
+// stream waits for the work on the streams its arrays name (an event recorded there), and the
+// arrays a call reads or writes are held until the device has run it (an event recorded on the
+// call's stream), so that a caller may drop them at once, as with any framework's own calls.
+class CallOrder {
+ public:
+  explicit CallOrder(int device) : device_(device) {}
+  ~CallOrder();  // waits for the calls still holding arrays, then releases them
+  CallOrder(const CallOrder&) = delete;
+  CallOrder& operator=(const CallOrder&) = delete;
+  // `call` waits for the work queued on `producer` so far, where they are not the same stream.
+  void after(uintptr_t producer, uintptr_t call);
+  // Holds `arrays` until the work queued on `call` so far has run.
+  void hold(uintptr_t call, std::vector<ArrayRef> arrays);
+  // Releases the arrays of the calls the device has run (all of them after a synchronisation).
+  void release_done();
+
+ private:
+  void* event();  // an event of the pool (a cudaEvent_t)
+  struct Held {
+    void* event = nullptr;
+    std::vector<ArrayRef> arrays;
+  };
+  int device_;
+  std::vector<Held> held_;
+  std::vector<void*> free_;
+};
+
 // Whether the module was built with the CUDA runtime (device arrays need it).
 bool built_with_cuda();
 

@@ -47,7 +47,7 @@ class ForceKernel {
   ForceKernel(const std::vector<double>& box, nb::object periodic, double cutoff, nb::object types, nb::object pairs,
               const std::string& mixing, const std::string& mode, const std::string& precision,
               const std::string& backend, int device)
-      : ctx_(check_dim(box)), device_(device) {
+      : ctx_(check_dim(box)), device_(device), order_(device) {
     const std::size_t dim = box.size();
     bool p[3] = {true, true, true};
     if (!periodic.is_none()) {  // any sequence of truth values (a list, NumPy's bools, ASE's atoms.pbc)
@@ -121,9 +121,12 @@ class ForceKernel {
     return nb::module_::import_("json").attr("loads")(json);
   }
   void synchronize() {
-    nb::gil_scoped_release release;
-    const std::lock_guard<std::mutex> lock(mutex_);
-    ctx_.synchronize();
+    {
+      nb::gil_scoped_release release;
+      const std::lock_guard<std::mutex> lock(mutex_);
+      ctx_.synchronize();
+    }
+    order_.release_done();  // the calls have run: their arrays go
   }
 
   Result compute(nb::handle positions, nb::handle types, bool energy, bool virial, int64_t ghosts,
@@ -342,14 +345,23 @@ class ForceKernel {
                                                  "; this kernel computes on device " + std::to_string(device_) +
                                                  " (ForceKernel(device=...))")
                                .c_str());
+    order_.release_done();
     const std::size_t dim = std::size_t(ctx_.dim()), n = pos.shape[0];
-    const TypeIndices typ = take_types(types, n, device_, stream);
+    TypeIndices typ = take_types(types, n, device_, stream);
     std::optional<ArrayRef> f_out, e_out;
     if (!forces.is_none()) f_out = take_output(forces, "forces", {n, dim}, device_, stream);
     if (!energies.is_none()) {
       if (!energy) throw nb::value_error("energies: given, but energy=False");
       e_out = take_output(energies, "energies", {n}, device_, stream);
     }
+    // The call's stream after the work on the streams the arrays' interfaces name (CAI v3: the
+    // producer's stream), and the arrays held until the call has run.
+    std::vector<ArrayRef> used{pos};
+    if (typ.data) used.push_back(typ.array);
+    if (f_out) used.push_back(*f_out);
+    if (e_out) used.push_back(*e_out);
+    for (const ArrayRef& a : used)
+      if (a.stream) order_.after(*a.stream, stream);
     DeviceResults made(device_, stream, pos.framework);
     std::vector<std::vector<std::size_t>> shapes;
     cf::Outputs out;
@@ -376,6 +388,7 @@ class ForceKernel {
       const std::lock_guard<std::mutex> lock(mutex_);
       ctx_.compute_device(n, p, t, out, runtime_stream(stream));
     }
+    order_.hold(stream, std::move(used));
     std::vector<nb::object> arrays = made.finish(shapes);
     std::size_t next = 0;
     Result r;
@@ -391,6 +404,7 @@ class ForceKernel {
   cf::Context ctx_;  // one thread at a time (mutex_): compute releases the GIL
   std::mutex mutex_;
   int device_ = 0;
+  CallOrder order_;           // the device calls against the caller's streams, their arrays held
   std::optional<bool> cuda_;  // whether the backend resolved to cuda (asked at the first device call)
   std::vector<std::string> names_;
 };

@@ -13,6 +13,7 @@
 
 #include <cellforce/cellforce.hpp>
 
+#include <atomic>
 #include <cstdint>
 #include <mutex>
 #include <optional>
@@ -75,6 +76,7 @@ class SimulationCore {
       initialize_velocities(state, m, *initial_temperature, seed, integrator != "langevin");
       v = std::move(state.velocities);
     }
+    n_ = n;
     species_.assign(type_index.data(), type_index.data() + n);
     masses_.assign(masses.data(), masses.data() + n);
     nb::gil_scoped_release release;
@@ -102,6 +104,7 @@ class SimulationCore {
     for (const cf::ParticleType& t : scene.force_field.types) core->names_.push_back(t.name);
     core->scene_steps_ = scene.steps;
     core->species_ = start.state.config.types;
+    core->n_ = start.state.config.size();
     core->masses_ = start.masses;
     core->minimize_line_ = start.minimize_line;
     return core;
@@ -137,17 +140,27 @@ class SimulationCore {
     return d;
   }
 
-  // The state where it lives, as three arrays read in place (positions, velocities, forces): NumPy
-  // read-only views on the host; on the device, arrays of `framework` (0: DLPack, 1: CuPy, 2:
-  // PyTorch, 3: JAX). Each holds the simulation alive.
-  nb::tuple state_view(int framework) {
+  // One array of the state where it lives, read in place (`which`: 0 positions, 1 velocities, 2
+  // forces): a NumPy read-only view on the host; on the device, an array of `framework` (0: DLPack,
+  // 1: CuPy, 2: PyTorch, 3: JAX).
+  nb::object state_view(int which, int framework) {
+    if (which < 0 || which > 2) throw nb::value_error("which: 0 (positions), 1 (velocities) or 2 (forces)");
     cf::StateView v;
     {
       nb::gil_scoped_release release;
       const std::lock_guard<std::mutex> lock(mutex_);
       v = ctx_.state_view();
     }
-    const nb::object owner = nb::find(this);
+    // Each view's owner holds the simulation and counts as a live view until it goes: set_box,
+    // which may give the state new arrays, is refused while one lives (BufferError, as Python
+    // refuses to resize a bytearray with exports).
+    auto* held = new nb::object(nb::find(this));
+    ++views_;
+    const nb::capsule owner(held, [](void* p) noexcept {
+      auto* simulation = static_cast<nb::object*>(p);
+      --nb::inst_ptr<SimulationCore>(*simulation)->views_;
+      delete simulation;
+    });
     const std::size_t shape[2] = {v.n, std::size_t(v.dim)};
     auto view = [&](const double* data) -> nb::object {
       if (v.device < 0)
@@ -170,7 +183,7 @@ class SimulationCore {
                           nb::rv_policy::reference);
       }
     };
-    return nb::make_tuple(view(v.positions), view(v.velocities), view(v.forces));
+    return view(which == 0 ? v.positions : which == 1 ? v.velocities : v.forces);
   }
 
   // Host copies of positions, velocities and forces.
@@ -201,6 +214,11 @@ class SimulationCore {
       throw nb::value_error(("box: " + std::to_string(lengths.size()) + " edge lengths for a system of " +
                              std::to_string(ctx_.dim()) + " axes")
                                 .c_str());
+    if (views_ > 0)
+      throw nb::buffer_error((std::to_string(views_.load()) + " view(s) of the state (positions, velocities, forces) "
+                              "are alive, and a new box may give the state new arrays: drop them (del) first, or "
+                              "read copies with get_state()")
+                                 .c_str());
     bool p[3] = {true, true, true};
     for (std::size_t a = 0; a < periodic.size(); ++a) p[a] = periodic[a];
     {
@@ -239,9 +257,13 @@ class SimulationCore {
     const std::lock_guard<std::mutex> lock(mutex_);
     return ctx_.statistics_json();
   }
-  std::size_t num_particles() const { return ctx_.num_particles(); }
-  int dim() const { return ctx_.dim(); }
-  int64_t current_step() const { return ctx_.current_step(); }
+  std::size_t num_particles() const { return n_; }
+  int dim() const { return int(box_.size()); }
+  int64_t current_step() {
+    const std::lock_guard<std::mutex> lock(mutex_);
+    return ctx_.current_step();
+  }
+  int live_views() const { return views_; }
   double dt() const { return dt_; }
   const std::vector<double>& box() const { return box_; }
   const std::vector<bool>& periodic() const { return periodic_; }
@@ -294,6 +316,8 @@ class SimulationCore {
   std::vector<double> masses_;     // each particle's mass
   std::optional<int64_t> scene_steps_;
   std::string minimize_line_;
+  std::atomic<int> views_{0};  // views of the state alive (state_view's arrays)
+  std::size_t n_ = 0;          // the particle count (fixed for the simulation's life)
 };
 
 }  // namespace
@@ -314,7 +338,8 @@ void bind_simulation(nb::module_& m) {
                   nb::rv_policy::take_ownership)
       .def("step", &SimulationCore::step, nb::arg("count"), nb::arg("observe"))
       .def("thermo", &SimulationCore::thermo)
-      .def("state_view", &SimulationCore::state_view, nb::arg("framework"))
+      .def("state_view", &SimulationCore::state_view, nb::arg("which"), nb::arg("framework"))
+      .def_prop_ro("views", [](const SimulationCore& c) { return c.live_views(); })
       .def("get_state", &SimulationCore::get_state)
       .def("set_positions", &SimulationCore::set_positions, nb::arg("positions"))
       .def("set_velocities", &SimulationCore::set_velocities, nb::arg("velocities"))

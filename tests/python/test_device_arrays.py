@@ -124,6 +124,53 @@ def test_interface_and_dlpack_producers_and_the_stream_they_name():
     assert np.array_equal(cupy.asnumpy(cupy.from_dlpack(r.forces)), want)
 
 
+SPIN = r"""
+extern "C" __global__ void spin(long long cycles) {
+  const long long start = clock64();
+  while (clock64() - start < cycles) {
+  }
+}"""
+
+
+def delay(stream, seconds: float = 0.05):
+    """Queues a kernel on `stream` that spins for about `seconds` (at 2 GHz)."""
+    kernel = cupy.RawKernel(SPIN, "spin")
+    with stream:
+        kernel((1,), (1,), (np.int64(seconds * 2e9),))
+
+
+def test_a_call_waits_for_the_stream_its_arrays_name_and_holds_them():
+    """Positions written on a producer's stream behind a long kernel: the call reads the new ones,
+    on the stream their interface names and on another stream given (which waits for it); a
+    temporary whose only reference is the call's is not reused before the call has run."""
+    box, periodic, index, x = binary()
+    k = cellforce.ForceKernel(box=box, periodic=periodic, types=BINARY, backend="cuda")
+    moved = x + np.random.default_rng(3).normal(0.0, 0.01, x.shape)
+    want_old, want_new = k.compute(x, types=index).forces, k.compute(moved, types=index).forces
+    producer, caller = cupy.cuda.Stream(non_blocking=True), cupy.cuda.Stream(non_blocking=True)
+    xd, td, new, old = cupy.asarray(x), cupy.asarray(index), cupy.asarray(moved), cupy.asarray(x)
+    cupy.cuda.Device().synchronize()
+    delay(producer)
+    with producer:
+        xd[...] = new
+    r = k.compute(InterfaceOnly(xd, producer.ptr), types=InterfaceOnly(td))  # on the producer's stream
+    producer.synchronize()
+    assert np.array_equal(cupy.asnumpy(cupy.from_dlpack(r.forces)), want_new)
+    delay(producer)
+    with producer:
+        xd[...] = old
+    r = k.compute(InterfaceOnly(xd, producer.ptr), types=td, stream=caller)  # the caller's waits for it
+    caller.synchronize()
+    assert np.array_equal(cupy.asnumpy(cupy.from_dlpack(r.forces)), want_old)
+    delay(caller)
+    r = k.compute(cupy.asarray(moved), types=td, stream=caller)  # the temporary: held by the call alone
+    for _ in range(4):
+        cupy.full(x.shape, 1e3)  # on the default stream, where the temporary's memory would be reused
+    caller.synchronize()
+    k.synchronize()
+    assert np.array_equal(cupy.asnumpy(r.forces), want_new)
+
+
 def test_calls_on_a_stream_in_place_and_into_the_callers_arrays():
     """A loop on a non-blocking CuPy stream (the current stream, named by the arrays' interface):
     forces written into the caller's array, bitwise the host call's at each step's positions, and

@@ -150,6 +150,30 @@ def test_new_positions_and_box_act_on_the_live_state(backend):
         sim.set_positions(x[:-1])
 
 
+@pytest.mark.parametrize("backend", backends())
+def test_views_follow_the_state_and_hold_the_box(backend):
+    """A view taken before set_positions and steps shows the state after them (in place); set_box is
+    refused while a view lives (a new box may move the arrays) and runs once the views are gone."""
+    sim = lattice_sim(backend, arrays="dlpack")
+    view = sim.positions
+    x = sim.get_state()[0] + 0.01
+
+    def host(v):
+        if backend == "cpu":
+            return v
+        cupy = pytest.importorskip("cupy")
+        return cupy.asnumpy(cupy.from_dlpack(v))
+
+    sim.set_positions(x)
+    assert np.array_equal(host(view), sim.get_state()[0])
+    sim.run(3)
+    assert np.array_equal(host(view), sim.get_state()[0])
+    with pytest.raises(BufferError, match="1 view"):
+        sim.set_box([b * 1.01 for b in sim.box], scale_positions=True)
+    del view
+    sim.set_box([b * 1.01 for b in sim.box], scale_positions=True)
+
+
 def test_minimize_relaxes_or_names_the_particle():
     rng = np.random.default_rng(4)
     x = rng.random((300, 3)) * 8.0

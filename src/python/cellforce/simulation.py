@@ -163,9 +163,11 @@ class Simulation:
                    arrays: str = "auto") -> "Simulation":
         """The scene file's system as `cellforce run` starts it (its particles, types, interactions,
         [initial] velocities, [integrator], [run] and [neighbor] engine options, [minimize]), at
-        step 0: the same numbers as the CLI, step by step, on the same backend and precision.
-        backend, precision, device, skin and options replace the scene's. The scene's [run] steps is
-        scene_steps; its [output] is the CLI's (a Simulation reports through its reporters)."""
+        step 0: the same numbers as the CLI, step by step, on the same backend and precision (a
+        start whose first step would throw particles apart is refused, as the CLI refuses it for a
+        run of any length). backend, precision, device, skin and options replace the scene's. The
+        scene's [run] steps is scene_steps; its [output] is the CLI's (a Simulation reports through
+        its reporters)."""
         self = cls.__new__(cls)
         self._core = SimulationCore.from_scene(str(path), _options(backend, precision, device, skin, options))
         self._setup(arrays)
@@ -234,14 +236,17 @@ class Simulation:
         return self._core.thermo()
 
     def _view(self, which: int):
-        return self._core.state_view(_framework(self._arrays))[which]
+        return self._core.state_view(which, _framework(self._arrays))
 
     @property
     def positions(self):
         """(n, dim) float64: the positions where the state lives, read in place (wrapped into the box
         on periodic axes): a read-only NumPy view on the cpu backend, a device array with cuda (see
-        `arrays`; not to be written). It shows the state as it is when read: read it again after
-        run(), minimize() or a set_* call (the view may move then). get_state() copies."""
+        `arrays`; not to be written: set_positions changes them). A view follows the state as it
+        changes (run, minimize, set_*): read after a change, it shows the state after it (a forces
+        view on the cpu backend excepted: read `forces` again after a step). While a view lives,
+        set_box is refused (BufferError: a new box may give the state new arrays); get_state()
+        copies."""
         return self._view(0)
 
     @property
@@ -252,7 +257,8 @@ class Simulation:
     @property
     def forces(self):
         """(n, dim) float64: the forces at the positions where the state lives, read in place (as
-        positions)."""
+        positions; on the cpu backend the forces alternate between two arrays from one evaluation to
+        the next, so a view held across a step shows an older evaluation's: read it again)."""
         return self._view(2)
 
     def get_state(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -273,7 +279,8 @@ class Simulation:
         """A new box for the live state (edge lengths; periodic: one truth value per axis, default
         the axes' rule now): positions scaled with the edges (scale_positions) or wrapped into the
         new box, the forces evaluated again. A box the state cannot take (a periodic edge below twice
-        the cutoff) raises ValueError naming it and leaves the state as it was."""
+        the cutoff) raises ValueError naming it and leaves the state as it was; BufferError while a
+        view of the state (positions, velocities, forces) lives."""
         lengths = [float(b) for b in box]
         periodic = self.periodic if periodic is None else [bool(p) for p in periodic]
         self._core.set_box(lengths, periodic, bool(scale_positions))
