@@ -469,19 +469,15 @@ void CallOrder::hold(uintptr_t call, std::vector<ArrayRef> arrays) {
 }
 
 void CallOrder::release_done() {
+  // In the order held: a call's event completes after the earlier calls' on one stream, so the
+  // first one not done ends the look (a later one on another stream waits for the next look).
   OnDeviceQuietly on(device_);
-  std::size_t kept = 0;
-  for (Held& h : held_) {
-    const cudaError_t state = cudaEventQuery(static_cast<cudaEvent_t>(h.event));
-    if (state == cudaErrorNotReady) {
-      if (&held_[kept] != &h) held_[kept] = std::move(h);
-      ++kept;
-    } else {
-      free_.push_back(h.event);  // done (or failed: the call's error comes with synchronize())
-      h.arrays.clear();
-    }
+  while (!held_.empty()) {
+    const cudaError_t state = cudaEventQuery(static_cast<cudaEvent_t>(held_.front().event));
+    if (state == cudaErrorNotReady) break;
+    free_.push_back(held_.front().event);  // done (or failed: the call's error comes with synchronize())
+    held_.pop_front();
   }
-  held_.resize(kept);
   (void)cudaGetLastError();
 }
 

@@ -13,6 +13,7 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <deque>
 #include <optional>
 #include <string>
 #include <vector>
@@ -107,7 +108,7 @@ class CallOrder {
     std::vector<ArrayRef> arrays;
   };
   int device_;
-  std::vector<Held> held_;
+  std::deque<Held> held_;  // in the order held
   std::vector<void*> free_;
 };
 

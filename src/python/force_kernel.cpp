@@ -416,7 +416,8 @@ void bind_force_kernel(nb::module_& m) {
                      "What ForceKernel.compute returns, in the caller's particle order (the locals only where "
                      "there are ghosts) and units, where the positions live: NumPy arrays for host positions; "
                      "for positions on a CUDA device, arrays on that device (CuPy's, PyTorch's or JAX's where the "
-                     "positions were, else DLPack arrays), ready once the call's stream reaches the call.")
+                     "positions were, else DLPack arrays, each taken once by a framework's from_dlpack), ready "
+                     "once the call's stream reaches the call.")
       .def_ro("forces", &Result::forces,
               "(n_local, dim) float64: the force on each particle (energy / length); the forces= array where given")
       .def_ro("energies", &Result::energies,

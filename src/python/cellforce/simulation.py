@@ -76,7 +76,8 @@ class Simulation:
     'cuda' or 'auto'; device: the CUDA device; skin: 'auto' or a length; options: any other engine
     option (set_option's keys, e.g. {'neighbor-list': True}); step: the step counter to start at;
     arrays: how device views are handed out ('auto': CuPy, PyTorch or JAX, whichever is imported
-    first in that order, else DLPack; or one of 'cupy', 'torch', 'jax', 'dlpack').
+    first in that order, else DLPack; or one of 'cupy', 'torch', 'jax', 'dlpack'; a DLPack array is
+    taken once, by a framework's from_dlpack).
     """
 
     def __init__(self, box: Sequence[float], positions, *, periodic=None, cutoff: float = 2.5,
