@@ -15,20 +15,12 @@ import numpy as np
 import pytest
 
 import cellforce
+from here import cuda_missing
 from xyz import SYSTEMS, read_xyz
 
 ROOT = Path(__file__).resolve().parents[2]
 EXE = os.environ.get("CELLFORCE_EXE", str(ROOT / "build" / "cellforce"))
 BINARY = {"A": (1.0, 1.0), "B": (0.88, 0.5)}  # binary_lb.xyz's types (systems/validation/README.md)
-
-
-def cuda_missing() -> str:
-    """Why the cuda backend cannot run here (empty: it can), as the library says it."""
-    try:
-        cellforce.ForceKernel(box=[10.0, 10.0, 10.0], backend="cuda").compute(np.zeros((1, 3)))
-    except RuntimeError as e:
-        return str(e)
-    return ""
 
 
 def cli_forces(tmp_path: Path, xyz: Path, precision: str, types: dict, dim: int = 3, backend: str = "cpu"):

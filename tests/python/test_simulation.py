@@ -17,18 +17,11 @@ import numpy as np
 import pytest
 
 import cellforce
+from here import cuda_missing
 
 ROOT = Path(__file__).resolve().parents[2]
 EXE = os.environ.get("CELLFORCE_EXE", str(ROOT / "build" / "cellforce"))
 SYSTEMS = ROOT / "systems"
-
-
-def cuda_missing() -> str:
-    try:
-        cellforce.ForceKernel(box=[10.0, 10.0, 10.0], backend="cuda").compute(np.zeros((1, 3)))
-    except RuntimeError as e:
-        return str(e)
-    return ""
 
 
 def backends():
