@@ -33,13 +33,13 @@ LAYERS = {
     "cuda": 2, "cuda/search": 2, "cuda/forces": 2, "cuda/integrate": 2,
     "src/backends": 3, "cuda/backend": 3,
     "src/api": 4,
-    "src/io": 5, "src/scene": 6, "src/cli": 7, "src/python": 7,
+    "src/io": 5, "src/scene": 6, "src/cli": 7, "src/python": 7, "src/lammps": 7,
 }
 # Headers of a layer-2 folder that its siblings share: the integrators' per-particle arithmetic,
 # written once for the host loop and the CUDA kernels.
 SHARED = {"md/verlet_step.h", "md/fire_step.h"}
 # The application is a client of the public API: besides it, only these folders.
-CLIENT_FOLDERS = {"src/cli", "src/scene", "src/python"}
+CLIENT_FOLDERS = {"src/cli", "src/scene", "src/python", "src/lammps"}
 CLIENT_MAY_USE = {"src/core", "src/state", "src/io", "src/scene", "src/cli"}
 CUDA_ORDER = {"cuda": 0, "cuda/search": 1, "cuda/forces": 2, "cuda/integrate": 3, "cuda/backend": 4}
 LEAF_PUBLIC = {"cellforce/options.hpp", "cellforce/error.hpp", "cellforce/export.hpp"}

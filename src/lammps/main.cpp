@@ -1,0 +1,84 @@
+// cellforce-lammps: LAMMPS (its library) runs an input script written for LAMMPS, with
+// `pair_style lj/cut` computed by cellforce on every rank (pair_cellforce.h); every other pair
+// style is refused. LAMMPS's own flags pass through (-in, -var, -log, -echo, ...); cellforce's
+// engine options come from --cellforce-backend, --cellforce-precision, --cellforce-skin and
+// --cellforce-device, or the variables CELLFORCE_BACKEND, CELLFORCE_PRECISION, CELLFORCE_SKIN and
+// CELLFORCE_DEVICE (a flag wins).
+//   mpirun -np 4 cellforce-lammps -in in.lj --cellforce-backend cpu
+#include <mpi.h>
+
+#include <cellforce/cellforce.hpp>
+
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <string>
+#include <vector>
+
+#include "lammps_headers.h"
+#include "pair_cellforce.h"
+
+namespace {
+
+// A pair style other than lj/cut: refused by LAMMPS's error, which names the script's line.
+class RefusedPair : public LAMMPS_NS::Pair {
+ public:
+  explicit RefusedPair(LAMMPS_NS::LAMMPS* lmp) : Pair(lmp) {
+    error->all(FLERR, std::string("cellforce-lammps computes pair_style lj/cut only (with cellforce): this pair style is "
+                      "refused"));
+  }
+  void compute(int, int) override {}
+  void settings(int, char**) override {}
+  void coeff(int, char**) override {}
+  static LAMMPS_NS::Pair* create(LAMMPS_NS::LAMMPS* lmp) { return new RefusedPair(lmp); }
+};
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  MPI_Init(&argc, &argv);
+  int rank = 0;
+  MPI_Comm_rank(MPI_COMM_WORLD, &rank);
+  // cellforce's options out of the arguments, the rest LAMMPS's
+  auto& options = cellforce::lammps::engine_settings().options;
+  const char* names[] = {"backend", "precision", "skin", "device"};
+  std::vector<std::string> given(4);
+  for (int k = 0; k < 4; ++k) {
+    std::string variable = "CELLFORCE_" + std::string(names[k]);
+    for (char& c : variable) c = char(std::toupper(c));
+    if (const char* v = std::getenv(variable.c_str())) given[k] = v;
+  }
+  std::vector<char*> rest{argv[0]};
+  for (int i = 1; i < argc; ++i) {
+    bool ours = false;
+    for (int k = 0; k < 4; ++k)
+      if (std::string(argv[i]) == "--cellforce-" + std::string(names[k])) {
+        if (i + 1 >= argc) {
+          if (rank == 0) std::fprintf(stderr, "cellforce-lammps: %s needs a value\n", argv[i]);
+          MPI_Finalize();
+          return 2;
+        }
+        given[k] = argv[++i];
+        ours = true;
+      }
+    if (!ours) rest.push_back(argv[i]);
+  }
+  for (int k = 0; k < 4; ++k)
+    if (!given[k].empty()) options.emplace_back(names[k], given[k]);
+  rest.push_back(nullptr);
+
+  auto* lmp = new LAMMPS_NS::LAMMPS(int(rest.size()) - 1, rest.data(), MPI_COMM_WORLD);
+  // lj/cut is cellforce's; every other pair style is refused
+  for (auto& [name, creator] : *lmp->force->pair_map)
+    creator = name == "lj/cut" ? &cellforce::lammps::PairCellforce::create : &RefusedPair::create;
+  if (rank == 0) {
+    std::string line = "cellforce-lammps: pair_style lj/cut computed by cellforce " + std::string(cellforce::version());
+    for (const auto& [key, value] : options) line += ", " + key + " " + value;
+    if (lmp->screen) std::fprintf(lmp->screen, "%s\n", line.c_str());
+    if (lmp->logfile) std::fprintf(lmp->logfile, "%s\n", line.c_str());
+  }
+  lmp->input->file();
+  delete lmp;
+  MPI_Finalize();
+  return 0;
+}

@@ -1,0 +1,53 @@
+// `pair_style lj/cut` computed by cellforce, for cellforce-lammps (main.cpp registers it under
+// LAMMPS's own name, so that a script written for LAMMPS runs unchanged). LAMMPS keeps what is its
+// own: the domain decomposition, ghost exchange, integration, thermo, the pair's energy and virial
+// tallies and `pair_modify shift`; each rank's compute() hands its owned atoms and their ghosts to
+// cellforce::Context::compute_local (a pair of an owned atom and a ghost counted half on each of
+// the two ranks that hold it), whose forces, energy and virial the pair adds to LAMMPS's.
+#pragma once
+
+#include <cellforce/cellforce.hpp>
+
+#include <memory>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "lammps_headers.h"
+
+namespace cellforce::lammps {
+
+// The engine options for every rank's context (set_option keys and values: backend, precision,
+// skin, device), from the program's flags and CELLFORCE_* variables.
+struct EngineSettings {
+  std::vector<std::pair<std::string, std::string>> options;
+};
+EngineSettings& engine_settings();
+
+class PairCellforce : public LAMMPS_NS::Pair {
+ public:
+  explicit PairCellforce(LAMMPS_NS::LAMMPS* lmp);
+  ~PairCellforce() override;
+
+  void compute(int eflag, int vflag) override;
+  void settings(int narg, char** arg) override;
+  void coeff(int narg, char** arg) override;
+  void init_style() override;
+  double init_one(int i, int j) override;
+
+  static LAMMPS_NS::Pair* create(LAMMPS_NS::LAMMPS* lmp) { return new PairCellforce(lmp); }
+
+ private:
+  void allocate();
+  void make_context();  // the context for the physics now (types, pairs, cutoff, shift)
+
+  double cut_global_ = 0;
+  double** epsilon_ = nullptr;  // [type][type], 1-based as LAMMPS's
+  double** sigma_ = nullptr;
+  bool stale_ = true;  // the physics changed since the context was made
+  std::unique_ptr<cellforce::Context> ctx_;
+  std::vector<double> positions_, forces_, energies_, virials_;
+  std::vector<uint32_t> types_;
+};
+
+}  // namespace cellforce::lammps
