@@ -23,14 +23,14 @@ namespace {
 // A pair style other than lj/cut: refused by LAMMPS's error, which names the script's line.
 class RefusedPair : public LAMMPS_NS::Pair {
  public:
-  explicit RefusedPair(LAMMPS_NS::LAMMPS* lmp) : Pair(lmp) {
+  explicit RefusedPair(LAMMPS_NS::LAMMPS* instance) : Pair(instance) {
     error->all(FLERR, std::string("cellforce-lammps computes pair_style lj/cut only (with cellforce): this pair style is "
                       "refused"));
   }
   void compute(int, int) override {}
   void settings(int, char**) override {}
   void coeff(int, char**) override {}
-  static LAMMPS_NS::Pair* create(LAMMPS_NS::LAMMPS* lmp) { return new RefusedPair(lmp); }
+  static LAMMPS_NS::Pair* create(LAMMPS_NS::LAMMPS* instance) { return new RefusedPair(instance); }
 };
 
 }  // namespace

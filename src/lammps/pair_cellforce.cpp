@@ -1,17 +1,26 @@
 #include "pair_cellforce.h"
 
 #include <algorithm>
+#include <cstdio>
 #include <string>
 
 namespace cellforce::lammps {
 
+
+namespace {
+std::string number(double v) {  // as %g writes it
+  char text[32];
+  std::snprintf(text, sizeof text, "%g", v);
+  return text;
+}
+}  // namespace
 
 EngineSettings& engine_settings() {
   static EngineSettings settings;
   return settings;
 }
 
-PairCellforce::PairCellforce(LAMMPS_NS::LAMMPS* lmp) : Pair(lmp) {
+PairCellforce::PairCellforce(LAMMPS_NS::LAMMPS* instance) : Pair(instance) {
   single_enable = 0;
   restartinfo = 0;
   no_virial_fdotr_compute = 1;  // the virial comes from cellforce
@@ -59,7 +68,7 @@ void PairCellforce::coeff(int narg, char** arg) {
     const double cut = LAMMPS_NS::utils::numeric(FLERR, arg[4], false, lmp);
     if (cut != cut_global_)
       error->all(FLERR, "pair_coeff (cellforce lj/cut): a cutoff of " + std::string(arg[4]) +
-                            " for these types differs from pair_style's " + std::to_string(cut_global_) +
+                            " for these types differs from pair_style's " + number(cut_global_) +
                             ": cellforce computes every pair with one cutoff");
   }
   int count = 0;

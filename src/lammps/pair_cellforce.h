@@ -26,7 +26,7 @@ EngineSettings& engine_settings();
 
 class PairCellforce : public LAMMPS_NS::Pair {
  public:
-  explicit PairCellforce(LAMMPS_NS::LAMMPS* lmp);
+  explicit PairCellforce(LAMMPS_NS::LAMMPS* instance);
   ~PairCellforce() override;
 
   void compute(int eflag, int vflag) override;
@@ -35,7 +35,7 @@ class PairCellforce : public LAMMPS_NS::Pair {
   void init_style() override;
   double init_one(int i, int j) override;
 
-  static LAMMPS_NS::Pair* create(LAMMPS_NS::LAMMPS* lmp) { return new PairCellforce(lmp); }
+  static LAMMPS_NS::Pair* create(LAMMPS_NS::LAMMPS* instance) { return new PairCellforce(instance); }
 
  private:
   void allocate();

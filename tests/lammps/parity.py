@@ -1,0 +1,124 @@
+#!/usr/bin/env python3
+"""cellforce-lammps against LAMMPS's own lj/cut (ctest lammps_parity; plain Python 3, no packages).
+
+For in.lj (4,000 atoms; LAMMPS's lists rebuilt every step so that its own run is exact) and
+in.binary (two types, explicit pair_coeff lines, pair_modify shift yes), in double precision on the
+CPU backend: cellforce-lammps on 1, 2 and 4 ranks against `lmp` on one rank, the thermo of steps 0
+to 100 every 10. Step 0's E_pair and pressure agree to 1e-10 relative, every column of step 100 to
+1e-6, and the rank counts with each other to 1e-9 on every row. A script with another pair style,
+or a pair_coeff with a cutoff of its own, is refused naming the line. Exits 1 on a failure."""
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+COLUMNS = ("Step", "Temp", "E_pair", "E_mol", "TotEng", "Press")
+
+
+def mpirun(mpiexec: str, ranks: int) -> list[str]:
+    command = [mpiexec, "-np", str(ranks)]
+    if "mpich" not in Path(mpiexec).resolve().name:  # Open MPI's flags
+        command += ["--oversubscribe"] + (["--allow-run-as-root"] if os.geteuid() == 0 else [])
+    return command
+
+
+def run(command: list[str], cwd: Path) -> subprocess.CompletedProcess:
+    env = dict(os.environ, OMP_NUM_THREADS="1", OMPI_MCA_rmaps_base_oversubscribe="1")
+    return subprocess.run(command, cwd=cwd, capture_output=True, text=True, env=env, timeout=600)
+
+
+def thermo(output: str) -> dict[int, list[float]]:
+    rows, inside = {}, False
+    for line in output.splitlines():
+        words = line.split()
+        if tuple(words) == COLUMNS:
+            inside = True
+            continue
+        if inside and len(words) == len(COLUMNS):
+            try:
+                values = [float(w) for w in words]
+            except ValueError:
+                inside = False
+                continue
+            rows[int(values[0])] = values[1:]
+        elif inside:
+            inside = False
+    return rows
+
+
+def relative(a: float, b: float) -> float:
+    return abs(a - b) / max(abs(b), 1e-300)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--cellforce-lammps", required=True)
+    ap.add_argument("--lmp", required=True)
+    ap.add_argument("--mpiexec", required=True)
+    ap.add_argument("--systems", required=True, help="systems/lammps")
+    args = ap.parse_args()
+    systems = Path(args.systems)
+    failures = []
+
+    def check(ok: bool, what: str) -> None:
+        print(("ok   " if ok else "FAIL ") + what, flush=True)
+        if not ok:
+            failures.append(what)
+
+    ours = ["--cellforce-backend", "cpu", "--cellforce-precision", "double"]
+    with tempfile.TemporaryDirectory() as scratch:
+        work = Path(scratch)
+        cases = [("in.lj", ["-var", "cells", "10", "-var", "every", "1", "-var", "check", "yes"]), ("in.binary", [])]
+        for script, variables in cases:
+            base = ["-in", str(systems / script), "-log", "none", *variables]
+            p = run(mpirun(args.mpiexec, 1) + [args.lmp, *base], work)
+            check(p.returncode == 0, f"{script}: lmp ran ({p.stderr.strip()[-300:]})")
+            want = thermo(p.stdout)
+            by_ranks = {}
+            for ranks in (1, 2, 4):
+                p = run(mpirun(args.mpiexec, ranks) + [args.cellforce_lammps, *base, *ours], work)
+                check(p.returncode == 0 and "computed by cellforce" in p.stdout,
+                      f"{script}, {ranks} ranks: cellforce-lammps ran and named cellforce ({p.stderr.strip()[-300:]})")
+                got = thermo(p.stdout)
+                by_ranks[ranks] = got
+                check(sorted(got) == sorted(want) and 0 in got and 100 in got,
+                      f"{script}, {ranks} ranks: thermo rows {sorted(got)}")
+                if 0 not in got or 100 not in got or 0 not in want or 100 not in want:
+                    continue
+                for name, k in (("E_pair", 1), ("Press", 4)):
+                    r = relative(got[0][k], want[0][k])
+                    check(r <= 1e-10, f"{script}, {ranks} ranks: step 0 {name} {got[0][k]!r} vs LAMMPS's {want[0][k]!r} "
+                                      f"(relative {r:.1e} <= 1e-10)")
+                worst = max(relative(a, b) for a, b in zip(got[100], want[100]) if b != 0)
+                check(worst <= 1e-6, f"{script}, {ranks} ranks: step 100 within {worst:.1e} of LAMMPS's (<= 1e-6)")
+            if all(r in by_ranks and by_ranks[r] for r in (1, 2, 4)):
+                worst = max(relative(a, b) for r in (2, 4) for step in by_ranks[1]
+                            for a, b in zip(by_ranks[r].get(step, []), by_ranks[1][step]) if b != 0)
+                check(worst <= 1e-9, f"{script}: 2 and 4 ranks within {worst:.1e} of 1 rank on every row (<= 1e-9)")
+
+        # Refusals: another pair style, a cutoff of its own for a type pair
+        text = (systems / "in.lj").read_text()
+        refused = {
+            "coul": text.replace("pair_style      lj/cut 2.5", "pair_style      lj/cut/coul/long 2.5"),
+            "cutoff": text.replace("pair_coeff      1 1 1.0 1.0 2.5", "pair_coeff      1 1 1.0 1.0 2.0"),
+        }
+        for name, body in refused.items():
+            script = work / f"in.{name}"
+            script.write_text(body)
+            p = run(mpirun(args.mpiexec, 2) + [args.cellforce_lammps, "-in", str(script), "-log", "none",
+                                                "-var", "cells", "4", *ours], work)
+            out = p.stdout + p.stderr
+            line = "pair_style      lj/cut/coul/long 2.5" if name == "coul" else "pair_coeff      1 1 1.0 1.0 2.0"
+            reason = "refused" if name == "coul" else "differs from pair_style's"
+            check(p.returncode != 0 and reason in out and line in out,
+                  f"{name}: refused, naming the line ({out.strip()[-300:]!r})")
+    print(f"{len(failures)} failed" if failures else "all passed")
+    return 1 if failures else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
