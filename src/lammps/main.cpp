@@ -3,9 +3,14 @@
 // style is refused. LAMMPS's own flags pass through (-in, -var, -log, -echo, ...); cellforce's
 // engine options come from --cellforce-backend, --cellforce-precision, --cellforce-skin and
 // --cellforce-device, or the variables CELLFORCE_BACKEND, CELLFORCE_PRECISION, CELLFORCE_SKIN and
-// CELLFORCE_DEVICE (a flag wins).
+// CELLFORCE_DEVICE (a flag wins). Without a device given, rank r of a node uses that node's GPU
+// r mod (its GPUs).
 //   mpirun -np 4 cellforce-lammps -in in.lj --cellforce-backend cpu
 #include <mpi.h>
+
+#ifdef CELLFORCE_HAVE_CUDA
+#include <cuda_runtime.h>
+#endif
 
 #include <cellforce/cellforce.hpp>
 
@@ -32,6 +37,20 @@ class RefusedPair : public LAMMPS_NS::Pair {
   void coeff(int, char**) override {}
   static LAMMPS_NS::Pair* create(LAMMPS_NS::LAMMPS* instance) { return new RefusedPair(instance); }
 };
+
+// The CUDA devices this process can use (0 without CUDA, or where the runtime finds none).
+int cuda_devices() {
+#ifdef CELLFORCE_HAVE_CUDA
+  int count = 0;
+  if (cudaGetDeviceCount(&count) != cudaSuccess) {
+    (void)cudaGetLastError();
+    return 0;
+  }
+  return count;
+#else
+  return 0;
+#endif
+}
 
 }  // namespace
 
@@ -65,6 +84,20 @@ int main(int argc, char** argv) {
   }
   for (int k = 0; k < 4; ++k)
     if (!given[k].empty()) options.emplace_back(names[k], given[k]);
+  // Without a device given, rank r of a node computes on that node's GPU r mod (its GPUs).
+  std::string device_rule;
+  if (given[3].empty()) {
+    MPI_Comm node;
+    MPI_Comm_split_type(MPI_COMM_WORLD, MPI_COMM_TYPE_SHARED, rank, MPI_INFO_NULL, &node);
+    int local = 0;
+    MPI_Comm_rank(node, &local);
+    MPI_Comm_free(&node);
+    const int gpus = cuda_devices();
+    if (gpus > 0) {
+      options.emplace_back("device", std::to_string(local % gpus));
+      device_rule = ", device: the node's rank mod " + std::to_string(gpus);
+    }
+  }
   rest.push_back(nullptr);
 
   auto* lmp = new LAMMPS_NS::LAMMPS(int(rest.size()) - 1, rest.data(), MPI_COMM_WORLD);
@@ -73,7 +106,9 @@ int main(int argc, char** argv) {
     creator = name == "lj/cut" ? &cellforce::lammps::PairCellforce::create : &RefusedPair::create;
   if (rank == 0) {
     std::string line = "cellforce-lammps: pair_style lj/cut computed by cellforce " + std::string(cellforce::version());
-    for (const auto& [key, value] : options) line += ", " + key + " " + value;
+    for (const auto& [key, value] : options)
+      if (key != "device" || device_rule.empty()) line += ", " + key + " " + value;
+    line += device_rule;
     if (lmp->screen) std::fprintf(lmp->screen, "%s\n", line.c_str());
     if (lmp->logfile) std::fprintf(lmp->logfile, "%s\n", line.c_str());
   }
