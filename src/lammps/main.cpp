@@ -38,6 +38,15 @@ class RefusedPair : public LAMMPS_NS::Pair {
   static LAMMPS_NS::Pair* create(LAMMPS_NS::LAMMPS* instance) { return new RefusedPair(instance); }
 };
 
+// The pair styles cellforce computes: lj/cut, also under LAMMPS's accelerator suffixes (-sf opt,
+// omp, ...: lj/cut/SUFFIX is lj/cut computed by another engine).
+bool ours(const std::string& name) {
+  if (name == "lj/cut") return true;
+  for (const char* suffix : {"opt", "omp", "gpu", "intel", "kk", "kk/host", "kk/device"})
+    if (name == "lj/cut/" + std::string(suffix)) return true;
+  return false;
+}
+
 // The CUDA devices this process can use (0 without CUDA, or where the runtime finds none).
 int cuda_devices() {
 #ifdef CELLFORCE_HAVE_CUDA
@@ -101,9 +110,10 @@ int main(int argc, char** argv) {
   rest.push_back(nullptr);
 
   auto* lmp = new LAMMPS_NS::LAMMPS(int(rest.size()) - 1, rest.data(), MPI_COMM_WORLD);
-  // lj/cut is cellforce's; every other pair style is refused
+  // lj/cut is cellforce's, also under an accelerator's suffix (-sf opt, omp, ...: the script's
+  // lj/cut whatever LAMMPS would have run it with); every other pair style is refused
   for (auto& [name, creator] : *lmp->force->pair_map)
-    creator = name == "lj/cut" ? &cellforce::lammps::PairCellforce::create : &RefusedPair::create;
+    creator = ours(name) ? &cellforce::lammps::PairCellforce::create : &RefusedPair::create;
   if (rank == 0) {
     std::string line = "cellforce-lammps: pair_style lj/cut computed by cellforce " + std::string(cellforce::version());
     for (const auto& [key, value] : options)

@@ -1,8 +1,9 @@
 #!/usr/bin/env python3
 """cellforce-lammps against LAMMPS's own lj/cut (ctest lammps_parity; plain Python 3, no packages).
 
-For in.lj (4,000 atoms; LAMMPS's lists rebuilt every step so that its own run is exact) and
-in.binary (two types, explicit pair_coeff lines, pair_modify shift yes), in double precision on the
+For in.lj (4,000 atoms; LAMMPS's lists rebuilt every step so that its own run is exact), in.binary
+(two types, explicit pair_coeff lines, pair_modify shift yes), in.2d (800 atoms in the plane) and
+in.lj with `-sf opt` (LAMMPS's lj/cut/opt, and cellforce under that name), in double precision on the
 CPU backend: cellforce-lammps on 1, 2 and 4 ranks against `lmp` on one rank, the thermo of steps 0
 to 100 every 10. Step 0's E_pair and pressure agree to 1e-10 relative, every column of step 100 to
 1e-6, and the rank counts with each other to 1e-9 on every row. A script with another pair style,
@@ -81,9 +82,13 @@ def main() -> int:
         if probe.returncode != 0:
             print("skipped: mpiexec cannot start two processes here: " + (probe.stderr or probe.stdout).strip()[-400:])
             return 77
-        cases = [("in.lj", ["-var", "cells", "10", "-var", "every", "1", "-var", "check", "yes"]), ("in.binary", [])]
+        cases = [("in.lj", ["-var", "cells", "10", "-var", "every", "1", "-var", "check", "yes"]), ("in.binary", []),
+                 ("in.2d", []), ("in.lj", ["-var", "cells", "10", "-var", "every", "1", "-var", "check", "yes",
+                                           "-sf", "opt"])]
         for script, variables in cases:
             base = ["-in", str(systems / script), "-log", "none", *variables]
+            if "-sf" in variables:  # LAMMPS's own with its suffix, cellforce's under the suffixed name
+                script += " -sf opt"
             p = run(mpirun(args.mpiexec, 1) + [args.lmp, *base], work)
             check(p.returncode == 0, f"{script}: lmp ran ({p.stderr.strip()[-300:]})")
             want = thermo(p.stdout)
@@ -115,16 +120,18 @@ def main() -> int:
             "coul": text.replace("pair_style      lj/cut 2.5", "pair_style      lj/cut/coul/long 2.5"),
             "cutoff": text.replace("pair_coeff      1 1 1.0 1.0 2.5", "pair_coeff      1 1 1.0 1.0 2.0"),
         }
-        for name, body in refused.items():
+        # (the cutoff's refusal with -sf opt too: lj/cut/opt is cellforce's, not LAMMPS's, which takes it)
+        for name, body, suffix in (("coul", refused["coul"], []), ("cutoff", refused["cutoff"], []),
+                                   ("cutoff", refused["cutoff"], ["-sf", "opt"])):
             script = work / f"in.{name}"
             script.write_text(body)
             p = run(mpirun(args.mpiexec, 2) + [args.cellforce_lammps, "-in", str(script), "-log", "none",
-                                                "-var", "cells", "4", *ours], work)
+                                                "-var", "cells", "4", *suffix, *ours], work)
             out = p.stdout + p.stderr
             line = "pair_style      lj/cut/coul/long 2.5" if name == "coul" else "pair_coeff      1 1 1.0 1.0 2.0"
             reason = "refused" if name == "coul" else "differs from pair_style's"
             check(p.returncode != 0 and reason in out and line in out,
-                  f"{name}: refused, naming the line ({out.strip()[-300:]!r})")
+                  f"{name} {' '.join(suffix)}: refused, naming the line ({out.strip()[-300:]!r})")
     print(f"{len(failures)} failed" if failures else "all passed")
     return 1 if failures else 0
 
