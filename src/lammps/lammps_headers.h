@@ -23,4 +23,5 @@ auto make_args_checked(const S&, const Args&... args) {
 #include <input.h>
 #include <lammps.h>
 #include <memory.h>
+#include <neighbor.h>
 #include <pair.h>

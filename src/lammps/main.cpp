@@ -4,7 +4,8 @@
 // engine options come from --cellforce-backend, --cellforce-precision, --cellforce-skin and
 // --cellforce-device, or the variables CELLFORCE_BACKEND, CELLFORCE_PRECISION, CELLFORCE_SKIN and
 // CELLFORCE_DEVICE (a flag wins). Without a device given, rank r of a node uses that node's GPU
-// r mod (its GPUs).
+// r mod (its GPUs); the CPU backend's threads are the node's cores over its ranks (or
+// CELLFORCE_THREADS).
 //   mpirun -np 4 cellforce-lammps -in in.lj --cellforce-backend cpu
 #include <mpi.h>
 
@@ -14,10 +15,14 @@
 
 #include <cellforce/cellforce.hpp>
 
+#include <algorithm>
+#include <cctype>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
+#include <exception>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include "lammps_headers.h"
@@ -93,19 +98,36 @@ int main(int argc, char** argv) {
   }
   for (int k = 0; k < 4; ++k)
     if (!given[k].empty()) options.emplace_back(names[k], given[k]);
-  // Without a device given, rank r of a node computes on that node's GPU r mod (its GPUs).
+  // The node's ranks (a collective call: every rank makes it). Without a device given, rank r of a
+  // node computes on that node's GPU r mod (its GPUs); without threads given, the node's cores are
+  // shared among its ranks.
+  MPI_Comm node;
+  MPI_Comm_split_type(MPI_COMM_WORLD, MPI_COMM_TYPE_SHARED, rank, MPI_INFO_NULL, &node);
+  int local = 0, local_ranks = 1;
+  MPI_Comm_rank(node, &local);
+  MPI_Comm_size(node, &local_ranks);
+  MPI_Comm_free(&node);
   std::string device_rule;
-  if (given[3].empty()) {
-    MPI_Comm node;
-    MPI_Comm_split_type(MPI_COMM_WORLD, MPI_COMM_TYPE_SHARED, rank, MPI_INFO_NULL, &node);
-    int local = 0;
-    MPI_Comm_rank(node, &local);
-    MPI_Comm_free(&node);
-    const int gpus = cuda_devices();
-    if (gpus > 0) {
-      options.emplace_back("device", std::to_string(local % gpus));
-      device_rule = ", device: the node's rank mod " + std::to_string(gpus);
-    }
+  const int gpus = cuda_devices();
+  if (given[3].empty() && gpus > 0) {
+    options.emplace_back("device", std::to_string(local % gpus));
+    device_rule = ", device: the node's rank mod " + std::to_string(gpus);
+  }
+  if (!std::getenv("CELLFORCE_THREADS")) {
+    const unsigned cores = std::thread::hardware_concurrency();
+    options.emplace_back("threads", std::to_string(std::max(1u, cores / unsigned(std::max(1, local_ranks)))));
+  } else {
+    options.emplace_back("threads", std::getenv("CELLFORCE_THREADS"));
+  }
+  // The options checked once, before LAMMPS starts: a value the library refuses stops every rank
+  // with its message.
+  try {
+    cellforce::Context check(3);
+    for (const auto& [key, value] : options) check.set_option(key, value);
+  } catch (const std::exception& e) {
+    if (rank == 0) std::fprintf(stderr, "cellforce-lammps: %s\n", e.what());
+    MPI_Finalize();
+    return 2;
   }
   rest.push_back(nullptr);
 
@@ -117,7 +139,7 @@ int main(int argc, char** argv) {
   if (rank == 0) {
     std::string line = "cellforce-lammps: pair_style lj/cut computed by cellforce " + std::string(cellforce::version());
     for (const auto& [key, value] : options)
-      if (key != "device" || device_rule.empty()) line += ", " + key + " " + value;
+      if ((key != "device" || device_rule.empty()) && key != "threads") line += ", " + key + " " + value;
     line += device_rule;
     if (lmp->screen) std::fprintf(lmp->screen, "%s\n", line.c_str());
     if (lmp->logfile) std::fprintf(lmp->logfile, "%s\n", line.c_str());

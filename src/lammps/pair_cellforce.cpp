@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cstdio>
+#include <exception>
 #include <string>
 
 namespace cellforce::lammps {
@@ -64,6 +65,9 @@ void PairCellforce::coeff(int narg, char** arg) {
   LAMMPS_NS::utils::bounds(FLERR, arg[1], 1, atom->ntypes, jlo, jhi, error);
   const double epsilon = LAMMPS_NS::utils::numeric(FLERR, arg[2], false, lmp);
   const double sigma = LAMMPS_NS::utils::numeric(FLERR, arg[3], false, lmp);
+  if (!(epsilon >= 0) || !(sigma > 0))  // as cellforce takes them (checked here on every rank)
+    error->all(FLERR, "pair_coeff (cellforce lj/cut): epsilon " + std::string(arg[2]) + " and sigma " +
+                          std::string(arg[3]) + ": expected epsilon >= 0 and sigma > 0");
   if (narg == 5) {
     const double cut = LAMMPS_NS::utils::numeric(FLERR, arg[4], false, lmp);
     if (cut != cut_global_)
@@ -85,7 +89,20 @@ void PairCellforce::coeff(int narg, char** arg) {
 
 // No neighbour list of LAMMPS's: cellforce searches the owned atoms and ghosts itself. LAMMPS still
 // sends the ghosts within the cutoff and the skin (its communication cutoff).
-void PairCellforce::init_style() { stale_ = true; }
+void PairCellforce::init_style() {
+  // What LAMMPS's lj/cut would honour and cellforce cannot: refused, not ignored.
+  if (atom->molecular &&
+      (force->special_lj[1] != 1.0 || force->special_lj[2] != 1.0 || force->special_lj[3] != 1.0))
+    error->all(FLERR, std::string("pair_style lj/cut (cellforce): special_bonds lj factors other than 1 are not "
+                                  "computed by cellforce (every pair within the cutoff counts whole)"));
+  if (neighbor->exclude)
+    error->all(FLERR, std::string("pair_style lj/cut (cellforce): neigh_modify exclude is not honoured by cellforce "
+                                  "(it searches every pair itself)"));
+  if (tail_flag)
+    error->all(FLERR, std::string("pair_style lj/cut (cellforce): pair_modify tail yes (the long-range tail "
+                                  "correction) is not computed by cellforce"));
+  stale_ = true;
+}
 
 double PairCellforce::init_one(int i, int j) {
   if (setflag[i][j] == 0) {  // LAMMPS's mixing rule (pair_modify mix; geometric by default)
@@ -122,7 +139,7 @@ void PairCellforce::compute(int eflag, int vflag) {
   if (stale_ || !ctx_) {
     try {
       make_context();
-    } catch (const cellforce::Error& e) {
+    } catch (const std::exception& e) {
       error->one(FLERR, std::string("cellforce: ") + e.what());
     }
   }
@@ -149,7 +166,7 @@ void PairCellforce::compute(int eflag, int vflag) {
   out.virials = vflag_atom ? virials_.data() : nullptr;
   try {
     ctx_->compute_local(std::size_t(nlocal), std::size_t(nghost), positions_.data(), types_.data(), out);
-  } catch (const cellforce::Error& e) {
+  } catch (const std::exception& e) {
     error->one(FLERR, std::string("cellforce: ") + e.what());
   }
   for (int i = 0; i < nlocal; ++i)

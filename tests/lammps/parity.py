@@ -2,12 +2,15 @@
 """cellforce-lammps against LAMMPS's own lj/cut (ctest lammps_parity; plain Python 3, no packages).
 
 For in.lj (4,000 atoms; LAMMPS's lists rebuilt every step so that its own run is exact), in.binary
-(two types, explicit pair_coeff lines, pair_modify shift yes), in.2d (800 atoms in the plane) and
-in.lj with `-sf opt` (LAMMPS's lj/cut/opt, and cellforce under that name), in double precision on the
-CPU backend: cellforce-lammps on 1, 2 and 4 ranks against `lmp` on one rank, the thermo of steps 0
-to 100 every 10. Step 0's E_pair and pressure agree to 1e-10 relative, every column of step 100 to
-1e-6, and the rank counts with each other to 1e-9 on every row. A script with another pair style,
-or a pair_coeff with a cutoff of its own, is refused naming the line. Exits 1 on a failure."""
+(two types, explicit pair_coeff lines, pair_modify shift yes), the same with the unlike pair mixed
+by LAMMPS (arithmetic), in.2d (800 atoms in the plane) and in.lj with `-sf opt` (LAMMPS's
+lj/cut/opt, and cellforce under that name), in double precision on the CPU backend:
+cellforce-lammps on 1, 2 and 4 ranks (each run checked to be on that many) against `lmp` on one
+rank, the thermo of steps 0 to 100 every 10. Step 0's E_pair and pressure agree to 1e-10 relative,
+every column of step 100 to 1e-6, and the rank counts with each other to 1e-9 on every row. A
+script with another pair style, a pair_coeff cutoff of its own (also under -sf opt, where LAMMPS's
+own would take it), or pair_modify tail yes is refused naming the command. Exits 1 on a failure,
+77 (a skip) where mpiexec cannot start two processes."""
 from __future__ import annotations
 
 import argparse
@@ -82,11 +85,16 @@ def main() -> int:
         if probe.returncode != 0:
             print("skipped: mpiexec cannot start two processes here: " + (probe.stderr or probe.stdout).strip()[-400:])
             return 77
+        # in.binary with the unlike pair left to LAMMPS's mixing (arithmetic): the mixed values reach cellforce
+        mixed = work / "in.mixed"
+        mixed.write_text((systems / "in.binary").read_text().replace("pair_coeff      1 2 1.5 0.8\n", "")
+                         .replace("pair_modify     shift yes", "pair_modify     shift yes mix arithmetic"))
         cases = [("in.lj", ["-var", "cells", "10", "-var", "every", "1", "-var", "check", "yes"]), ("in.binary", []),
+                 (str(mixed), []),
                  ("in.2d", []), ("in.lj", ["-var", "cells", "10", "-var", "every", "1", "-var", "check", "yes",
                                            "-sf", "opt"])]
         for script, variables in cases:
-            base = ["-in", str(systems / script), "-log", "none", *variables]
+            base = ["-in", str(systems / script), "-log", "none", *variables]  # (an absolute path stays)
             if "-sf" in variables:  # LAMMPS's own with its suffix, cellforce's under the suffixed name
                 script += " -sf opt"
             p = run(mpirun(args.mpiexec, 1) + [args.lmp, *base], work)
@@ -95,8 +103,9 @@ def main() -> int:
             by_ranks = {}
             for ranks in (1, 2, 4):
                 p = run(mpirun(args.mpiexec, ranks) + [args.cellforce_lammps, *base, *ours], work)
-                check(p.returncode == 0 and "computed by cellforce" in p.stdout,
-                      f"{script}, {ranks} ranks: cellforce-lammps ran and named cellforce ({p.stderr.strip()[-300:]})")
+                check(p.returncode == 0 and "computed by cellforce" in p.stdout and f"on {ranks} procs" in p.stdout,
+                      f"{script}, {ranks} ranks: cellforce-lammps ran on {ranks} procs, naming cellforce "
+                      f"({p.stderr.strip()[-300:]})")
                 got = thermo(p.stdout)
                 by_ranks[ranks] = got
                 check(sorted(got) == sorted(want) and 0 in got and 100 in got,
@@ -119,17 +128,19 @@ def main() -> int:
         refused = {
             "coul": text.replace("pair_style      lj/cut 2.5", "pair_style      lj/cut/coul/long 2.5"),
             "cutoff": text.replace("pair_coeff      1 1 1.0 1.0 2.5", "pair_coeff      1 1 1.0 1.0 2.0"),
+            "tail": text.replace("neighbor        0.3 bin", "pair_modify     tail yes\nneighbor        0.3 bin"),
         }
         # (the cutoff's refusal with -sf opt too: lj/cut/opt is cellforce's, not LAMMPS's, which takes it)
         for name, body, suffix in (("coul", refused["coul"], []), ("cutoff", refused["cutoff"], []),
-                                   ("cutoff", refused["cutoff"], ["-sf", "opt"])):
+                                   ("cutoff", refused["cutoff"], ["-sf", "opt"]), ("tail", refused["tail"], [])):
             script = work / f"in.{name}"
             script.write_text(body)
             p = run(mpirun(args.mpiexec, 2) + [args.cellforce_lammps, "-in", str(script), "-log", "none",
                                                 "-var", "cells", "4", *suffix, *ours], work)
             out = p.stdout + p.stderr
-            line = "pair_style      lj/cut/coul/long 2.5" if name == "coul" else "pair_coeff      1 1 1.0 1.0 2.0"
-            reason = "refused" if name == "coul" else "differs from pair_style's"
+            line = {"coul": "pair_style      lj/cut/coul/long 2.5", "cutoff": "pair_coeff      1 1 1.0 1.0 2.0",
+                    "tail": "run"}[name]  # the tail's refusal comes at the run's start
+            reason = {"coul": "refused", "cutoff": "differs from pair_style's", "tail": "tail yes"}[name]
             check(p.returncode != 0 and reason in out and line in out,
                   f"{name} {' '.join(suffix)}: refused, naming the line ({out.strip()[-300:]!r})")
     print(f"{len(failures)} failed" if failures else "all passed")
