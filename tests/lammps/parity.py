@@ -7,7 +7,8 @@ by LAMMPS (arithmetic), in.2d (800 atoms in the plane) and in.lj with `-sf opt` 
 lj/cut/opt, and cellforce under that name), in double precision on the CPU backend:
 cellforce-lammps on 1, 2 and 4 ranks (each run checked to be on that many) against `lmp` on one
 rank, the thermo of steps 0 to 100 every 10. Step 0's E_pair and pressure agree to 1e-10 relative,
-every column of step 100 to 1e-6, and the rank counts with each other to 1e-9 on every row. A
+every column of step 100 to 1e-6, and the rank counts with each other to 1e-9 on every row; the
+per-atom energies and stresses (compute pe/atom, stress/atom) summed agree with LAMMPS's to 1e-10. A
 script with another pair style, a pair_coeff cutoff of its own (also under -sf opt, where LAMMPS's
 own would take it), or pair_modify tail yes is refused naming the command. Exits 1 on a failure,
 77 (a skip) where mpiexec cannot start two processes."""
@@ -122,6 +123,31 @@ def main() -> int:
                 worst = max(relative(a, b) for r in (2, 4) for step in by_ranks[1]
                             for a, b in zip(by_ranks[r].get(step, []), by_ranks[1][step]) if b != 0)
                 check(worst <= 1e-9, f"{script}: 2 and 4 ranks within {worst:.1e} of 1 rank on every row (<= 1e-9)")
+
+        # Per-atom energy and stress (compute pe/atom, stress/atom), summed: LAMMPS's own on one rank and
+        # cellforce's on two, at step 0 (1e-10 of the largest sum)
+        per_atom = work / "in.per_atom"
+        per_atom.write_text((systems / "in.lj").read_text().replace(
+            "thermo_modify   format float %.15g",
+            "compute pa all pe/atom\ncompute sp all reduce sum c_pa\ncompute sa all stress/atom NULL\n"
+            "compute ss all reduce sum c_sa[1] c_sa[2] c_sa[3] c_sa[4] c_sa[5] c_sa[6]\n"
+            "thermo_style custom step pe c_sp c_ss[1] c_ss[2] c_ss[3] c_ss[4] c_ss[5] c_ss[6]\n"
+            "thermo_modify   format float %.15g"))
+        rows = {}
+        for name, command in (("lmp", mpirun(args.mpiexec, 1) + [args.lmp]),
+                              ("cellforce", mpirun(args.mpiexec, 2) + [args.cellforce_lammps, *ours])):
+            p = run(command + ["-in", str(per_atom), "-log", "none", "-var", "cells", "6", "-var", "steps", "0"], work)
+            lines = p.stdout.splitlines()
+            header = next((i for i, line in enumerate(lines) if line.split()[:2] == ["Step", "PotEng"]), None)
+            rows[name] = [float(v) for v in lines[header + 1].split()[1:]] if header is not None else []
+        ok = len(rows["lmp"]) == 8 and len(rows["cellforce"]) == 8
+        scale = max((abs(v) for v in rows["lmp"][2:5]), default=1.0)
+        worst = max((abs(a - b) / scale for a, b in zip(rows["cellforce"][2:], rows["lmp"][2:])), default=float("inf"))
+        check(ok and relative(rows["cellforce"][1], rows["lmp"][1]) <= 1e-10 and worst <= 1e-10,
+              f"per-atom energy and stress summed, 2 ranks: {rows['cellforce']} vs LAMMPS's {rows['lmp']} "
+              f"(stress within {worst:.1e} of the largest diagonal sum)")
+        check(ok and relative(rows["cellforce"][1], rows["cellforce"][0]) <= 1e-12,
+              "per-atom energies sum to the potential energy (both normalised by the atoms in lj units)")
 
         # Refusals: another pair style, a cutoff of its own for a type pair
         text = (systems / "in.lj").read_text()
