@@ -148,12 +148,17 @@ void PairCellforce::compute(int eflag, int vflag) {
   double** x = atom->x;
   double** f = atom->f;
   const int* type = atom->type;
-  positions_.resize(std::size_t(n) * std::size_t(dim));
-  types_.resize(std::size_t(n));
-  for (int i = 0; i < n; ++i) {
-    for (int a = 0; a < dim; ++a) positions_[std::size_t(i) * dim + a] = x[i][a];
-    types_[std::size_t(i)] = uint32_t(type[i] - 1);
+  // LAMMPS holds x as n rows of 3 in one block: in 3D that is cellforce's layout, read in place; in
+  // 2D the rows are packed to 2 columns here.
+  const double* rows = n > 0 ? x[0] : nullptr;
+  if (dim != 3) {
+    positions_.resize(std::size_t(n) * std::size_t(dim));
+    for (int i = 0; i < n; ++i)
+      for (int a = 0; a < dim; ++a) positions_[std::size_t(i) * dim + a] = x[i][a];
+    rows = positions_.data();
   }
+  types_.resize(std::size_t(n));
+  for (int i = 0; i < n; ++i) types_[std::size_t(i)] = uint32_t(type[i] - 1);  // LAMMPS's types count from 1
   forces_.resize(std::size_t(nlocal) * std::size_t(dim));
   energies_.resize(eflag_atom ? std::size_t(nlocal) : 0);
   virials_.resize(vflag_atom ? std::size_t(nlocal) * dim * dim : 0);
@@ -165,7 +170,7 @@ void PairCellforce::compute(int eflag, int vflag) {
   out.energies = eflag_atom ? energies_.data() : nullptr;
   out.virials = vflag_atom ? virials_.data() : nullptr;
   try {
-    ctx_->compute_local(std::size_t(nlocal), std::size_t(nghost), positions_.data(), types_.data(), out);
+    ctx_->compute_local(std::size_t(nlocal), std::size_t(nghost), rows, types_.data(), out);
   } catch (const std::exception& e) {
     error->one(FLERR, std::string("cellforce: ") + e.what());
   }

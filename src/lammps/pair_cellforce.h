@@ -46,7 +46,8 @@ class PairCellforce : public LAMMPS_NS::Pair {
   double** sigma_ = nullptr;
   bool stale_ = true;  // the physics changed since the context was made
   std::unique_ptr<cellforce::Context> ctx_;
-  std::vector<double> positions_, forces_, energies_, virials_;
+  std::vector<double> positions_;  // 2D scripts: the rows packed to 2 columns
+  std::vector<double> forces_, energies_, virials_;
   std::vector<uint32_t> types_;
 };
 
