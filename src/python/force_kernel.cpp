@@ -24,6 +24,7 @@
 #include <vector>
 
 #include "arrays.h"
+#include "physics.h"
 
 namespace cellforce::python {
 namespace {
@@ -47,58 +48,11 @@ class ForceKernel {
   ForceKernel(const std::vector<double>& box, nb::object periodic, double cutoff, nb::object types, nb::object pairs,
               const std::string& mixing, const std::string& mode, const std::string& precision,
               const std::string& backend, int device)
-      : ctx_(check_dim(box)), device_(device), order_(device) {
-    const std::size_t dim = box.size();
-    bool p[3] = {true, true, true};
-    if (!periodic.is_none()) {  // any sequence of truth values (a list, NumPy's bools, ASE's atoms.pbc)
-      std::size_t count = 0;
-      try {
-        for (nb::handle axis : nb::iter(periodic)) {
-          if (count < 3) p[count] = PyObject_IsTrue(axis.ptr()) == 1;
-          ++count;
-        }
-      } catch (const nb::python_error&) {
-        throw nb::type_error("periodic: expected a sequence of truth values, one per axis");
-      }
-      if (count != dim)
-        throw nb::value_error(text("periodic", std::to_string(count) + " values for a box of " + std::to_string(dim) +
-                                                   " axes")
-                                  .c_str());
-    }
-    ctx_.set_box(box.data(), p);
-    ctx_.set_option("cutoff-mode", mode);
-    ctx_.set_cutoff(cutoff);
-    ctx_.set_option("mixing", mixing);
+      : ctx_(box_dim(box)), device_(device), order_(device) {
+    names_ = set_physics(ctx_, box, periodic, cutoff, mode, mixing, types, pairs).names;
     ctx_.set_option("precision", precision);
     ctx_.set_option("device", std::to_string(device));
     ctx_.set_option("backend", backend);
-    // Types in the order given (a dict keeps it): a type's index is its place in that order.
-    if (types.is_none()) {
-      names_.push_back("A");
-      ctx_.add_type("A", 1.0, 1.0);
-    } else {
-      if (!nb::isinstance<nb::dict>(types)) throw nb::type_error("types: expected {name: (sigma, epsilon)}");
-      const nb::dict given = nb::borrow<nb::dict>(types);
-      if (given.size() == 0) throw nb::value_error("types: no particle type given");
-      for (const auto& [key, value] : given) {
-        std::string name;
-        std::pair<double, double> se;
-        if (!nb::try_cast(key, name) || !nb::try_cast(value, se))
-          throw nb::type_error("types: expected {name: (sigma, epsilon)}");
-        ctx_.add_type(name, se.first, se.second);
-        names_.push_back(std::move(name));
-      }
-    }
-    if (!pairs.is_none() && !nb::isinstance<nb::dict>(pairs))
-      throw nb::type_error("pairs: expected {(name, name): (sigma, epsilon)}");
-    if (!pairs.is_none())
-      for (const auto& [key, value] : nb::borrow<nb::dict>(pairs)) {
-        std::pair<std::string, std::string> ab;
-        std::pair<double, double> se;
-        if (!nb::try_cast(key, ab) || !nb::try_cast(value, se))
-          throw nb::type_error("pairs: expected {(name, name): (sigma, epsilon)}");
-        ctx_.set_pair(index_of(ab.first, "pairs"), index_of(ab.second, "pairs"), se.first, se.second);
-      }
   }
 
   int dim() const { return ctx_.dim(); }
@@ -161,18 +115,6 @@ class ForceKernel {
   }
 
  private:
-  static int check_dim(const std::vector<double>& box) {
-    if (box.size() != 2 && box.size() != 3)
-      throw nb::value_error(text("box", std::to_string(box.size()) + " edge lengths; expected 2 or 3").c_str());
-    return int(box.size());
-  }
-
-  uint32_t index_of(const std::string& name, const char* what) const {
-    const auto it = std::find(names_.begin(), names_.end(), name);
-    if (it == names_.end()) throw nb::value_error(text(what, "unknown type '" + name + "'").c_str());
-    return uint32_t(it - names_.begin());
-  }
-
   // The types argument: an int32 or uint32 array where the positions are, or (host positions) a
   // sequence of type names.
   struct TypeIndices {

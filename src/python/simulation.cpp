@@ -23,6 +23,7 @@
 #include <vector>
 
 #include "arrays.h"
+#include "physics.h"
 #include "scene/scene_start.h"
 #include "core/option_table.h"
 #include "scene/scene.h"
@@ -37,32 +38,24 @@ using HostDoubles = nb::ndarray<const double, nb::c_contig, nb::device::cpu>;
 using HostIndices = nb::ndarray<const uint32_t, nb::c_contig, nb::device::cpu>;
 
 // A type as the Python side gives it: name, sigma, epsilon; a pair: two type indices, sigma, epsilon.
-using TypeSpec = std::tuple<std::string, double, double>;
-using PairSpec = std::tuple<uint32_t, uint32_t, double, double>;
 
 class SimulationCore {
  public:
   // From arrays (the Python side checked their shapes and types): positions (n, dim), type indices
   // (n), masses (n), velocities (n, dim) or None (drawn at initial_temperature with `seed`, else
   // zero). Engine options as set_option takes them, in order.
-  SimulationCore(const std::vector<double>& box, const std::vector<bool>& periodic, double cutoff,
-                 const std::vector<TypeSpec>& types, const std::vector<PairSpec>& pairs,
+  SimulationCore(const std::vector<double>& box, nb::handle periodic, double cutoff, const std::string& mode,
+                 const std::string& mixing, nb::handle types, nb::handle pairs,
                  const std::vector<std::pair<std::string, std::string>>& options, const std::string& integrator,
                  double dt, double temperature, double friction, uint64_t seed, HostDoubles positions,
                  HostIndices type_index, HostDoubles masses, std::optional<HostDoubles> velocities,
                  std::optional<double> initial_temperature, int64_t step)
-      : ctx_(int(box.size())), dt_(dt), box_(box), periodic_(periodic) {
+      : ctx_(box_dim(box)), dt_(dt), box_(box) {
     const std::size_t dim = box.size(), n = positions.shape(0);
-    bool p[3] = {true, true, true};
-    for (std::size_t a = 0; a < dim && a < periodic.size(); ++a) p[a] = periodic[a];
-    ctx_.set_box(box.data(), p);
+    Physics physics = set_physics(ctx_, box, periodic, cutoff, mode, mixing, types, pairs);
+    names_ = std::move(physics.names);
+    periodic_ = std::move(physics.periodic);
     for (const auto& [key, value] : options) ctx_.set_option(key, value);
-    ctx_.set_cutoff(cutoff);
-    for (const auto& [name, sigma, epsilon] : types) {
-      ctx_.add_type(name, sigma, epsilon);
-      names_.push_back(name);
-    }
-    for (const auto& [a, b, sigma, epsilon] : pairs) ctx_.set_pair(a, b, sigma, epsilon);
     ctx_.set_integrator(integrator_options(integrator, dt, temperature, friction, seed));
     std::vector<double> v;
     if (velocities) {
@@ -76,7 +69,6 @@ class SimulationCore {
       initialize_velocities(state, m, *initial_temperature, seed, integrator != "langevin");
       v = std::move(state.velocities);
     }
-    n_ = n;
     species_.assign(type_index.data(), type_index.data() + n);
     masses_.assign(masses.data(), masses.data() + n);
     nb::gil_scoped_release release;
@@ -104,9 +96,7 @@ class SimulationCore {
     for (const cf::ParticleType& t : scene.force_field.types) core->names_.push_back(t.name);
     core->scene_steps_ = scene.steps;
     core->species_ = start.state.config.types;
-    core->n_ = start.state.config.size();
     core->masses_ = start.masses;
-    core->minimize_line_ = start.minimize_line;
     return core;
   }
 
@@ -257,7 +247,7 @@ class SimulationCore {
     const std::lock_guard<std::mutex> lock(mutex_);
     return ctx_.statistics_json();
   }
-  std::size_t num_particles() const { return n_; }
+  std::size_t num_particles() const { return species_.size(); }
   int dim() const { return int(box_.size()); }
   int64_t current_step() {
     const std::lock_guard<std::mutex> lock(mutex_);
@@ -276,7 +266,6 @@ class SimulationCore {
   }
   nb::object masses() const { return numpy_array(masses_, {masses_.size()}); }
   std::optional<int64_t> scene_steps() const { return scene_steps_; }
-  std::string minimize_line() const { return minimize_line_; }
   std::string backend() {
     const std::lock_guard<std::mutex> lock(mutex_);
     return ctx_.backend_name();
@@ -315,9 +304,7 @@ class SimulationCore {
   std::vector<uint32_t> species_;  // each particle's type index
   std::vector<double> masses_;     // each particle's mass
   std::optional<int64_t> scene_steps_;
-  std::string minimize_line_;
   std::atomic<int> views_{0};  // views of the state alive (state_view's arrays)
-  std::size_t n_ = 0;          // the particle count (fixed for the simulation's life)
 };
 
 }  // namespace
@@ -326,11 +313,12 @@ void bind_simulation(nb::module_& m) {
   nb::class_<SimulationCore>(m, "SimulationCore",
                              "The compiled core of cellforce.Simulation (use that class): a Context holding an MD "
                              "state")
-      .def(nb::init<const std::vector<double>&, const std::vector<bool>&, double, const std::vector<TypeSpec>&,
-                    const std::vector<PairSpec>&, const std::vector<std::pair<std::string, std::string>>&,
+      .def(nb::init<const std::vector<double>&, nb::handle, double, const std::string&, const std::string&,
+                    nb::handle, nb::handle, const std::vector<std::pair<std::string, std::string>>&,
                     const std::string&, double, double, double, uint64_t, HostDoubles, HostIndices, HostDoubles,
                     std::optional<HostDoubles>, std::optional<double>, int64_t>(),
-           nb::arg("box"), nb::arg("periodic"), nb::arg("cutoff"), nb::arg("types"), nb::arg("pairs"),
+           nb::arg("box"), nb::arg("periodic").none(), nb::arg("cutoff"), nb::arg("mode"), nb::arg("mixing"),
+           nb::arg("types").none(), nb::arg("pairs").none(),
            nb::arg("options"), nb::arg("integrator"), nb::arg("dt"), nb::arg("temperature"), nb::arg("friction"),
            nb::arg("seed"), nb::arg("positions"), nb::arg("type_index"), nb::arg("masses"),
            nb::arg("velocities").none(), nb::arg("initial_temperature").none(), nb::arg("step"))
@@ -357,7 +345,6 @@ void bind_simulation(nb::module_& m) {
       .def_prop_ro("species", &SimulationCore::species)
       .def_prop_ro("masses", &SimulationCore::masses)
       .def_prop_ro("scene_steps", &SimulationCore::scene_steps)
-      .def_prop_ro("minimize_line", &SimulationCore::minimize_line)
       .def_prop_ro("backend", &SimulationCore::backend)
       .def_prop_ro("description", &SimulationCore::description)
       .def_prop_ro("neighbor", &SimulationCore::neighbor);

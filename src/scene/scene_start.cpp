@@ -90,11 +90,10 @@ void check_start(const Scene& scene, const MdState& state, const std::vector<dou
 
 SceneStart start_scene(const Scene& scene) {
   MdState state;
-  std::size_t wrapped = 0;
-  state.config = scene_configuration(scene, &wrapped);
+  state.config = scene_configuration(scene);
   std::vector<double> masses = scene_masses(scene, state.config);
-  SceneStart start{scene_context(scene, state.config.box), MdState{}, {}, {}, wrapped};
-  if (scene.minimize.enabled) start.minimize_line = minimize_start(start.ctx, scene, state, masses);
+  SceneStart start{scene_context(scene, state.config.box), MdState{}, {}};
+  if (scene.minimize.enabled) minimize_start(start.ctx, scene, state, masses);
   const bool langevin = scene.integrator.kind == IntegratorKind::kLangevin;
   initialize_velocities(state, masses, scene.initial_temperature, scene.seed, !langevin);
   with_context(scene.source + ": step 0", [&] { set_state(start.ctx, state, masses); });

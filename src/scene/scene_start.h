@@ -44,8 +44,6 @@ struct SceneStart {
   Context ctx;
   MdState state;
   std::vector<double> masses;
-  std::string minimize_line;  // empty without [minimize]
-  std::size_t wrapped = 0;    // positions wrapped into the box
 };
 SceneStart start_scene(const Scene& scene);
 

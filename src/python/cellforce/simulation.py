@@ -92,31 +92,20 @@ class Simulation:
         dim = len(box)
         if dim not in (2, 3):
             raise ValueError(f"box: {dim} edge lengths; expected 2 or 3")
-        periodic = [True] * dim if periodic is None else [bool(p) for p in periodic]
-        if len(periodic) != dim:
-            raise ValueError(f"periodic: {len(periodic)} values for a box of {dim} axes")
         x = _host_rows(positions, "positions", None, dim)
         n = len(x)
-        types = {"A": (1.0, 1.0)} if types is None else dict(types)
-        if not types:
-            raise ValueError("types: no particle type given")
-        names = list(types)
-        type_specs = []
-        for name, value in types.items():
-            try:
-                sigma, epsilon = value
-                type_specs.append((str(name), float(sigma), float(epsilon)))
-            except (TypeError, ValueError):
-                raise TypeError(f"types: expected {{name: (sigma, epsilon)}}, got {name!r}: {value!r}") from None
+        # The physics (periodic, types, pairs) is read by the compiled core, as ForceKernel reads it;
+        # here only the type names, in the dict's order, for species and masses by name.
+        if types is not None and not isinstance(types, Mapping):
+            raise TypeError("types: expected {name: (sigma, epsilon)}")
+        types = None if types is None else dict(types)
+        names = ["A"] if types is None else [str(name) for name in types]
 
         def index_of(name, what):
             if name not in names:
                 raise ValueError(f"{what}: unknown type '{name}'")
             return names.index(name)
 
-        pair_specs = []
-        for (a, b), (sigma, epsilon) in (pairs or {}).items():
-            pair_specs.append((index_of(a, "pairs"), index_of(b, "pairs"), float(sigma), float(epsilon)))
         if species is None:
             type_index = np.zeros(n, dtype=np.uint32)
         else:
@@ -151,8 +140,8 @@ class Simulation:
                 raise ValueError(f"masses: shape {m.shape}; expected ({n},)")
         v = None if velocities is None else _host_rows(velocities, "velocities", n, dim)
         self._core = SimulationCore(
-            box, periodic, float(cutoff), type_specs, pair_specs,
-            _options(backend, precision, device, skin, {"mixing": mixing, "cutoff-mode": mode, **(options or {})}),
+            box, periodic, float(cutoff), mode, mixing, types, None if pairs is None else dict(pairs),
+            _options(backend, precision, device, skin, options),
             integrator, float(dt), float(temperature), float(friction), int(seed), x, type_index,
             np.ascontiguousarray(m, dtype=np.float64), v,
             None if initial_temperature is None else float(initial_temperature), int(step))
