@@ -238,6 +238,8 @@ TEST(CApiMd, BadInputIsNamed) {
   EXPECT_EQ(cf_step(nullptr, 1), CF_ERROR_INPUT);
   EXPECT_EQ(cf_get_state(nullptr, 1, out, nullptr, nullptr), CF_ERROR_INPUT);
   EXPECT_EQ(cf_thermo(nullptr, out, nullptr, nullptr, nullptr), CF_ERROR_INPUT);
+  const double* view = nullptr;
+  EXPECT_EQ(cf_state_view(nullptr, &view, nullptr, nullptr, nullptr), CF_ERROR_INPUT);
   EXPECT_EQ(cf_set_threads(nullptr, 1), CF_ERROR_INPUT);
   EXPECT_STREQ(cf_last_error(nullptr), "the context is a null pointer");
 
@@ -266,6 +268,9 @@ TEST(CApiMd, BadInputIsNamed) {
   EXPECT_THAT(cf_last_error(c), HasSubstr("no MD state"));
   EXPECT_EQ(cf_thermo(c, out, nullptr, nullptr, nullptr), CF_ERROR_INPUT);
   EXPECT_THAT(cf_last_error(c), HasSubstr("no MD state"));
+  EXPECT_EQ(cf_state_view(c, &view, nullptr, nullptr, nullptr), CF_ERROR_INPUT);
+  EXPECT_THAT(cf_last_error(c), HasSubstr("no MD state"));
+  EXPECT_EQ(view, nullptr);  // left unwritten
 
   EXPECT_EQ(cf_set_state(c, l.n, nullptr, nullptr, nullptr, l.m.data(), 0), CF_ERROR_INPUT);
   EXPECT_STREQ(cf_last_error(c), "positions is a null pointer (256 particles)");

@@ -180,7 +180,9 @@ TEST_P(ExternalForce, HostArrayFollowsTheOracle) {
     ctx.step(kSteps);
     expect_close(ref, state_of(ctx, l.n), l.edge(), kTol);
     const nlohmann::json stats = nlohmann::json::parse(ctx.statistics_json()).at("run");
-    if (GetParam() == cf::Backend::kCuda) EXPECT_GE(stats.at("gated_steps").get<int64_t>(), kSteps / 2);
+    if (GetParam() == cf::Backend::kCuda) {
+      EXPECT_GE(stats.at("gated_steps").get<int64_t>(), kSteps / 2);
+    }
   }
 }
 

@@ -220,10 +220,12 @@ CELLFORCE_API cf_status cf_clear_external_force(cf_context* ctx);
 CELLFORCE_API cf_status cf_get_state(cf_context* ctx, size_t n, double* positions, double* velocities,
                                      double* forces);
 
-/* The state where it lives, read without a copy (Context::state_view): pointers to positions,
- * velocities and forces, n * dim doubles each, on the host with the cpu backend or on CUDA device
- * *device (-1: host) with cuda, complete when this returns; any output may be NULL. Read again after
- * any call on the context (the arrays change, and may move); never written through. */
+/* The state where it lives, read without a copy (Context::state_view): pointers to positions
+ * (length, wrapped into the box on periodic axes), velocities (length / time) and forces (energy /
+ * length), n x dim doubles each, row-major in the state's particle order, on the host with the cpu
+ * backend or on CUDA device *device (-1: host) with cuda, complete when this returns; any output
+ * may be NULL. Read again after any call on the context (the arrays change, and may move); never
+ * written through. Without an MD state: CF_ERROR_INPUT, the outputs unwritten. */
 CELLFORCE_API cf_status cf_state_view(cf_context* ctx, const double** positions, const double** velocities,
                                       const double** forces, int* device);
 
