@@ -148,11 +148,13 @@ void GpuEngine::evaluate(const SystemView& system, const ForceField& ff, const R
 
   const std::size_t n = system.n, dim = std::size_t(g.dim);
   result.dim = g.dim;
-  download(result.forces, s.forces.data(), n * dim, s.stream);
-  download(result.energies, s.energies.data(), request.energy ? n : 0, s.stream);
   double totals[cuda::kCellSums] = {};
   if (request.energy || request.virial)
     CF_CUDA_CHECK(cudaMemcpyAsync(totals, s.totals.data(), sizeof(totals), cudaMemcpyDeviceToHost, s.stream));
+  result.forces.resize(n * dim);
+  result.energies.resize(request.energy ? n : 0);
+  s.staging.download(result.forces.data(), s.forces.data(), n * dim, s.stream);
+  s.staging.download(result.energies.data(), s.energies.data(), result.energies.size(), s.stream);
   s.record(Impl::kDownloaded);
   CF_CUDA_CHECK(cudaStreamSynchronize(s.stream));
 
@@ -184,17 +186,19 @@ void GpuEngine::evaluate_local(const SystemView& system, std::size_t n_local, co
   const bool observables = request.energy || request.virial;
   cuda::DeviceFlags flags{};
   CF_CUDA_CHECK(cudaMemcpyAsync(&flags, s.flags.data(), sizeof(flags), cudaMemcpyDeviceToHost, s.stream));
-  std::vector<double> forces, energies, w6;  // the caller's result is left as it was on an error
-  download(forces, s.forces.data(), n_local * dim, s.stream);
-  download(energies, s.energies.data(), request.energy ? n_local : 0, s.stream);
-  download(w6, s.virials.data(), observables ? n_local * kVirialComponents : 0, s.stream);
-  s.record(Impl::kDownloaded);
   CF_CUDA_CHECK(cudaStreamSynchronize(s.stream));
-  s.throw_flags(flags, system, ff, options_.precision);
+  s.throw_flags(flags, system, ff, options_.precision);  // before the result is touched
 
   result.dim = g.dim;
-  result.forces = std::move(forces);
-  result.energies = std::move(energies);
+  result.forces.resize(n_local * dim);
+  result.energies.resize(request.energy ? n_local : 0);
+  std::vector<double>& w6 = s.local_virials;
+  w6.resize(observables ? n_local * kVirialComponents : 0);
+  s.staging.download(result.forces.data(), s.forces.data(), result.forces.size(), s.stream);
+  s.staging.download(result.energies.data(), s.energies.data(), result.energies.size(), s.stream);
+  s.staging.download(w6.data(), s.virials.data(), w6.size(), s.stream);
+  s.record(Impl::kDownloaded);
+  CF_CUDA_CHECK(cudaStreamSynchronize(s.stream));  // the event, for the stage times
   // The totals: the locals' shares in index order (a pair of two locals whole, with a ghost half).
   result.energy = 0;
   for (const double e : result.energies) result.energy += e;
@@ -486,12 +490,14 @@ void GpuEngine::finish_timing() {
 void GpuEngine::prepare(const SystemView& system, const ForceField& ff, const DeviceSystemView* on_device,
                         bool lists) {
   Impl& s = *impl_;
-  validate_system(system, ff);
+  // The arrays' values are checked as they are copied to the device (upload_system), the rest here.
+  validate_physics(system.box, ff, system.n);
+  if (system.n > 0 && system.positions == nullptr) throw Error("positions array is null");
   check_capacity(system, ff);
   settle_device_calls(true);  // what the device decided, before the host decides
   s.call_state_stale = true;
   s.engine_dirty = true;
-  s.upload_system(system, on_device);
+  s.upload_system(system, on_device, &ff);
   const bool rebuild = reuse_.decide(system, ff.cutoff, [&] {
     return cuda::max_displacement2(system.box, s.pos, s.build_positions.data(), system.n, s.cub,
                                    s.stream);

@@ -1,4 +1,6 @@
 // GpuEngine::Impl's buffers and host bookkeeping (backend/engine_state.cuh).
+#include <algorithm>
+#include <cstdint>
 #include <cstring>
 #include <string>
 
@@ -131,14 +133,40 @@ void GpuEngine::Impl::reset_flags() {
   CF_CUDA_CHECK(cudaMemsetAsync(f, 0xff, 3 * sizeof(f->bad_pair), stream));  // "none" for the minima
 }
 
-void GpuEngine::Impl::upload_system(const SystemView& sys, const DeviceSystemView* on_device) {
+void GpuEngine::Impl::upload_system(const SystemView& sys, const DeviceSystemView* on_device,
+                                    const ForceField* check) {
   record(kStart);
   const std::size_t nd = sys.n * std::size_t(sys.box.dim);
   if (on_device) {  // borrowed: the caller keeps them unchanged until the work is done
     borrow(on_device->positions, on_device->types);
   } else {
-    upload(positions, sys.positions, nd, stream);
-    if (sys.types) upload(types, sys.types, sys.n, stream);
+    positions.reserve(std::max<std::size_t>(nd, 1));
+    // A coordinate is finite when its exponent bits are not all ones: tested without a branch, so
+    // that the check runs at the copy's pace.
+    auto finite = [&](const double* chunk, std::size_t, std::size_t m) {
+      if (!check) return true;
+      uint64_t bad = 0;
+      for (std::size_t k = 0; k < m; ++k) {
+        uint64_t bits;
+        std::memcpy(&bits, chunk + k, sizeof bits);
+        bad |= uint64_t((bits & 0x7ff0000000000000ull) == 0x7ff0000000000000ull);
+      }
+      return bad == 0;
+    };
+    bool good = staging.upload(positions.data(), sys.positions, nd, stream, finite);
+    if (good && sys.types) {
+      types.reserve(std::max<std::size_t>(sys.n, 1));
+      const uint32_t limit = check ? uint32_t(check->num_types()) : ~0u;
+      good = staging.upload(types.data(), sys.types, sys.n, stream, [&](const uint32_t* chunk, std::size_t, std::size_t m) {
+        uint32_t most = 0;
+        for (std::size_t k = 0; k < m; ++k) most = std::max(most, chunk[k]);
+        return m == 0 || most < limit;
+      });
+    }
+    if (!good) {  // the error names the particle
+      validate_system(sys, *check);
+      throw Error("internal error: a host array failed its check on the way to the device, not on the host");
+    }
     borrow(positions.data(), sys.types ? types.data() : nullptr);
   }
   record(kUploaded);

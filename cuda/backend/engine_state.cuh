@@ -25,6 +25,7 @@
 #include "forces/traversal.cuh"
 #include "search/pair_list.cuh"
 #include "search/stages.cuh"
+#include "staging.cuh"
 #include "transfer.cuh"
 
 namespace cellforce {
@@ -220,9 +221,15 @@ struct GpuEngine::Impl {
   void reset_flags();
 
   // The positions (and types) of this evaluation, on every evaluation.
-  // From the host arrays of `sys` (copied), or, when `on_device` is given, its device arrays (the
-  // same particles, borrowed).
-  void upload_system(const SystemView& sys, const DeviceSystemView* on_device = nullptr);
+  // From the host arrays of `sys` (copied through `staging`), or, when `on_device` is given, its
+  // device arrays (the same particles, borrowed). With `check`, the host arrays are checked as they
+  // are copied (finite coordinates, types of the force field): one pass over them, and on a bad
+  // value validate_system's error, which names the particle.
+  void upload_system(const SystemView& sys, const DeviceSystemView* on_device = nullptr,
+                     const ForceField* check = nullptr);
+  // Host arrays' copies to and from the device (cuda/staging.cuh).
+  cuda::PinnedStaging staging;
+  std::vector<double> local_virials;  // evaluate_local's per-particle virials (6 each) on the host
 
   // The device arrays this evaluation reads (types null: all type 0).
   void borrow(const double* p, const uint32_t* t) {

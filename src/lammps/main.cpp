@@ -124,6 +124,7 @@ int main(int argc, char** argv) {
   try {
     cellforce::Context check(3);
     for (const auto& [key, value] : options) check.set_option(key, value);
+    (void)check.backend_name();  // makes the engine: a backend this rank cannot run stops here
   } catch (const std::exception& e) {
     if (rank == 0) std::fprintf(stderr, "cellforce-lammps: %s\n", e.what());
     MPI_Finalize();
@@ -136,11 +137,22 @@ int main(int argc, char** argv) {
   // lj/cut whatever LAMMPS would have run it with); every other pair style is refused
   for (auto& [name, creator] : *lmp->force->pair_map)
     creator = ours(name) ? &cellforce::lammps::PairCellforce::create : &RefusedPair::create;
-  if (rank == 0) {
-    std::string line = "cellforce-lammps: pair_style lj/cut computed by cellforce " + std::string(cellforce::version());
-    for (const auto& [key, value] : options)
-      if ((key != "device" || device_rule.empty()) && key != "threads") line += ", " + key + " " + value;
-    line += device_rule;
+  if (rank == 0) {  // the settings, the defaults named
+    auto value = [&](const char* key, const char* otherwise) {
+      for (const auto& [k, v] : options)
+        if (k == key) return v;
+      return std::string(otherwise);
+    };
+    int ranks = 1;
+    MPI_Comm_size(MPI_COMM_WORLD, &ranks);
+    std::string line = "cellforce-lammps: pair_style lj/cut computed by cellforce " +
+                       std::string(cellforce::version()) + " on " + std::to_string(ranks) +
+                       (ranks == 1 ? " rank" : " ranks") + ": backend " + value("backend", "cpu") + ", precision " +
+                       value("precision", "double") + ", skin " + value("skin", "auto");
+    if (value("backend", "cpu") == "cuda")
+      line += device_rule.empty() ? ", device " + value("device", "0") : device_rule;
+    else
+      line += ", CPU threads a rank: " + value("threads", "?");
     if (lmp->screen) std::fprintf(lmp->screen, "%s\n", line.c_str());
     if (lmp->logfile) std::fprintf(lmp->logfile, "%s\n", line.c_str());
   }

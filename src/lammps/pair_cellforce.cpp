@@ -1,6 +1,7 @@
 #include "pair_cellforce.h"
 
 #include <algorithm>
+#include <chrono>
 #include <cstdio>
 #include <exception>
 #include <string>
@@ -9,6 +10,14 @@ namespace cellforce::lammps {
 
 
 namespace {
+double seconds(std::chrono::steady_clock::duration d) { return std::chrono::duration<double>(d).count(); }
+
+// cellforce's message, prefixed once
+std::string said(const std::exception& e) {
+  const std::string what = e.what();
+  return what.rfind("cellforce", 0) == 0 ? what : "cellforce: " + what;
+}
+
 std::string number(double v) {  // as %g writes it
   char text[32];
   std::snprintf(text, sizeof text, "%g", v);
@@ -28,6 +37,7 @@ PairCellforce::PairCellforce(LAMMPS_NS::LAMMPS* instance) : Pair(instance) {
 }
 
 PairCellforce::~PairCellforce() {
+  report_times();
   if (allocated) {
     memory->destroy(setflag);
     memory->destroy(cutsq);
@@ -132,15 +142,23 @@ void PairCellforce::make_context() {
   for (int i = 1; i <= n; ++i)
     for (int j = i + 1; j <= n; ++j) ctx_->set_pair(uint32_t(i - 1), uint32_t(j - 1), sigma_[i][j], epsilon_[i][j]);
   stale_ = false;
+  if (comm->me == 0 && !described_) {  // once: what rank 0's engine is (the others' alike)
+    const std::string line = "cellforce-lammps: rank 0 computes on " + ctx_->backend_name() + " (" +
+                             ctx_->description() + "); neighbour structure: " + ctx_->neighbor();
+    if (screen) std::fprintf(screen, "%s\n", line.c_str());
+    if (logfile) std::fprintf(logfile, "%s\n", line.c_str());
+    described_ = true;
+  }
 }
 
 void PairCellforce::compute(int eflag, int vflag) {
+  const auto started = Clock::now();
   ev_init(eflag, vflag);
   if (stale_ || !ctx_) {
     try {
       make_context();
     } catch (const std::exception& e) {
-      error->one(FLERR, std::string("cellforce: ") + e.what());
+      error->one(FLERR, said(e));
     }
   }
   const int dim = domain->dimension;
@@ -159,23 +177,29 @@ void PairCellforce::compute(int eflag, int vflag) {
   }
   types_.resize(std::size_t(n));
   for (int i = 0; i < n; ++i) types_[std::size_t(i)] = uint32_t(type[i] - 1);  // LAMMPS's types count from 1
-  forces_.resize(std::size_t(nlocal) * std::size_t(dim));
+  // In 3D LAMMPS's f (n rows of 3 in one block) takes cellforce's forces in place, added to what is
+  // there; in 2D they come in 2 columns (to zeros) and are added here.
+  if (dim != 3) forces_.assign(std::size_t(nlocal) * std::size_t(dim), 0.0);
   energies_.resize(eflag_atom ? std::size_t(nlocal) : 0);
   virials_.resize(vflag_atom ? std::size_t(nlocal) * dim * dim : 0);
   double energy = 0, w[9] = {};
   cellforce::LocalOutputs out;
-  out.forces = forces_.data();
+  out.forces = dim == 3 ? (nlocal > 0 ? f[0] : nullptr) : forces_.data();
+  out.accumulate = true;
   out.energy = eflag_global ? &energy : nullptr;
   out.virial = vflag_global ? w : nullptr;
   out.energies = eflag_atom ? energies_.data() : nullptr;
   out.virials = vflag_atom ? virials_.data() : nullptr;
+  const auto called = Clock::now();
   try {
     ctx_->compute_local(std::size_t(nlocal), std::size_t(nghost), rows, types_.data(), out);
   } catch (const std::exception& e) {
-    error->one(FLERR, std::string("cellforce: ") + e.what());
+    error->one(FLERR, said(e));
   }
-  for (int i = 0; i < nlocal; ++i)
-    for (int a = 0; a < dim; ++a) f[i][a] += forces_[std::size_t(i) * dim + a];
+  const auto returned = Clock::now();
+  if (dim != 3)
+    for (int i = 0; i < nlocal; ++i)
+      for (int a = 0; a < dim; ++a) f[i][a] += forces_[std::size_t(i) * dim + a];
   if (eflag_global) eng_vdwl += energy;
   // LAMMPS's virial order: xx, yy, zz, xy, xz, yz (cellforce's: dim x dim, row-major)
   auto at = [&](const double* m, int r, int c) { return (r < dim && c < dim) ? m[r * dim + c] : 0.0; };
@@ -199,6 +223,32 @@ void PairCellforce::compute(int eflag, int vflag) {
       vatom[i][4] += at(m, 0, 2);
       vatom[i][5] += at(m, 1, 2);
     }
+  const cellforce::Statistics engine = ctx_->statistics();
+  times_.calls += 1;
+  times_.cellforce += seconds(returned - called);
+  times_.stages += engine.pipeline_seconds;
+  times_.pair += seconds(Clock::now() - started) - seconds(returned - called);
+}
+
+// Rank 0 says where the pair's time went over the script, averaged over the ranks (and the most
+// any rank took): the whole compute_local call, the engine's stages in it (device time on CUDA),
+// and the pair's own packing and adding around it.
+void PairCellforce::report_times() {
+  if (times_.calls == 0) return;
+  double mine[3] = {times_.cellforce, times_.stages, times_.pair}, sum[3] = {}, most[3] = {};
+  MPI_Reduce(mine, sum, 3, MPI_DOUBLE, MPI_SUM, 0, world);
+  MPI_Reduce(mine, most, 3, MPI_DOUBLE, MPI_MAX, 0, world);
+  if (comm->me != 0) return;
+  const double per = 1e3 / (double(times_.calls) * comm->nprocs), top = 1e3 / double(times_.calls);
+  char line[400];
+  std::snprintf(line, sizeof line,
+                "cellforce-lammps: %lld force calls; ms a call, averaged over ranks (the slowest rank): "
+                "compute_local %.3f (%.3f), of it the engine's stages %.3f (%.3f); the pair's packing and "
+                "adding %.3f (%.3f)",
+                static_cast<long long>(times_.calls), sum[0] * per, most[0] * top, sum[1] * per, most[1] * top,
+                sum[2] * per, most[2] * top);
+  if (screen) std::fprintf(screen, "%s\n", line);
+  if (logfile) std::fprintf(logfile, "%s\n", line);
 }
 
 }  // namespace cellforce::lammps

@@ -8,6 +8,7 @@
 
 #include <cellforce/cellforce.hpp>
 
+#include <chrono>
 #include <memory>
 #include <string>
 #include <utility>
@@ -40,15 +41,22 @@ class PairCellforce : public LAMMPS_NS::Pair {
  private:
   void allocate();
   void make_context();  // the context for the physics now (types, pairs, cutoff, shift)
+  void report_times();   // rank 0 prints where the time of the calls went (a collective call)
+  using Clock = std::chrono::steady_clock;
 
   double cut_global_ = 0;
   double** epsilon_ = nullptr;  // [type][type], 1-based as LAMMPS's
   double** sigma_ = nullptr;
   bool stale_ = true;  // the physics changed since the context was made
+  bool described_ = false;  // rank 0 has printed its engine
   std::unique_ptr<cellforce::Context> ctx_;
   std::vector<double> positions_;  // 2D scripts: the rows packed to 2 columns
   std::vector<double> forces_, energies_, virials_;
   std::vector<uint32_t> types_;
+  struct Times {  // seconds over the calls so far
+    long long calls = 0;
+    double cellforce = 0, stages = 0, pair = 0;
+  } times_;
 };
 
 }  // namespace cellforce::lammps

@@ -4,7 +4,8 @@
 For in.lj (4,000 atoms; LAMMPS's lists rebuilt every step so that its own run is exact), in.binary
 (two types, explicit pair_coeff lines, pair_modify shift yes), the same with the unlike pair mixed
 by LAMMPS (arithmetic), in.2d (800 atoms in the plane) and in.lj with `-sf opt` (LAMMPS's
-lj/cut/opt, and cellforce under that name), in double precision on the CPU backend:
+lj/cut/opt, and cellforce under that name), in double precision on the CPU backend (--backend cuda: on
+the GPU, the same checks):
 cellforce-lammps on 1, 2 and 4 ranks (each run checked to be on that many) against `lmp` on one
 rank, the thermo of steps 0 to 100 every 10. Step 0's E_pair and pressure agree to 1e-10 relative,
 every column of step 100 to 1e-6, and the rank counts with each other to 1e-9 on every row; the
@@ -68,8 +69,10 @@ def main() -> int:
     ap.add_argument("--lmp", required=True)
     ap.add_argument("--mpiexec", required=True)
     ap.add_argument("--systems", required=True, help="systems/lammps")
+    ap.add_argument("--backend", default="cpu", choices=("cpu", "cuda"),
+                    help="cellforce's backend (cuda: on the GPU machine; the same checks in double precision)")
     args = ap.parse_args()
-    systems = Path(args.systems)
+    systems = Path(args.systems).resolve()  # the runs' folder is a scratch one
     failures = []
 
     def check(ok: bool, what: str) -> None:
@@ -77,7 +80,7 @@ def main() -> int:
         if not ok:
             failures.append(what)
 
-    ours = ["--cellforce-backend", "cpu", "--cellforce-precision", "double"]
+    ours = ["--cellforce-backend", args.backend, "--cellforce-precision", "double"]
     with tempfile.TemporaryDirectory() as scratch:
         work = Path(scratch)
         # Where MPI cannot start two processes here (a machine without the means), the test skips
