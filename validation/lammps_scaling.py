@@ -166,7 +166,7 @@ def main() -> int:
                 rows.append(row)
                 failed |= "error" in row
                 print(f"gpu {cells} {ranks}: {fmt(row.get('ms_per_step'))} ms/step {row.get('error', '')}", flush=True)
-            row = run_lammps(mpirun, ncores, lmp, cells, max(20, steps // 4), {}, folder, core_binding, log,
+            row = run_lammps(mpirun, ncores, lmp, cells, steps, {}, folder, core_binding, log,
                              args.timeout)
             row.update({"table": "gpu", "run": "lammps lj/cut/opt", "cells": cells, "np": ncores})
             rows.append(row)

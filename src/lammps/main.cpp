@@ -3,7 +3,8 @@
 // style is refused. LAMMPS's own flags pass through (-in, -var, -log, -echo, ...); cellforce's
 // engine options come from --cellforce-backend, --cellforce-precision, --cellforce-skin and
 // --cellforce-device, or the variables CELLFORCE_BACKEND, CELLFORCE_PRECISION, CELLFORCE_SKIN and
-// CELLFORCE_DEVICE (a flag wins). Without a device given, rank r of a node uses that node's GPU
+// CELLFORCE_DEVICE (a flag wins); the defaults are backend auto (a GPU where the rank finds one,
+// else the CPU) and precision double. Without a device given, rank r of a node uses that node's GPU
 // r mod (its GPUs); the CPU backend's threads are the node's cores over its ranks (or
 // CELLFORCE_THREADS).
 //   mpirun -np 4 cellforce-lammps -in in.lj --cellforce-backend cpu
@@ -96,6 +97,7 @@ int main(int argc, char** argv) {
       }
     if (!ours) rest.push_back(argv[i]);
   }
+  if (given[0].empty()) given[0] = "auto";  // a GPU where this rank finds one, else the CPU
   for (int k = 0; k < 4; ++k)
     if (!given[k].empty()) options.emplace_back(names[k], given[k]);
   // The node's ranks (a collective call: every rank makes it). Without a device given, rank r of a
@@ -147,9 +149,9 @@ int main(int argc, char** argv) {
     MPI_Comm_size(MPI_COMM_WORLD, &ranks);
     std::string line = "cellforce-lammps: pair_style lj/cut computed by cellforce " +
                        std::string(cellforce::version()) + " on " + std::to_string(ranks) +
-                       (ranks == 1 ? " rank" : " ranks") + ": backend " + value("backend", "cpu") + ", precision " +
+                       (ranks == 1 ? " rank" : " ranks") + ": backend " + value("backend", "auto") + ", precision " +
                        value("precision", "double") + ", skin " + value("skin", "auto");
-    if (value("backend", "cpu") == "cuda")
+    if (value("backend", "auto") != "cpu" && (gpus > 0 || !given[3].empty()))
       line += device_rule.empty() ? ", device " + value("device", "0") : device_rule;
     else
       line += ", CPU threads a rank: " + value("threads", "?");
