@@ -3,8 +3,11 @@
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
+#include <cstdlib>
 #include <exception>
+#include <map>
 #include <string>
+#include <vector>
 
 namespace cellforce::lammps {
 
@@ -142,6 +145,12 @@ void PairCellforce::make_context() {
   for (int i = 1; i <= n; ++i)
     for (int j = i + 1; j <= n; ++j) ctx_->set_pair(uint32_t(i - 1), uint32_t(j - 1), sigma_[i][j], epsilon_[i][j]);
   stale_ = false;
+  device_ = -1;
+  if (ctx_->backend_name() == "cuda") {
+    device_ = 0;
+    for (const auto& [key, value] : engine_settings().options)
+      if (key == "device") device_ = std::atoi(value.c_str());
+  }
   if (comm->me == 0 && !described_) {  // once: what rank 0's engine is (the others' alike)
     const std::string line = "cellforce-lammps: rank 0 computes on " + ctx_->backend_name() + " (" +
                              ctx_->description() + "); neighbour structure: " + ctx_->neighbor();
@@ -238,7 +247,15 @@ void PairCellforce::report_times() {
   double mine[3] = {times_.cellforce, times_.stages, times_.pair}, sum[3] = {}, most[3] = {};
   MPI_Reduce(mine, sum, 3, MPI_DOUBLE, MPI_SUM, 0, world);
   MPI_Reduce(mine, most, 3, MPI_DOUBLE, MPI_MAX, 0, world);
+  // Which device each rank computed on (the rank rule, seen): ranks by CUDA device, or "the CPU".
+  std::vector<int> devices(comm->me == 0 ? std::size_t(comm->nprocs) : 1);
+  MPI_Gather(&device_, 1, MPI_INT, devices.data(), 1, MPI_INT, 0, world);
   if (comm->me != 0) return;
+  std::map<int, int> ranks_on;
+  for (const int d : devices) ++ranks_on[d];
+  std::string where;
+  for (const auto& [d, count] : ranks_on)
+    where += (where.empty() ? "" : ", ") + std::to_string(count) + (d < 0 ? " on the CPU" : " on GPU " + std::to_string(d));
   const double per = 1e3 / (double(times_.calls) * comm->nprocs), top = 1e3 / double(times_.calls);
   char line[400];
   std::snprintf(line, sizeof line,
@@ -247,8 +264,8 @@ void PairCellforce::report_times() {
                 "adding %.3f (%.3f)",
                 static_cast<long long>(times_.calls), sum[0] * per, most[0] * top, sum[1] * per, most[1] * top,
                 sum[2] * per, most[2] * top);
-  if (screen) std::fprintf(screen, "%s\n", line);
-  if (logfile) std::fprintf(logfile, "%s\n", line);
+  for (FILE* f : {screen, logfile})
+    if (f) std::fprintf(f, "%s\ncellforce-lammps: ranks: %s\n", line, where.c_str());
 }
 
 }  // namespace cellforce::lammps

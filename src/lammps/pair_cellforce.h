@@ -49,6 +49,7 @@ class PairCellforce : public LAMMPS_NS::Pair {
   double** sigma_ = nullptr;
   bool stale_ = true;  // the physics changed since the context was made
   bool described_ = false;  // rank 0 has printed its engine
+  int device_ = -1;         // the CUDA device this rank computes on (-1: the CPU)
   std::unique_ptr<cellforce::Context> ctx_;
   std::vector<double> positions_;  // 2D scripts: the rows packed to 2 columns
   std::vector<double> forces_, energies_, virials_;
