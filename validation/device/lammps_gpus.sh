@@ -4,7 +4,8 @@
 # 1..G GPUs of the host (CUDA_VISIBLE_DEVICES; rank r computes on GPU r mod G), R ranks a GPU; then
 # LAMMPS's own lj/cut/opt on the host's cores and `cellforce run` on one GPU. Each run's summary
 # lines are appended to $OUT/runs.txt as it ends (a run cut short by the call's limit loses only
-# itself); every output to $OUT/logs.tgz at the end.
+# itself; each run is stopped after RUN_TIMEOUT seconds, default 120, its output line-buffered so
+# that a stopped run's log shows how far it came); every output to $OUT/logs.tgz at the end.
 #   bash validation/device/lammps_gpus.sh "GPUS RANKS_A_GPU CELLS STEPS" ...   (cellforce-lammps runs)
 #   LMP_RUNS="CELLS STEPS ..." RUN_CELLS="CELLS ..." to add the baselines.
 set -uo pipefail
@@ -23,7 +24,7 @@ for run in "$@"; do
   log=/tmp/gpus-logs/cf-g$gpus-r$per-c$cells.txt
   echo "== cellforce-lammps cuda mixed: $gpus GPUs ($visible), $np ranks, cells $cells, $steps steps" >> "$out/runs.txt"
   CUDA_VISIBLE_DEVICES=$visible CELLFORCE_BACKEND=cuda CELLFORCE_PRECISION=mixed CELLFORCE_THREADS=1 OMP_NUM_THREADS=1 \
-    $MPIRUN -np $np --bind-to core --map-by core "$CF_LAMMPS" -in systems/lammps/in.lj -var cells $cells \
+    timeout ${RUN_TIMEOUT:-120} stdbuf -oL $MPIRUN -np $np --bind-to core --map-by core "$CF_LAMMPS" -in systems/lammps/in.lj -var cells $cells \
     -var steps $steps -var every 1 -var check yes -log none > "$log" 2>&1
   echo "exit $?" >> "$out/runs.txt"; summary "$log" >> "$out/runs.txt"
 done
@@ -32,7 +33,7 @@ while [ $# -ge 2 ]; do
   cells=$1 steps=$2; shift 2
   log=/tmp/gpus-logs/lmp-c$cells.txt
   echo "== lammps lj/cut/opt: $cores ranks, cells $cells, $steps steps" >> "$out/runs.txt"
-  OMP_NUM_THREADS=1 $MPIRUN -np $cores --bind-to core --map-by core "$CF_LMP" -sf opt -in systems/lammps/in.lj \
+  OMP_NUM_THREADS=1 timeout ${RUN_TIMEOUT:-120} stdbuf -oL $MPIRUN -np $cores --bind-to core --map-by core "$CF_LMP" -sf opt -in systems/lammps/in.lj \
     -var cells $cells -var steps $steps -var every 1 -var check yes -log none > "$log" 2>&1
   echo "exit $?" >> "$out/runs.txt"; summary "$log" >> "$out/runs.txt"
 done
