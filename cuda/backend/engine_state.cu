@@ -156,14 +156,14 @@ void GpuEngine::Impl::upload_system(const SystemView& sys, const DeviceSystemVie
     bool good = staging.upload(positions.data(), sys.positions, nd, stream, finite);
     if (good && sys.types) {
       types.reserve(std::max<std::size_t>(sys.n, 1));
-      const uint32_t limit = check ? uint32_t(check->num_types()) : ~0u;
       good = staging.upload(types.data(), sys.types, sys.n, stream, [&](const uint32_t* chunk, std::size_t, std::size_t m) {
+        if (!check) return true;
         uint32_t most = 0;
         for (std::size_t k = 0; k < m; ++k) most = std::max(most, chunk[k]);
-        return m == 0 || most < limit;
+        return m == 0 || most < uint32_t(check->num_types());
       });
     }
-    if (!good) {  // the error names the particle
+    if (!good) {  // (only with a check) the error names the particle
       validate_system(sys, *check);
       throw Error("internal error: a host array failed its check on the way to the device, not on the host");
     }

@@ -121,14 +121,31 @@ int main(int argc, char** argv) {
   } else {
     options.emplace_back("threads", std::getenv("CELLFORCE_THREADS"));
   }
-  // The options checked once, before LAMMPS starts: a value the library refuses stops every rank
-  // with its message.
+  // The options checked on every rank before LAMMPS starts (the engine made: a backend or device
+  // one rank cannot use fails there alone): when any rank fails, every rank stops, and the first
+  // failing rank says why (a rank that stopped alone would leave the others waiting in LAMMPS).
+  std::string failure;
   try {
     cellforce::Context check(3);
     for (const auto& [key, value] : options) check.set_option(key, value);
-    (void)check.backend_name();  // makes the engine: a backend this rank cannot run stops here
+    (void)check.backend_name();
   } catch (const std::exception& e) {
-    if (rank == 0) std::fprintf(stderr, "cellforce-lammps: %s\n", e.what());
+    failure = e.what();
+  }
+  int ranks = 1;
+  MPI_Comm_size(MPI_COMM_WORLD, &ranks);
+  const int mine[2] = {failure.empty() ? 0 : 1, failure.empty() ? ranks : rank};
+  int failed = 0, first = ranks;
+  MPI_Allreduce(&mine[0], &failed, 1, MPI_INT, MPI_SUM, MPI_COMM_WORLD);
+  MPI_Allreduce(&mine[1], &first, 1, MPI_INT, MPI_MIN, MPI_COMM_WORLD);
+  if (failed > 0) {
+    if (rank == first)
+      std::fprintf(stderr, "cellforce-lammps: %s%s\n",
+                   ranks > 1 ? ("rank " + std::to_string(rank) + " (" + std::to_string(failed) + " of " +
+                                std::to_string(ranks) + " ranks failed this check): ")
+                                   .c_str()
+                             : "",
+                   failure.c_str());
     MPI_Finalize();
     return 2;
   }
@@ -145,13 +162,13 @@ int main(int argc, char** argv) {
         if (k == key) return v;
       return std::string(otherwise);
     };
-    int ranks = 1;
-    MPI_Comm_size(MPI_COMM_WORLD, &ranks);
     std::string line = "cellforce-lammps: pair_style lj/cut computed by cellforce " +
                        std::string(cellforce::version()) + " on " + std::to_string(ranks) +
                        (ranks == 1 ? " rank" : " ranks") + ": backend " + value("backend", "auto") + ", precision " +
                        value("precision", "double") + ", skin " + value("skin", "auto");
-    if (value("backend", "auto") != "cpu" && (gpus > 0 || !given[3].empty()))
+    std::string backend = value("backend", "auto");
+    for (char& c : backend) c = char(std::tolower(static_cast<unsigned char>(c)));
+    if (backend != "cpu" && (gpus > 0 || !given[3].empty()))
       line += device_rule.empty() ? ", device " + value("device", "0") : device_rule;
     else
       line += ", CPU threads a rank: " + value("threads", "?");

@@ -189,8 +189,9 @@ void PairCellforce::compute(int eflag, int vflag) {
   // In 3D LAMMPS's f (n rows of 3 in one block) takes cellforce's forces in place, added to what is
   // there; in 2D they come in 2 columns (to zeros) and are added here.
   if (dim != 3) forces_.assign(std::size_t(nlocal) * std::size_t(dim), 0.0);
-  energies_.resize(eflag_atom ? std::size_t(nlocal) : 0);
-  virials_.resize(vflag_atom ? std::size_t(nlocal) * dim * dim : 0);
+  // The outputs accumulate (out.accumulate): the per-atom ones start from zeros on every call.
+  energies_.assign(eflag_atom ? std::size_t(nlocal) : 0, 0.0);
+  virials_.assign(vflag_atom ? std::size_t(nlocal) * dim * dim : 0, 0.0);
   double energy = 0, w[9] = {};
   cellforce::LocalOutputs out;
   out.forces = dim == 3 ? (nlocal > 0 ? f[0] : nullptr) : forces_.data();

@@ -9,9 +9,11 @@ the GPU, the same checks):
 cellforce-lammps on 1, 2 and 4 ranks (each run checked to be on that many) against `lmp` on one
 rank, the thermo of steps 0 to 100 every 10. Step 0's E_pair and pressure agree to 1e-10 relative,
 every column of step 100 to 1e-6, and the rank counts with each other to 1e-9 on every row; the
-per-atom energies and stresses (compute pe/atom, stress/atom) summed agree with LAMMPS's to 1e-10. A
+per-atom energies and stresses (compute pe/atom, stress/atom) summed agree with LAMMPS's to 1e-10 on
+each of steps 0 to 3. A
 script with another pair style, a pair_coeff cutoff of its own (also under -sf opt, where LAMMPS's
-own would take it), or pair_modify tail yes is refused naming the command. Exits 1 on a failure,
+own would take it), or pair_modify tail yes is refused naming the command; a rank that cannot make its
+engine stops every rank, named. Exits 1 on a failure,
 77 (a skip) where mpiexec cannot start two processes."""
 from __future__ import annotations
 
@@ -32,12 +34,12 @@ def mpirun(mpiexec: str, ranks: int) -> list[str]:
     return command
 
 
-def run(command: list[str], cwd: Path) -> subprocess.CompletedProcess:
+def run(command: list[str], cwd: Path, timeout: float = 600) -> subprocess.CompletedProcess:
     # one thread a rank; Open MPI's shared-memory transport without the cross-process copies that
     # containers forbid
     env = dict(os.environ, OMP_NUM_THREADS="1", OMPI_MCA_rmaps_base_oversubscribe="1",
                OMPI_MCA_btl_vader_single_copy_mechanism="none")
-    return subprocess.run(command, cwd=cwd, capture_output=True, text=True, env=env, timeout=600)
+    return subprocess.run(command, cwd=cwd, capture_output=True, text=True, env=env, timeout=timeout)
 
 
 def thermo(output: str) -> dict[int, list[float]]:
@@ -72,7 +74,12 @@ def main() -> int:
     ap.add_argument("--backend", default="cpu", choices=("cpu", "cuda"),
                     help="cellforce's backend (cuda: on the GPU machine; the same checks in double precision)")
     args = ap.parse_args()
-    systems = Path(args.systems).resolve()  # the runs' folder is a scratch one
+    # the runs' folder is a scratch one: paths given relative to here are made absolute
+    systems = Path(args.systems).resolve()
+    for name in ("cellforce_lammps", "lmp", "mpiexec"):
+        given = getattr(args, name)
+        if os.sep in given and Path(given).exists():
+            setattr(args, name, str(Path(given).resolve()))
     failures = []
 
     def check(ok: bool, what: str) -> None:
@@ -128,29 +135,36 @@ def main() -> int:
                 check(worst <= 1e-9, f"{script}: 2 and 4 ranks within {worst:.1e} of 1 rank on every row (<= 1e-9)")
 
         # Per-atom energy and stress (compute pe/atom, stress/atom), summed: LAMMPS's own on one rank and
-        # cellforce's on two, at step 0 (1e-10 of the largest sum)
+        # cellforce's on two, on each of steps 0 to 3 (consecutive calls that ask for them: each call's
+        # tallies are its own), to 1e-10 of the largest sum
         per_atom = work / "in.per_atom"
         per_atom.write_text((systems / "in.lj").read_text().replace(
             "thermo_modify   format float %.15g",
             "compute pa all pe/atom\ncompute sp all reduce sum c_pa\ncompute sa all stress/atom NULL\n"
             "compute ss all reduce sum c_sa[1] c_sa[2] c_sa[3] c_sa[4] c_sa[5] c_sa[6]\n"
             "thermo_style custom step pe c_sp c_ss[1] c_ss[2] c_ss[3] c_ss[4] c_ss[5] c_ss[6]\n"
-            "thermo_modify   format float %.15g"))
+            "thermo_modify   format float %.15g").replace("thermo          10", "thermo          1"))
         rows = {}
         for name, command in (("lmp", mpirun(args.mpiexec, 1) + [args.lmp]),
                               ("cellforce", mpirun(args.mpiexec, 2) + [args.cellforce_lammps, *ours])):
-            p = run(command + ["-in", str(per_atom), "-log", "none", "-var", "cells", "6", "-var", "steps", "0"], work)
+            p = run(command + ["-in", str(per_atom), "-log", "none", "-var", "cells", "6", "-var", "steps", "3",
+                               "-var", "every", "1", "-var", "check", "yes"], work)
             lines = p.stdout.splitlines()
             header = next((i for i, line in enumerate(lines) if line.split()[:2] == ["Step", "PotEng"]), None)
-            rows[name] = [float(v) for v in lines[header + 1].split()[1:]] if header is not None else []
-        ok = len(rows["lmp"]) == 8 and len(rows["cellforce"]) == 8
-        scale = max((abs(v) for v in rows["lmp"][2:5]), default=1.0)
-        worst = max((abs(a - b) / scale for a, b in zip(rows["cellforce"][2:], rows["lmp"][2:])), default=float("inf"))
-        check(ok and relative(rows["cellforce"][1], rows["lmp"][1]) <= 1e-10 and worst <= 1e-10,
-              f"per-atom energy and stress summed, 2 ranks: {rows['cellforce']} vs LAMMPS's {rows['lmp']} "
-              f"(stress within {worst:.1e} of the largest diagonal sum)")
-        check(ok and relative(rows["cellforce"][1], rows["cellforce"][0]) <= 1e-12,
-              "per-atom energies sum to the potential energy (both normalised by the atoms in lj units)")
+            rows[name] = [[float(v) for v in line.split()[1:]] for line in lines[header + 1:header + 5]] \
+                if header is not None else []
+        ok = len(rows["lmp"]) == 4 and len(rows["cellforce"]) == 4 and all(
+            len(row) == 8 for name in rows for row in rows[name])
+        for step in range(4):
+            ours_row = rows["cellforce"][step] if ok else []
+            theirs = rows["lmp"][step] if ok else []
+            scale = max((abs(v) for v in theirs[2:5]), default=1.0)
+            worst = max((abs(a - b) / scale for a, b in zip(ours_row[2:], theirs[2:])), default=float("inf"))
+            check(ok and relative(ours_row[1], theirs[1]) <= 1e-10 and worst <= 1e-10,
+                  f"per-atom energy and stress summed, 2 ranks, step {step}: {ours_row} vs LAMMPS's {theirs} "
+                  f"(stress within {worst:.1e} of the largest diagonal sum)")
+            check(ok and relative(ours_row[1], ours_row[0]) <= 1e-12,
+                  f"step {step}: per-atom energies sum to the potential energy (both normalised by the atoms)")
 
         # Refusals: another pair style, a cutoff of its own for a type pair
         text = (systems / "in.lj").read_text()
@@ -172,6 +186,20 @@ def main() -> int:
             reason = {"coul": "refused", "cutoff": "differs from pair_style's", "tail": "tail yes"}[name]
             check(p.returncode != 0 and reason in out and line in out,
                   f"{name} {' '.join(suffix)}: refused, naming the line ({out.strip()[-300:]!r})")
+
+        # One rank that cannot make its engine (device 99, or no CUDA at all) while the other can: every
+        # rank stops at once, the failing one named (not the other left waiting in LAMMPS)
+        if "mpich" not in Path(args.mpiexec).resolve().name:  # Open MPI's MPMD form
+            one = [args.cellforce_lammps, "-in", str(systems / "in.lj"), "-log", "none", "-var", "cells", "4"]
+            command = (mpirun(args.mpiexec, 1) + one + ["--cellforce-backend", "cpu"] + [":", "-np", "1"] + one
+                       + ["--cellforce-backend", "cuda", "--cellforce-device", "99"])
+            try:
+                p = run(command, work, timeout=60)
+                out = p.stdout + p.stderr
+                check(p.returncode != 0 and "rank 1 (1 of 2 ranks failed this check)" in out,
+                      f"a rank without its engine stops every rank, named ({out.strip()[-300:]!r})")
+            except subprocess.TimeoutExpired:
+                check(False, "a rank without its engine stops every rank: the job still ran after 60 s")
     print(f"{len(failures)} failed" if failures else "all passed")
     return 1 if failures else 0
 
