@@ -67,6 +67,17 @@ int cuda_devices() {
 #endif
 }
 
+// Makes `device` (when it is one of this process's `gpus`) the current CUDA device; a device that
+// cannot be made current is left to the engine to report.
+void select_device(int device, int gpus) {
+#ifdef CELLFORCE_HAVE_CUDA
+  if (device >= 0 && device < gpus && cudaSetDevice(device) != cudaSuccess) (void)cudaGetLastError();
+#else
+  (void)device;
+  (void)gpus;
+#endif
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -115,6 +126,13 @@ int main(int argc, char** argv) {
     options.emplace_back("device", std::to_string(local % gpus));
     device_rule = ", device: the node's rank mod " + std::to_string(gpus);
   }
+  // The rank's GPU made this process's current device (unless it runs on the CPU), so that no call
+  // leaves a context of its own on device 0 (every rank of a node would hold one there, beside its
+  // own GPU's).
+  std::string backend = given[0];
+  for (char& c : backend) c = char(std::tolower(static_cast<unsigned char>(c)));
+  if (backend != "cpu")
+    select_device(given[3].empty() ? (gpus > 0 ? local % gpus : -1) : std::atoi(given[3].c_str()), gpus);
   if (!std::getenv("CELLFORCE_THREADS")) {
     const unsigned cores = std::thread::hardware_concurrency();
     options.emplace_back("threads", std::to_string(std::max(1u, cores / unsigned(std::max(1, local_ranks)))));
@@ -166,8 +184,6 @@ int main(int argc, char** argv) {
                        std::string(cellforce::version()) + " on " + std::to_string(ranks) +
                        (ranks == 1 ? " rank" : " ranks") + ": backend " + value("backend", "auto") + ", precision " +
                        value("precision", "double") + ", skin " + value("skin", "auto");
-    std::string backend = value("backend", "auto");
-    for (char& c : backend) c = char(std::tolower(static_cast<unsigned char>(c)));
     if (backend != "cpu" && (gpus > 0 || !given[3].empty()))
       line += device_rule.empty() ? ", device " + value("device", "0") : device_rule;
     else
