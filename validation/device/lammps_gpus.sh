@@ -8,6 +8,7 @@
 # that a stopped run's log shows how far it came); every output to $OUT/logs.tgz at the end.
 #   bash validation/device/lammps_gpus.sh "GPUS RANKS_A_GPU CELLS STEPS" ...   (cellforce-lammps runs)
 #   LMP_RUNS="CELLS STEPS ..." RUN_CELLS="CELLS ..." to add the baselines.
+# The table and plot from runs.txt: validation/lammps_gpus_report.py.
 set -uo pipefail
 out=${OUT:-/tmp/cellforce-gpus}
 mkdir -p "$out" /tmp/gpus-logs
