@@ -422,7 +422,9 @@ TEST_P(MdApi, MemoryByBufferAddsUp) {
     const auto& [name, bytes] = memory[k];
     SCOPED_TRACE(name);
     EXPECT_GT(bytes, 0u);
-    if (k) EXPECT_LE(bytes, memory[k - 1].second) << "not largest first";
+    if (k) {
+      EXPECT_LE(bytes, memory[k - 1].second) << "not largest first";
+    }
     sum += bytes;
     names.push_back(name);
   }

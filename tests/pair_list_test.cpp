@@ -924,7 +924,7 @@ TEST(PairListMd, GatedRunsEqualTheStepwiseRunLeanOrNot) {
     const char* name;
     bool varied_masses = false;    // 1, 1.5 and 2 in turn (one mass for all: a number)
     const char* scene = nullptr;  // a scene file's text instead of the in.lj fluid
-    std::optional<int> block;      // the fused force kernel's threads a block instead of the rule
+    std::optional<int> block = std::nullopt;  // the fused force kernel's threads a block instead of the rule
   };
   for (const Form form : {Form{Precision::kMixed, std::nullopt, "mixed, the rule's threads"},
                           Form{Precision::kMixed, 1, "mixed, 1 thread a particle"},

@@ -177,8 +177,12 @@ TEST(SortKey, SlabBitsFillTheSortsLastDigit) {
     EXPECT_GE(g.slab_bits, std::min(2, 32 - cell_bits));
     EXPECT_LE(g.slab_bits, kMaxSlabBits);
     const int free_bits = (8 - cell_bits % 8) % 8;
-    if (free_bits >= 2) EXPECT_EQ((g.key_bits + 7) / 8, (cell_bits + 7) / 8) << "a sort pass more";
-    if (free_bits >= kMaxSlabBits) EXPECT_EQ(g.slab_bits, kMaxSlabBits);
+    if (free_bits >= 2) {
+      EXPECT_EQ((g.key_bits + 7) / 8, (cell_bits + 7) / 8) << "a sort pass more";
+    }
+    if (free_bits >= kMaxSlabBits) {
+      EXPECT_EQ(g.slab_bits, kMaxSlabBits);
+    }
     const uint32_t largest = sort_key(g, g.num_cells - 1, true, (1u << g.slab_bits) - 1);
     const uint32_t window = g.key_bits >= 32 ? 0xffffffffu : (uint32_t(1) << g.key_bits) - 1;
     EXPECT_LT(largest, kInvalidCell & window);
@@ -233,7 +237,9 @@ TEST(SortKey, CellEntriesRunBySlabThenParticle) {
       const uint32_t prev = ids.object_ids[e - 1];
       const uint32_t lp = layer_of(prev), li = layer_of(i);
       EXPECT_LE(lp, li) << "cell " << cc.cell << ": entries " << e - 1 << ", " << e << " out of layer order";
-      if (lp == li) EXPECT_LT(prev, i) << "cell " << cc.cell << ": ties by particle index";
+      if (lp == li) {
+        EXPECT_LT(prev, i) << "cell " << cc.cell << ": ties by particle index";
+      }
       layer_changes += lp != li;
     }
   }

@@ -177,9 +177,9 @@ ConfigurationFile read_h5md(const std::string& file_name, const ReadOptions& opt
       if (!names.empty() && !(v >= 0 && v < double(names.size())))
         throw Error(where + "/species: particle " + std::to_string(i) + " has species " + format_number(v) +
                     ", but the attribute names holds " + std::to_string(names.size()) + " names");
-      const std::string name = names.empty() ? std::to_string((long long)v) : names[std::size_t(v)];
-      auto [it, added] = index.try_emplace(name, uint32_t(out.species.size()));
-      if (added) out.species.push_back(name);
+      const std::string species = names.empty() ? std::to_string((long long)v) : names[std::size_t(v)];
+      auto [it, added] = index.try_emplace(species, uint32_t(out.species.size()));
+      if (added) out.species.push_back(species);
       out.config.types[i] = it->second;
     }
   } else {
