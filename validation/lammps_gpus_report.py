@@ -20,45 +20,46 @@ import re
 import sys
 from pathlib import Path
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from lammps_scaling import parse_log  # noqa: E402
+
 SECTIONS = ("Pair", "Comm", "Modify", "Other")
 
 
 def parse(text: str) -> list[dict]:
-    runs, run = [], None
-    for line in text.splitlines():
-        if line.startswith("== "):
-            run = {"header": line[3:]}
-            runs.append(run)
-            if m := re.match(r"== cellforce-lammps cuda (\w+): (\d+) GPUs \(([\d,]*)\), (\d+) ranks, cells (\d+), (\d+) steps",
-                             line):
-                run.update(engine="cellforce-lammps", precision=m[1], gpus=int(m[2]), ranks=int(m[4]),
-                           cells=int(m[5]))
-            elif m := re.match(r"== lammps lj/cut/opt: (\d+) ranks, cells (\d+), (\d+) steps", line):
-                run.update(engine="lammps lj/cut/opt", gpus=0, ranks=int(m[1]), cells=int(m[2]))
-            elif m := re.match(r"== cellforce run: 1 GPU, cells (\d+)", line):
-                run.update(engine="cellforce run", gpus=1, ranks=1, cells=int(m[1]))
+    """The runs of runs.txt: each block from a "== " header to the next, its header's settings and
+    LAMMPS's summary as lammps_scaling.parse_log reads it."""
+    runs = []
+    for block in re.split(r"^(?=== )", text, flags=re.M):
+        if not block.startswith("== "):
             continue
-        if run is None:
-            continue
-        if m := re.match(r"exit (\d+)", line):
+        header = block.splitlines()[0]
+        run = {"header": header[3:]}
+        runs.append(run)
+        if m := re.match(r"== cellforce-lammps cuda (\w+): (\d+) GPUs \(([\d,]*)\), (\d+) ranks, cells (\d+), (\d+) steps",
+                         header):
+            run.update(engine="cellforce-lammps", precision=m[1], gpus=int(m[2]), ranks=int(m[4]), cells=int(m[5]))
+        elif m := re.match(r"== lammps lj/cut/opt: (\d+) ranks, cells (\d+), (\d+) steps", header):
+            run.update(engine="lammps lj/cut/opt", gpus=0, ranks=int(m[1]), cells=int(m[2]))
+        elif m := re.match(r"== cellforce run: 1 GPU, cells (\d+)", header):
+            run.update(engine="cellforce run", gpus=1, ranks=1, cells=int(m[1]))
+        run["atoms"] = 4 * run["cells"] ** 3 if "cells" in run else 0
+        if m := re.search(r"^exit (\d+)", block, re.M):
             run["exit"] = int(m[1])
-        elif m := re.search(r"Loop time of ([\d.eE+-]+) on (\d+) procs for (\d+) steps with (\d+) atoms", line):
-            run.update(loop=float(m[1]), steps=int(m[3]), atoms=int(m[4]))
-        elif m := re.match(r"(Pair|Comm|Modify|Other)\s*\|\s*([\d.eE+-]+)?\s*\|\s*([\d.eE+-]+)", line):
-            run[m[1]] = float(m[3])
-        elif m := re.search(r"compute_local ([\d.]+) \(([\d.]+)\), of it the engine's stages ([\d.]+)", line):
+        if m := re.search(r"^ms per step ([\d.]+) forces ms per step", block, re.M):  # cellforce run
+            run["ms"] = float(m[1])
+            continue
+        try:
+            log = parse_log(block)
+        except RuntimeError:  # no loop time: stopped or failed
+            continue
+        run.update(ms=log["ms_per_step"], atoms=log["atoms"])
+        for name in SECTIONS:
+            run[name] = log.get(f"{name.lower()}_ms_per_step")
+        if m := re.search(r"compute_local ([\d.]+) \(([\d.]+)\), of it the engine's stages ([\d.]+)", block):
             run.update(compute_local=float(m[1]), stages=float(m[3]))
-        elif m := re.match(r"cellforce-lammps: ranks: (.*)", line):
+        if m := re.search(r"^cellforce-lammps: ranks: (.*)$", block, re.M):
             run["placement"] = m[1]
-        elif m := re.match(r"ms per step ([\d.]+) forces ms per step ([\d.na]+)", line):
-            run.update(ms=float(m[1]), atoms=4 * run["cells"] ** 3)
-    for run in runs:
-        if "loop" in run and run.get("steps"):
-            run["ms"] = 1e3 * run["loop"] / run["steps"]
-            for name in SECTIONS:
-                if name in run:
-                    run[name] = 1e3 * run[name] / run["steps"]
-        run.setdefault("atoms", 4 * run["cells"] ** 3 if "cells" in run else 0)
     return runs
 
 
