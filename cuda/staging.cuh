@@ -33,8 +33,8 @@ class PinnedStaging {
 
   // Queues the copy of h[0, count) to d on `stream` and returns once the last chunk is staged (the
   // DMA may still run: the chunks are reused only after their copies completed). `check(chunk,
-  // first, count)` sees each chunk's elements once, as staged, and returns false to stop: upload
-  // then returns false, with d partly written.
+  // count)` sees each chunk's elements once, as staged, and returns false to stop: upload then
+  // returns false, with d partly written.
   template <class T, class Check>
   bool upload(T* d, const T* h, std::size_t count, cudaStream_t stream, Check&& check) {
     ready();
@@ -44,7 +44,7 @@ class PinnedStaging {
       CF_CUDA_CHECK(cudaEventSynchronize(done_[k]));  // the chunk's previous copy has left it
       T* chunk = static_cast<T*>(chunk_[k]);
       std::memcpy(chunk, h + first, m * sizeof(T));
-      if (!check(static_cast<const T*>(chunk), first, m)) return false;
+      if (!check(static_cast<const T*>(chunk), m)) return false;
       CF_CUDA_CHECK(cudaMemcpyAsync(d + first, chunk, m * sizeof(T), cudaMemcpyHostToDevice, stream));
       CF_CUDA_CHECK(cudaEventRecord(done_[k], stream));
     }

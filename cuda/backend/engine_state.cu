@@ -143,7 +143,7 @@ void GpuEngine::Impl::upload_system(const SystemView& sys, const DeviceSystemVie
     positions.reserve(std::max<std::size_t>(nd, 1));
     // A coordinate is finite when its exponent bits are not all ones: tested without a branch, so
     // that the check runs at the copy's pace.
-    auto finite = [&](const double* chunk, std::size_t, std::size_t m) {
+    auto finite = [&](const double* chunk, std::size_t m) {
       if (!check) return true;
       uint64_t bad = 0;
       for (std::size_t k = 0; k < m; ++k) {
@@ -156,7 +156,7 @@ void GpuEngine::Impl::upload_system(const SystemView& sys, const DeviceSystemVie
     bool good = staging.upload(positions.data(), sys.positions, nd, stream, finite);
     if (good && sys.types) {
       types.reserve(std::max<std::size_t>(sys.n, 1));
-      good = staging.upload(types.data(), sys.types, sys.n, stream, [&](const uint32_t* chunk, std::size_t, std::size_t m) {
+      good = staging.upload(types.data(), sys.types, sys.n, stream, [&](const uint32_t* chunk, std::size_t m) {
         if (!check) return true;
         uint32_t most = 0;
         for (std::size_t k = 0; k < m; ++k) most = std::max(most, chunk[k]);
