@@ -5,7 +5,8 @@ For in.lj (4,000 atoms; LAMMPS's lists rebuilt every step so that its own run is
 (two types, explicit pair_coeff lines, pair_modify shift yes), the same with the unlike pair mixed
 by LAMMPS (arithmetic), in.2d (800 atoms in the plane) and in.lj with `-sf opt` (LAMMPS's
 lj/cut/opt, and cellforce under that name), in double precision on the CPU backend (--backend cuda: on
-the GPU, the same checks):
+the GPU, the same checks; with --gpus G as well, each run's ranks checked to be placed by the rank
+rule, rank r on GPU r mod G, as the program reports them):
 cellforce-lammps on 1, 2 and 4 ranks (each run checked to be on that many) against `lmp` on one
 rank, the thermo of steps 0 to 100 every 10. Step 0's E_pair and pressure agree to 1e-10 relative,
 every column of step 100 to 1e-6, and the rank counts with each other to 1e-9 on every row; the
@@ -73,6 +74,8 @@ def main() -> int:
     ap.add_argument("--systems", required=True, help="systems/lammps")
     ap.add_argument("--backend", default="cpu", choices=("cpu", "cuda"),
                     help="cellforce's backend (cuda: on the GPU machine; the same checks in double precision)")
+    ap.add_argument("--gpus", type=int, default=0,
+                    help="with --backend cuda: the GPUs the ranks see; each run's placement checked (rank r on GPU r mod G)")
     args = ap.parse_args()
     # the runs' folder is a scratch one: paths given relative to here are made absolute
     systems = Path(args.systems).resolve()
@@ -119,6 +122,11 @@ def main() -> int:
                       f"({p.stderr.strip()[-300:]})")
                 got = thermo(p.stdout)
                 by_ranks[ranks] = got
+                if args.backend == "cuda" and args.gpus > 0:
+                    on = [sum(1 for r in range(ranks) if r % args.gpus == g) for g in range(args.gpus)]
+                    placement = ", ".join(f"{count} on GPU {g}" for g, count in enumerate(on) if count)
+                    check(f"cellforce-lammps: ranks: {placement}\n" in p.stdout,
+                          f"{script}, {ranks} ranks: placed {placement} (the rank rule over {args.gpus} GPUs)")
                 check(sorted(got) == sorted(want) and 0 in got and 100 in got,
                       f"{script}, {ranks} ranks: thermo rows {sorted(got)}")
                 if 0 not in got or 100 not in got or 0 not in want or 100 not in want:

@@ -18,9 +18,10 @@ what=${*:-parity memcheck gpu cpu}
 for step in $what; do
   case $step in
     parity)
-      for backend in cpu cuda; do
+      for backend in cpu cuda; do  # on CUDA the ranks' placement over the machine's GPUs checked too
+        gpus=(); [[ $backend == cuda ]] && gpus=(--gpus "$(nvidia-smi -L | grep -c '^GPU')")
         python3 tests/lammps/parity.py --cellforce-lammps "$CF_LAMMPS" --lmp "$CF_LMP" --mpiexec mpirun \
-          --systems systems/lammps --backend $backend > "$out/parity-$backend.log" 2>&1
+          --systems systems/lammps --backend $backend "${gpus[@]}" > "$out/parity-$backend.log" 2>&1
         echo "parity $backend: exit $? ($(grep -c '^ok' "$out/parity-$backend.log") ok, $(grep -c '^FAIL' "$out/parity-$backend.log") failed)"
         grep -E "^FAIL|skipped" "$out/parity-$backend.log" | head -5
       done ;;
