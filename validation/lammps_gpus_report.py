@@ -7,11 +7,14 @@ Reads the runs.txt that script writes (each run's header line, exit status and L
 lines) and prints a Markdown table: atoms, GPUs, ranks, ms a step, LAMMPS's breakdown (Pair: the
 force engine with its copies; Comm; Modify: fix nve; Other), the pair's own account (compute_local
 and the engine's stages, ms a call averaged over ranks), the ranks by GPU as the program reported
-them, and for each size the speed-up over the fewest GPUs run at that size (strong scaling). With
+them, for each size the speed-up over the fewest GPUs run at that size with as many ranks a GPU
+(strong scaling), and E_pair's largest relative difference from LAMMPS's lj/cut/opt run of the same
+size over the thermo steps both printed (every decomposition must agree with it; beyond 1e-6, which
+mixed precision keeps to within a few 1e-8, the script exits 1). With
 --weak ATOMS_PER_GPU the runs whose atoms per GPU are within 5% of it form the weak-scaling rows
 (efficiency: the one-GPU time over each time). --plot draws ms a step against GPUs (matplotlib).
 
-  python3 validation/lammps_gpus_report.py runs.txt --md gpus.md [--weak 16.7e6] [--plot gpus.png]
+  python3 validation/lammps_gpus_report.py runs.txt [more.txt ...] --md gpus.md [--weak 16.7e6] [--plot gpus.png]
 """
 from __future__ import annotations
 
@@ -21,7 +24,7 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from lammps_scaling import parse_log  # noqa: E402
+from lammps_scaling import parse_log, thermo_rows  # noqa: E402
 
 SECTIONS = ("Pair", "Comm", "Modify", "Other")
 
@@ -53,7 +56,7 @@ def parse(text: str) -> list[dict]:
             log = parse_log(block)
         except RuntimeError:  # no loop time: stopped or failed
             continue
-        run.update(ms=log["ms_per_step"], atoms=log["atoms"])
+        run.update(ms=log["ms_per_step"], atoms=log["atoms"], thermo=thermo_rows(block))
         for name in SECTIONS:
             run[name] = log.get(f"{name.lower()}_ms_per_step")
         if m := re.search(r"compute_local ([\d.]+) \(([\d.]+)\), of it the engine's stages ([\d.]+)", block):
@@ -69,15 +72,17 @@ def number(v, digits=2) -> str:
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("runs", help="runs.txt of validation/device/lammps_gpus.sh")
+    ap.add_argument("runs", nargs="+", help="runs.txt of validation/device/lammps_gpus.sh (one or more)")
     ap.add_argument("--md", required=True)
     ap.add_argument("--weak", type=float, help="atoms per GPU of the weak-scaling rows")
     ap.add_argument("--plot")
     args = ap.parse_args()
-    runs = parse(Path(args.runs).read_text())
+    runs = [run for name in args.runs for run in parse(Path(name).read_text())]
     done = [r for r in runs if "ms" in r]
     lines = ["| atoms | engine | GPUs | ranks | ms/step | Pair | Comm | Modify | Other | compute_local | stages | "
-             "speed-up | ranks by GPU |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "speed-up | E_pair vs LAMMPS | ranks by GPU |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    lammps = {r["atoms"]: r for r in done if r["engine"] == "lammps lj/cut/opt"}
+    worst = 0.0
     fewest = {}
     for r in done:
         if r["engine"] == "cellforce-lammps":
@@ -87,10 +92,17 @@ def main() -> int:
     for r in sorted(done, key=lambda r: (r["atoms"], r["engine"], r["gpus"], r["ranks"])):
         base = fewest.get((r["atoms"], r["ranks"] // max(r["gpus"], 1))) if r["engine"] == "cellforce-lammps" else None
         speedup = base["ms"] / r["ms"] if base else None
+        agree = None
+        if r["engine"] == "cellforce-lammps" and r["atoms"] in lammps:
+            theirs = lammps[r["atoms"]]["thermo"]
+            steps = sorted(set(r["thermo"]) & set(theirs))
+            if steps:  # E_pair, the second column after Step
+                agree = max(abs(r["thermo"][k][1] - theirs[k][1]) / abs(theirs[k][1]) for k in steps)
+                worst = max(worst, agree)
         lines.append(f"| {r['atoms']:,} | {r['engine']} | {r['gpus'] or '-'} | {r['ranks']} | {number(r['ms'])} | "
                      + " | ".join(number(r.get(s)) for s in SECTIONS)
                      + f" | {number(r.get('compute_local'))} | {number(r.get('stages'))} | {number(speedup)} | "
-                     f"{r.get('placement', '-')} |")
+                     f"{'-' if agree is None else f'{agree:.1e}'} | {r.get('placement', '-')} |")
     failed = [r for r in runs if "ms" not in r]
     if failed:
         lines += ["", "Runs without a time (stopped or failed):"] + [f"- {r['header']} (exit {r.get('exit', '?')})"
@@ -111,20 +123,60 @@ def main() -> int:
         import matplotlib
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
-        fig, ax = plt.subplots(figsize=(6, 4))
+        # left: strong scaling (sizes run on more than one GPU count), the ideal dashed and LAMMPS's
+        # lj/cut/opt on the host's cores and `cellforce run` on one GPU as dotted levels; right: weak
+        # scaling's efficiency
+        fig, (strong, weak_ax) = plt.subplots(1, 2, figsize=(10, 4.2))
         series = {}
         for r in done:
             if r["engine"] == "cellforce-lammps":
                 series.setdefault((r["atoms"], r["ranks"] // r["gpus"]), []).append((r["gpus"], r["ms"]))
+        gpus_run = sorted({r["gpus"] for r in done if r["engine"] == "cellforce-lammps"})
+        sizes = sorted({atoms for (atoms, _), points in series.items() if len({g for g, _ in points}) > 1})
+        colours = dict(zip(sizes, plt.rcParams["axes.prop_cycle"].by_key()["color"]))
         for (atoms, per), points in sorted(series.items()):
+            if atoms not in colours:
+                continue
             points.sort()
-            ax.plot([p[0] for p in points], [p[1] for p in points], "o-", label=f"{atoms:,} atoms, {per} ranks a GPU")
-        ax.set_xlabel("GPUs")
-        ax.set_ylabel("ms a step")
-        ax.set_yscale("log")
-        ax.legend(fontsize=8)
+            line, = strong.plot([g for g, _ in points], [ms for _, ms in points], {1: "s--", 8: "^-."}.get(per, "o-"),
+                                color=colours[atoms], label=f"{atoms / 1e6:.1f}M atoms, {per} rank(s) a GPU")
+            strong.plot(gpus_run, [points[0][1] * points[0][0] / g for g in gpus_run], ":", color="grey", lw=0.8)
+        for r in done:
+            if r["atoms"] in colours and r["engine"] in ("lammps lj/cut/opt", "cellforce run"):
+                strong.axhline(r["ms"], color=colours[r["atoms"]], lw=0.8, ls="-." if r["gpus"] == 0 else (0, (1, 3)))
+                where = f"lj/cut/opt, {r['ranks']} cores" if r["gpus"] == 0 else "cellforce run, 1 GPU"
+                strong.annotate(f"{r['atoms'] / 1e6:.1f}M {where}", (gpus_run[-1], r["ms"]), fontsize=7,
+                                ha="right", va="bottom", color=colours[r["atoms"]])
+        strong.set_xticks(gpus_run)
+        strong.set_xlabel("GPUs")
+        strong.set_ylabel("ms a step")
+        strong.set_yscale("log")
+        strong.set_title("strong scaling (grey: ideal)", fontsize=9)
+        strong.legend(fontsize=7)
+        if args.weak:
+            by_per = {}
+            for r in weak:
+                ref = one.get(r["ranks"] // r["gpus"])
+                if ref:
+                    by_per.setdefault(r["ranks"] // r["gpus"], []).append((r["gpus"], ref["ms"] / r["ms"]))
+            for per, points in sorted(by_per.items()):
+                if len(points) > 1:
+                    points.sort()
+                    weak_ax.plot([g for g, _ in points], [e for _, e in points], "o-", label=f"{per} rank(s) a GPU")
+            weak_ax.axhline(0.8, color="grey", ls=":", lw=0.8)
+            weak_ax.set_ylim(0, 1.05)
+            weak_ax.set_xticks(gpus_run)
+            weak_ax.set_xlabel("GPUs")
+            weak_ax.set_ylabel("efficiency")
+            weak_ax.set_title(f"weak scaling, {args.weak / 1e6:.1f}M atoms a GPU (grey: 0.8)", fontsize=9)
+            weak_ax.legend(fontsize=7)
+        else:
+            weak_ax.set_axis_off()
         fig.tight_layout()
         fig.savefig(args.plot, dpi=120)
+    if worst > 1e-6:
+        print(f"E_pair differs from LAMMPS's by {worst:.1e} relative (> 1e-6)", file=sys.stderr)
+        return 1
     return 0
 
 

@@ -43,6 +43,14 @@ SCRIPT = HERE.parent / "systems" / "lammps" / "in.lj"
 SECTIONS = ("Pair", "Neigh", "Comm", "Output", "Modify", "Other")
 
 
+def thermo_rows(text: str) -> dict[int, list[float]]:
+    """The thermo rows of a LAMMPS output (Step Temp E_pair E_mol TotEng Press) by step: the other five
+    columns."""
+    rows = re.findall(r"^\s*(\d+)\s+([-0-9.eE+]+)\s+([-0-9.eE+]+)\s+([-0-9.eE+]+)\s+([-0-9.eE+]+)\s+([-0-9.eE+]+)\s*$",
+                      text, re.M)
+    return {int(r[0]): [float(v) for v in r[1:]] for r in rows}
+
+
 def parse_log(text: str) -> dict:
     """LAMMPS's summary of a run: loop time, ranks, steps, atoms, the timing breakdown (avg seconds) and
     the last thermo row (Step Temp E_pair E_mol TotEng Press)."""
@@ -56,13 +64,12 @@ def parse_log(text: str) -> dict:
         s = re.search(rf"^{name}\s*\|\s*([0-9.eE+-]+)?\s*\|\s*([0-9.eE+-]+)", text, re.M)
         if s:
             row[f"{name.lower()}_ms_per_step"] = 1e3 * float(s.group(2)) / max(row["steps"], 1)
-    thermo = text[:m.start()]
-    rows = re.findall(r"^\s*(\d+)\s+([-0-9.eE+]+)\s+([-0-9.eE+]+)\s+([-0-9.eE+]+)\s+([-0-9.eE+]+)\s+([-0-9.eE+]+)\s*$",
-                      thermo, re.M)
+    rows = thermo_rows(text[:m.start()])
     if rows:
-        step, temp, epair, _, etotal, press = rows[-1]
-        row.update({"last_step": int(step), "temperature": float(temp), "e_pair": float(epair),
-                    "total_energy": float(etotal), "pressure": float(press)})
+        step = max(rows)
+        temp, epair, _, etotal, press = rows[step]
+        row.update({"last_step": step, "temperature": temp, "e_pair": epair, "total_energy": etotal,
+                    "pressure": press})
     line = re.search(r"^cellforce-lammps: rank 0 computes on .*$", text, re.M)
     if line:
         row["engine"] = line.group(0)
