@@ -5,8 +5,9 @@ For in.lj (4,000 atoms; LAMMPS's lists rebuilt every step so that its own run is
 (two types, explicit pair_coeff lines, pair_modify shift yes), the same with the unlike pair mixed
 by LAMMPS (arithmetic), in.2d (800 atoms in the plane) and in.lj with `-sf opt` (LAMMPS's
 lj/cut/opt, and cellforce under that name), in double precision on the CPU backend (--backend cuda: on
-the GPU, the same checks; with --gpus G as well, each run's ranks checked to be placed by the rank
-rule, rank r on GPU r mod G, as the program reports them):
+the GPU, the same checks; with --gpus G as well, each run's count of ranks on each GPU checked
+against the rank rule, rank r on GPU r mod G, as the program reports the device each rank's engine was
+given; one node, so the rule's node-local rank is the rank):
 cellforce-lammps on 1, 2 and 4 ranks (each run checked to be on that many) against `lmp` on one
 rank, the thermo of steps 0 to 100 every 10. Step 0's E_pair and pressure agree to 1e-10 relative,
 every column of step 100 to 1e-6, and the rank counts with each other to 1e-9 on every row; the
@@ -75,7 +76,7 @@ def main() -> int:
     ap.add_argument("--backend", default="cpu", choices=("cpu", "cuda"),
                     help="cellforce's backend (cuda: on the GPU machine; the same checks in double precision)")
     ap.add_argument("--gpus", type=int, default=0,
-                    help="with --backend cuda: the GPUs the ranks see; each run's placement checked (rank r on GPU r mod G)")
+                    help="with --backend cuda: the GPUs the ranks see; each run's ranks a GPU checked (rank r on GPU r mod G)")
     args = ap.parse_args()
     # the runs' folder is a scratch one: paths given relative to here are made absolute
     systems = Path(args.systems).resolve()

@@ -19,9 +19,11 @@ for step in $what; do
   case $step in
     parity)
       for backend in cpu cuda; do  # on CUDA the ranks' placement over the machine's GPUs checked too
-        gpus=(); [[ $backend == cuda ]] && gpus=(--gpus "$(nvidia-smi -L | grep -c '^GPU')")
+        # the GPUs the ranks see: CUDA_VISIBLE_DEVICES's list where it is set, else the machine's
+        gpus=(); [[ $backend == cuda ]] && gpus=(--gpus "$(if [[ -n ${CUDA_VISIBLE_DEVICES:-} ]]; then
+          tr ',' '\n' <<< "$CUDA_VISIBLE_DEVICES" | grep -c .; else nvidia-smi -L | grep -c '^GPU'; fi)")
         python3 tests/lammps/parity.py --cellforce-lammps "$CF_LAMMPS" --lmp "$CF_LMP" --mpiexec mpirun \
-          --systems systems/lammps --backend $backend "${gpus[@]}" > "$out/parity-$backend.log" 2>&1
+          --systems systems/lammps --backend $backend ${gpus[@]+"${gpus[@]}"} > "$out/parity-$backend.log" 2>&1
         echo "parity $backend: exit $? ($(grep -c '^ok' "$out/parity-$backend.log") ok, $(grep -c '^FAIL' "$out/parity-$backend.log") failed)"
         grep -E "^FAIL|skipped" "$out/parity-$backend.log" | head -5
       done ;;
