@@ -163,7 +163,8 @@ void PairCellforce::make_context() {
 void PairCellforce::compute(int eflag, int vflag) {
   const auto started = Clock::now();
   ev_init(eflag, vflag);
-  if (stale_ || !ctx_) {
+  const bool making = stale_ || !ctx_;  // this call makes the engine (its first, setup's, is timed apart)
+  if (making) {
     try {
       make_context();
     } catch (const std::exception& e) {
@@ -234,6 +235,11 @@ void PairCellforce::compute(int eflag, int vflag) {
       vatom[i][5] += at(m, 1, 2);
     }
   const cellforce::Statistics engine = ctx_->statistics();
+  if (making) {
+    times_.making_calls += 1;
+    times_.making += seconds(Clock::now() - started);
+    return;
+  }
   times_.calls += 1;
   times_.cellforce += seconds(returned - called);
   times_.stages += engine.pipeline_seconds;
@@ -242,12 +248,13 @@ void PairCellforce::compute(int eflag, int vflag) {
 
 // Rank 0 says where the pair's time went over the script, averaged over the ranks (and the most
 // any rank took): the whole compute_local call, the engine's stages in it (device time on CUDA),
-// and the pair's own packing and adding around it.
+// and the pair's own packing and adding around it; the calls that made the engine (the first of a
+// script, and any after its physics changed) apart, whole.
 void PairCellforce::report_times() {
-  if (times_.calls == 0) return;
-  double mine[3] = {times_.cellforce, times_.stages, times_.pair}, sum[3] = {}, most[3] = {};
-  MPI_Reduce(mine, sum, 3, MPI_DOUBLE, MPI_SUM, 0, world);
-  MPI_Reduce(mine, most, 3, MPI_DOUBLE, MPI_MAX, 0, world);
+  if (times_.calls == 0 && times_.making_calls == 0) return;
+  double mine[4] = {times_.cellforce, times_.stages, times_.pair, times_.making}, sum[4] = {}, most[4] = {};
+  MPI_Reduce(mine, sum, 4, MPI_DOUBLE, MPI_SUM, 0, world);
+  MPI_Reduce(mine, most, 4, MPI_DOUBLE, MPI_MAX, 0, world);
   // Which device each rank computed on (the rank rule, seen): ranks by CUDA device, or "the CPU".
   std::vector<int> devices(comm->me == 0 ? std::size_t(comm->nprocs) : 1);
   MPI_Gather(&device_, 1, MPI_INT, devices.data(), 1, MPI_INT, 0, world);
@@ -257,14 +264,24 @@ void PairCellforce::report_times() {
   std::string where;
   for (const auto& [d, count] : ranks_on)
     where += (where.empty() ? "" : ", ") + std::to_string(count) + (d < 0 ? " on the CPU" : " on GPU " + std::to_string(d));
-  const double per = 1e3 / (double(times_.calls) * comm->nprocs), top = 1e3 / double(times_.calls);
-  char line[400];
-  std::snprintf(line, sizeof line,
-                "cellforce-lammps: %lld force calls; ms a call, averaged over ranks (the slowest rank): "
-                "compute_local %.3f (%.3f), of it the engine's stages %.3f (%.3f); the pair's packing and "
-                "adding %.3f (%.3f)",
-                static_cast<long long>(times_.calls), sum[0] * per, most[0] * top, sum[1] * per, most[1] * top,
-                sum[2] * per, most[2] * top);
+  char line[512];
+  int at = 0;
+  if (times_.calls > 0) {
+    const double per = 1e3 / (double(times_.calls) * comm->nprocs), top = 1e3 / double(times_.calls);
+    at = std::snprintf(line, sizeof line,
+                       "cellforce-lammps: %lld force calls; ms a call, averaged over ranks (the slowest rank): "
+                       "compute_local %.3f (%.3f), of it the engine's stages %.3f (%.3f); the pair's packing and "
+                       "adding %.3f (%.3f); ",
+                       static_cast<long long>(times_.calls), sum[0] * per, most[0] * top, sum[1] * per,
+                       most[1] * top, sum[2] * per, most[2] * top);
+  } else {
+    at = std::snprintf(line, sizeof line, "cellforce-lammps: ");
+  }
+  const long long making = times_.making_calls;
+  if (making > 0 && at >= 0 && std::size_t(at) < sizeof line)
+    std::snprintf(line + at, sizeof line - std::size_t(at), "%lld call%s that made the engine: %.3f ms each (%.3f)",
+                  making, making == 1 ? "" : "s", 1e3 * sum[3] / (double(making) * comm->nprocs),
+                  1e3 * most[3] / double(making));
   for (FILE* f : {screen, logfile})
     if (f) std::fprintf(f, "%s\ncellforce-lammps: ranks: %s\n", line, where.c_str());
 }
