@@ -131,6 +131,16 @@ double PairCellforce::init_one(int i, int j) {
   return cut_global_;
 }
 
+// The dimension, cutoff, shift and every type pair's coefficients: a context made for them serves
+// until one of them changes (LAMMPS's init before every run marks the pair stale whether or not).
+std::vector<double> PairCellforce::physics() const {
+  const int n = atom->ntypes;
+  std::vector<double> key = {double(domain->dimension), cut_global_, double(offset_flag), double(n)};
+  for (int i = 1; i <= n; ++i)
+    for (int j = i; j <= n; ++j) key.insert(key.end(), {epsilon_[i][j], sigma_[i][j]});
+  return key;
+}
+
 void PairCellforce::make_context() {
   const int dim = domain->dimension;
   ctx_ = std::make_unique<cellforce::Context>(dim);
@@ -163,13 +173,20 @@ void PairCellforce::make_context() {
 void PairCellforce::compute(int eflag, int vflag) {
   const auto started = Clock::now();
   ev_init(eflag, vflag);
-  const bool making = stale_ || !ctx_;  // this call makes the engine (its first, setup's, is timed apart)
-  if (making) {
-    try {
-      make_context();
-    } catch (const std::exception& e) {
-      error->one(FLERR, said(e));
+  // A context made again only for new physics (a run's setup call then; timed apart from the rest).
+  bool making = false;
+  if (stale_ || !ctx_) {
+    std::vector<double> now = physics();
+    making = !ctx_ || now != made_for_;
+    if (making) {
+      try {
+        make_context();
+      } catch (const std::exception& e) {
+        error->one(FLERR, said(e));
+      }
+      made_for_ = std::move(now);
     }
+    stale_ = false;
   }
   const int dim = domain->dimension;
   const int nlocal = atom->nlocal, nghost = atom->nghost, n = nlocal + nghost;
@@ -234,12 +251,12 @@ void PairCellforce::compute(int eflag, int vflag) {
       vatom[i][4] += at(m, 0, 2);
       vatom[i][5] += at(m, 1, 2);
     }
-  const cellforce::Statistics engine = ctx_->statistics();
   if (making) {
     times_.making_calls += 1;
     times_.making += seconds(Clock::now() - started);
     return;
   }
+  const cellforce::Statistics engine = ctx_->statistics();
   times_.calls += 1;
   times_.cellforce += seconds(returned - called);
   times_.stages += engine.pipeline_seconds;
@@ -248,8 +265,8 @@ void PairCellforce::compute(int eflag, int vflag) {
 
 // Rank 0 says where the pair's time went over the script, averaged over the ranks (and the most
 // any rank took): the whole compute_local call, the engine's stages in it (device time on CUDA),
-// and the pair's own packing and adding around it; the calls that made the engine (the first of a
-// script, and any after its physics changed) apart, whole.
+// and the pair's own packing and adding around it; the calls that made the context (the script's
+// first, and a run's setup call after the physics changed) apart, whole.
 void PairCellforce::report_times() {
   if (times_.calls == 0 && times_.making_calls == 0) return;
   double mine[4] = {times_.cellforce, times_.stages, times_.pair, times_.making}, sum[4] = {}, most[4] = {};
@@ -264,23 +281,23 @@ void PairCellforce::report_times() {
   std::string where;
   for (const auto& [d, count] : ranks_on)
     where += (where.empty() ? "" : ", ") + std::to_string(count) + (d < 0 ? " on the CPU" : " on GPU " + std::to_string(d));
-  char line[512];
+  char line[512] = "";
   int at = 0;
   if (times_.calls > 0) {
     const double per = 1e3 / (double(times_.calls) * comm->nprocs), top = 1e3 / double(times_.calls);
     at = std::snprintf(line, sizeof line,
                        "cellforce-lammps: %lld force calls; ms a call, averaged over ranks (the slowest rank): "
                        "compute_local %.3f (%.3f), of it the engine's stages %.3f (%.3f); the pair's packing and "
-                       "adding %.3f (%.3f); ",
-                       static_cast<long long>(times_.calls), sum[0] * per, most[0] * top, sum[1] * per,
+                       "adding %.3f (%.3f)",
+                       times_.calls, sum[0] * per, most[0] * top, sum[1] * per,
                        most[1] * top, sum[2] * per, most[2] * top);
   } else {
     at = std::snprintf(line, sizeof line, "cellforce-lammps: ");
   }
   const long long making = times_.making_calls;
   if (making > 0 && at >= 0 && std::size_t(at) < sizeof line)
-    std::snprintf(line + at, sizeof line - std::size_t(at), "%lld call%s that made the engine: %.3f ms each (%.3f)",
-                  making, making == 1 ? "" : "s", 1e3 * sum[3] / (double(making) * comm->nprocs),
+    std::snprintf(line + at, sizeof line - std::size_t(at), "%s%lld call%s that made the engine: %.3f ms each (%.3f)",
+                  times_.calls > 0 ? "; " : "", making, making == 1 ? "" : "s", 1e3 * sum[3] / (double(making) * comm->nprocs),
                   1e3 * most[3] / double(making));
   for (FILE* f : {screen, logfile})
     if (f) std::fprintf(f, "%s\ncellforce-lammps: ranks: %s\n", line, where.c_str());

@@ -41,20 +41,22 @@ class PairCellforce : public LAMMPS_NS::Pair {
  private:
   void allocate();
   void make_context();  // the context for the physics now (types, pairs, cutoff, shift)
+  std::vector<double> physics() const;  // what make_context reads, to compare
   void report_times();   // rank 0 prints where the time of the calls went (a collective call)
   using Clock = std::chrono::steady_clock;
 
   double cut_global_ = 0;
   double** epsilon_ = nullptr;  // [type][type], 1-based as LAMMPS's
   double** sigma_ = nullptr;
-  bool stale_ = true;  // the physics changed since the context was made
+  bool stale_ = true;  // set by pair_style, pair_coeff and every init (each run's setup): compare again
+  std::vector<double> made_for_;  // physics() of the context made last
   bool described_ = false;  // rank 0 has printed its engine
   int device_ = -1;         // the CUDA device this rank computes on (-1: the CPU)
   std::unique_ptr<cellforce::Context> ctx_;
   std::vector<double> positions_;  // 2D scripts: the rows packed to 2 columns
   std::vector<double> forces_, energies_, virials_;
   std::vector<uint32_t> types_;
-  struct Times {  // seconds over the calls so far: those that made the engine apart from the rest
+  struct Times {  // seconds over the calls so far: those that made the context apart from the rest
     long long calls = 0, making_calls = 0;
     double cellforce = 0, stages = 0, pair = 0, making = 0;
   } times_;

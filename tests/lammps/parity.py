@@ -3,8 +3,9 @@
 
 For in.lj (4,000 atoms; LAMMPS's lists rebuilt every step so that its own run is exact), in.binary
 (two types, explicit pair_coeff lines, pair_modify shift yes), the same with the unlike pair mixed
-by LAMMPS (arithmetic), in.2d (800 atoms in the plane) and in.lj with `-sf opt` (LAMMPS's
-lj/cut/opt, and cellforce under that name), in double precision on the CPU backend (--backend cuda: on
+by LAMMPS (arithmetic), the same as four runs with the unlike pair changed between the second and
+third (the engine made twice, no more, as the program reports), in.2d (800 atoms in the plane) and
+in.lj with `-sf opt` (LAMMPS's lj/cut/opt, and cellforce under that name), in double precision on the CPU backend (--backend cuda: on
 the GPU, the same checks; with --gpus G as well, each run's count of ranks on each GPU checked
 against the rank rule, rank r on GPU r mod G, as the program reports the device each rank's engine was
 given; one node, so the rule's node-local rank is the rank):
@@ -104,8 +105,15 @@ def main() -> int:
         mixed = work / "in.mixed"
         mixed.write_text((systems / "in.binary").read_text().replace("pair_coeff      1 2 1.5 0.8\n", "")
                          .replace("pair_modify     shift yes", "pair_modify     shift yes mix arithmetic"))
+        # in.binary as four runs, the unlike pair's coefficients changed before the third and the last
+        # without setup (`pre no`): a context is kept across runs only while the physics is the same
+        runs = work / "in.runs"
+        runs.write_text((systems / "in.binary").read_text().replace(
+            "run             ${steps}\n",
+            "run             25\nrun             25\npair_coeff      1 2 1.2 0.9\nrun             25\n"
+            "run             25 pre no\n"))
         cases = [("in.lj", ["-var", "cells", "10", "-var", "every", "1", "-var", "check", "yes"]), ("in.binary", []),
-                 (str(mixed), []),
+                 (str(mixed), []), (str(runs), []),
                  ("in.2d", []), ("in.lj", ["-var", "cells", "10", "-var", "every", "1", "-var", "check", "yes",
                                            "-sf", "opt"])]
         for script, variables in cases:
@@ -123,6 +131,9 @@ def main() -> int:
                       f"({p.stderr.strip()[-300:]})")
                 got = thermo(p.stdout)
                 by_ranks[ranks] = got
+                if script == str(runs):  # made for the first run and again for the changed pair only
+                    check("2 calls that made the engine" in p.stdout,
+                          f"{script}, {ranks} ranks: the engine made for the first run and the changed pair_coeff")
                 if args.backend == "cuda" and args.gpus > 0:
                     on = [sum(1 for r in range(ranks) if r % args.gpus == g) for g in range(args.gpus)]
                     placement = ", ".join(f"{count} on GPU {g}" for g, count in enumerate(on) if count)
