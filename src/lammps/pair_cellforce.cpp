@@ -295,10 +295,11 @@ void PairCellforce::report_times() {
     at = std::snprintf(line, sizeof line, "cellforce-lammps: ");
   }
   const long long making = times_.making_calls;
-  if (making > 0 && at >= 0 && std::size_t(at) < sizeof line)
+  if (making > 0 && at >= 0 && std::size_t(at) < sizeof line) {
+    const double each = 1e3 * sum[3] / (double(making) * comm->nprocs), slowest = 1e3 * most[3] / double(making);
     std::snprintf(line + at, sizeof line - std::size_t(at), "%s%lld call%s that made the engine: %.3f ms each (%.3f)",
-                  times_.calls > 0 ? "; " : "", making, making == 1 ? "" : "s", 1e3 * sum[3] / (double(making) * comm->nprocs),
-                  1e3 * most[3] / double(making));
+                  times_.calls > 0 ? "; " : "", making, making == 1 ? "" : "s", each, slowest);
+  }
   for (FILE* f : {screen, logfile})
     if (f) std::fprintf(f, "%s\ncellforce-lammps: ranks: %s\n", line, where.c_str());
 }
