@@ -120,10 +120,11 @@ int main(int argc, char** argv) {
   MPI_Comm_rank(node, &local);
   MPI_Comm_size(node, &local_ranks);
   MPI_Comm_free(&node);
-  std::string device_rule;
+  std::string device = given[3], device_rule;
   const int gpus = cuda_devices();
-  if (given[3].empty() && gpus > 0) {
-    options.emplace_back("device", std::to_string(local % gpus));
+  if (device.empty() && gpus > 0) {
+    device = std::to_string(local % gpus);
+    options.emplace_back("device", device);
     device_rule = ", device: the node's rank mod " + std::to_string(gpus);
   }
   // The rank's GPU made this process's current device (unless it runs on the CPU), so that no call
@@ -131,8 +132,7 @@ int main(int argc, char** argv) {
   // own GPU's).
   std::string backend = given[0];
   for (char& c : backend) c = char(std::tolower(static_cast<unsigned char>(c)));
-  if (backend != "cpu")
-    select_device(given[3].empty() ? (gpus > 0 ? local % gpus : -1) : std::atoi(given[3].c_str()), gpus);
+  if (backend != "cpu" && !device.empty()) select_device(std::atoi(device.c_str()), gpus);
   if (!std::getenv("CELLFORCE_THREADS")) {
     const unsigned cores = std::thread::hardware_concurrency();
     options.emplace_back("threads", std::to_string(std::max(1u, cores / unsigned(std::max(1, local_ranks)))));

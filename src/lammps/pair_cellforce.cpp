@@ -154,7 +154,6 @@ void PairCellforce::make_context() {
   for (int t = 1; t <= n; ++t) ctx_->add_type(std::to_string(t), sigma_[t][t], epsilon_[t][t]);
   for (int i = 1; i <= n; ++i)
     for (int j = i + 1; j <= n; ++j) ctx_->set_pair(uint32_t(i - 1), uint32_t(j - 1), sigma_[i][j], epsilon_[i][j]);
-  stale_ = false;
   device_ = -1;
   if (ctx_->backend_name() == "cuda") {
     device_ = 0;
